@@ -1,0 +1,50 @@
+"""The ``tpnet`` console script.
+
+Each sub-command lives in the module that implements it: the module exposes
+``add_cli(subparsers)`` which registers its parser(s) and sets ``func`` on them. The
+modules are imported only when ``tpnet`` runs, so ``import tpnet_ref`` stays light.
+Errors that a user can fix (``ValueError``, ``TypeError``, ``FileNotFoundError``,
+``KeyError`` from a malformed file) become one line on stderr and exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+# module path -> the sub-commands it registers (for the record; each module's add_cli is called)
+COMMAND_MODULES: tuple[str, ...] = (
+    "tpnet_ref.model",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tpnet",
+        description="TP-Net reference implementation: predict, simulate, evaluate, convert weights.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).add_cli(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        rc = args.func(args)
+    except (ValueError, TypeError, FileNotFoundError, KeyError, OSError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"tpnet {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"tpnet {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return int(rc or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""TP-Net's layers as small NumPy functions (Keras semantics, as the released code uses).
+
+Shapes use these letters: ``P`` points (all frames concatenated), ``F`` frames, ``B`` windows
+in a batch, ``T`` time steps (= m), ``C`` channels, ``u`` LSTM units. Weights are stored the
+Keras way: a dense kernel is ``(in, out)`` and is applied on the right, ``x @ w + b``.
+Every function works in the dtype of its inputs (float32 or float64) and allocates nothing
+that it does not return.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def relu(x: np.ndarray) -> np.ndarray:
+    """Rectified linear unit, in place when ``x`` is a temporary. Shape preserved."""
+    return np.maximum(x, 0, out=x)
+
+
+def sigmoid(x: np.ndarray) -> np.ndarray:
+    """Logistic function that never overflows: ``exp`` only ever sees ``-|x|``. Shape preserved."""
+    e = np.exp(-np.abs(x))
+    return np.where(x >= 0, 1.0 / (1.0 + e), e / (1.0 + e)).astype(x.dtype, copy=False)
+
+
+def dense(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None,
+          activation: str | None = None) -> np.ndarray:
+    """Fully connected layer. ``x (..., in) @ w (in, out) + b (out,)`` -> ``(..., out)``."""
+    y = x @ w
+    if b is not None:
+        y += b
+    if activation == "relu":
+        relu(y)
+    elif activation == "sigmoid":
+        y = sigmoid(y)
+    elif activation is not None:
+        raise ValueError(f"unknown activation {activation!r}")
+    return y
+
+
+def pointwise_mlp(x: np.ndarray, layers: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Shared per-point MLP (the released code's 1x1 convolutions), ReLU after every layer.
+
+    ``x (P, C_in)`` -> ``(P, C_out)``; ``layers`` is a list of ``(w (C_i, C_i+1), b (C_i+1,))``.
+    Each point's row is computed independently of the others.
+    """
+    for w, b in layers:
+        x = dense(x, w, b, "relu")
+    return x
+
+
+def segment_max(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Max-pool over the points of each frame (the symmetric function of PointNet).
+
+    ``x (P, C)`` with the frames' points stored one frame after another, ``counts (F,)`` the
+    points per frame (each >= 1, summing to P) -> ``(F, C)``.
+    """
+    counts = np.asarray(counts)
+    if counts.size and np.all(counts == counts[0]):
+        return x.reshape(counts.size, int(counts[0]), x.shape[-1]).max(axis=1)
+    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    return np.maximum.reduceat(x, starts, axis=0)
+
+
+def apply_transform(x: np.ndarray, transforms: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Right-multiply every frame's points by its own matrix: ``P_f <- P_f @ T_f``.
+
+    ``x (P, K)``, ``transforms (F, K, K)``, ``counts (F,)`` -> ``(P, K)``.
+    """
+    counts = np.asarray(counts)
+    if np.all(counts == counts[0]):
+        n = int(counts[0])
+        return np.matmul(x.reshape(counts.size, n, x.shape[-1]), transforms).reshape(x.shape)
+    out = np.empty_like(x)
+    start = 0
+    for t, n in zip(transforms, counts):
+        out[start:start + n] = x[start:start + n] @ t
+        start += n
+    return out
+
+
+def transform_net(x: np.ndarray, counts: np.ndarray,
+                  mlp: Sequence[tuple[np.ndarray, np.ndarray]],
+                  fc: Sequence[tuple[np.ndarray, np.ndarray]],
+                  out: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """PointNet's T-Net: per-point MLP, max over points, FC stack, linear FC to ``K*K``.
+
+    ``x (P, K)`` -> one ``(K, K)`` matrix per frame, ``(F, K, K)``. With ``out`` = (zeros,
+    flattened identity), as the released code initialises it, every matrix is the identity.
+    """
+    k = x.shape[-1]
+    g = segment_max(pointwise_mlp(x, mlp), counts)
+    for w, b in fc:
+        g = dense(g, w, b, "relu")
+    t = dense(g, *out)
+    return t.reshape(-1, k, k)
+
+
+def lstm(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
+         activation: str = "relu", reverse: bool = False) -> np.ndarray:
+    """One LSTM direction with Keras semantics, returning every hidden state.
+
+    ``x (B, T, C)``; ``kernel (C, 4u)``, ``recurrent (u, 4u)``, ``bias (4u,)`` with the gates
+    fused in Keras order input, forget, cell, output. Gates use the logistic sigmoid; the cell
+    candidate and the output use ``activation`` (``relu`` in the released code, or ``tanh``):
+
+        i, f, o = sigmoid(.), g = act(.), c = f*c + i*g, h = o*act(c).
+
+    Returns ``(B, T, u)`` where row ``t`` is the state after consuming step ``t``; with
+    ``reverse=True`` the sequence is consumed from the last step to the first, and row ``t``
+    is the state after consuming steps ``T-1 .. t`` (Keras's re-aligned backward output).
+    """
+    act = _activation(activation)
+    bsz, steps, _ = x.shape
+    u = recurrent.shape[0]
+    # the input projection of every step in one GEMM
+    xp = (x.reshape(bsz * steps, -1) @ kernel).reshape(bsz, steps, 4 * u)
+    xp += bias
+    h = np.zeros((bsz, u), dtype=x.dtype)
+    c = np.zeros((bsz, u), dtype=x.dtype)
+    out = np.empty((bsz, steps, u), dtype=x.dtype)
+    order = range(steps - 1, -1, -1) if reverse else range(steps)
+    for t in order:
+        z = xp[:, t] + h @ recurrent
+        i = sigmoid(z[:, :u])
+        f = sigmoid(z[:, u:2 * u])
+        g = act(z[:, 2 * u:3 * u])
+        o = sigmoid(z[:, 3 * u:])
+        c = f * c + i * g
+        h = o * act(c)
+        out[:, t] = h
+    return out
+
+
+def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
+                       bwd: tuple[np.ndarray, np.ndarray, np.ndarray], activation: str = "relu",
+                       return_sequences: bool = True) -> np.ndarray:
+    """Keras ``Bidirectional(LSTM)`` with ``merge_mode='concat'``.
+
+    ``x (B, T, C)``; ``fwd``/``bwd`` are (kernel, recurrent, bias) of each direction.
+    ``return_sequences=True`` -> ``(B, T, 2u)``, each step ``[forward_t, backward_t]``.
+    ``return_sequences=False`` -> ``(B, 2u)``: the forward state after the last step and the
+    backward state after it has consumed the whole reversed sequence (its row ``t = 0``).
+    """
+    hf = lstm(x, *fwd, activation=activation)
+    hb = lstm(x, *bwd, activation=activation, reverse=True)
+    if return_sequences:
+        return np.concatenate([hf, hb], axis=-1)
+    return np.concatenate([hf[:, -1], hb[:, 0]], axis=-1)
+
+
+def layer_norm(x: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: float) -> np.ndarray:
+    """Layer normalisation over the last axis (Keras: biased variance, ``eps`` inside the sqrt).
+
+    ``x (..., C)`` -> ``(..., C)``: ``(x - mean) / sqrt(var + eps) * gamma + beta``.
+    """
+    mean = x.mean(axis=-1, keepdims=True)
+    d = x - mean
+    var = np.mean(d * d, axis=-1, keepdims=True)
+    d *= (1.0 / np.sqrt(var + x.dtype.type(eps))).astype(x.dtype, copy=False)
+    d *= gamma
+    d += beta
+    return d
+
+
+def _relu_copy(x: np.ndarray) -> np.ndarray:
+    return np.maximum(x, 0)
+
+
+def _activation(name: str):
+    if name == "relu":
+        return _relu_copy
+    if name == "tanh":
+        return np.tanh
+    raise ValueError(f"unknown LSTM activation {name!r}: expected 'relu' or 'tanh'")

@@ -1,0 +1,412 @@
+"""TP-Net in NumPy: the config, the parameters and the forward pass (SPEC §2).
+
+Data flow for one window of ``m`` frames (``N`` points each, normalised coordinates):
+
+    frame (N, 2) --sort--> [input T-Net] -> MLP 2-64-64 -> [feature T-Net]
+        -> MLP 64-128-256-512 -> max over points (512) -> FC 512-128 ReLU  = G_t (128)
+    (G_{t-m+1} .. G_t) (m, 128) -> BiLSTM 512 -> LN -> BiLSTM 256 -> LN
+        -> BiLSTM 256 (last output) -> LN -> FC 512 -> N_out*2 sigmoid -> (N_out, 2)
+
+Every frame's global feature depends on that frame alone, so a batch computes all frames'
+features in one pass and a rollout computes each frame's features exactly once.
+
+Permutation invariance is exact, not approximate: each frame's points are put in a canonical
+order (lexicographic by x, then y) before the feature extractor, so every permutation of a
+frame produces the very same matrix and hence bit-identical output, whatever the BLAS does
+with row blocking. (Max-pooling alone is invariant in exact arithmetic only.)
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import layers as L
+from .validation import NonFiniteResultError, as_point_set, as_real_array
+
+#: world-unit range of the particle centres used for normalisation (SPEC §5)
+NORM_LO = 1.1438
+NORM_HI = 43.8562
+
+
+@dataclass(frozen=True)
+class TPNetConfig:
+    """Everything that fixes the network's shapes and semantics (defaults: the released model)."""
+
+    m: int = 4                                    # input frames per window
+    n_out: int = 30                               # points in the predicted set
+    dim: int = 2                                  # coordinates per point
+    input_tnet_mlp: tuple[int, ...] = (64, 128, 512)
+    input_tnet_fc: tuple[int, ...] = (256, 128)
+    mlp1: tuple[int, ...] = (64, 64)
+    feature_tnet_mlp: tuple[int, ...] = (64, 128, 512)
+    feature_tnet_fc: tuple[int, ...] = (256, 128)
+    mlp2: tuple[int, ...] = (128, 256, 512)
+    global_features: int = 128                    # k, the size of G_t
+    lstm_units: tuple[int, ...] = (512, 256, 256)
+    lstm_activation: str = "relu"                 # "relu" (released code) or "tanh"
+    layer_norm_eps: float = 1e-3                  # Keras default; PyTorch's is 1e-5
+    input_transform_trained: bool = False         # False: the 2x2 transform is the identity
+    feature_transform_trained: bool = False       # False: the 64x64 transform is the identity
+    norm_lo: float = NORM_LO                      # world units -> (x - lo) / (hi - lo)
+    norm_hi: float = NORM_HI
+
+    def __post_init__(self) -> None:
+        for name in ("m", "n_out", "dim", "global_features"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"TPNetConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("input_tnet_mlp", "input_tnet_fc", "mlp1", "feature_tnet_mlp",
+                     "feature_tnet_fc", "mlp2", "lstm_units"):
+            v = tuple(int(x) for x in getattr(self, name))
+            if not v or min(v) < 1:
+                raise ValueError(f"TPNetConfig.{name} must be non-empty positive widths, got {v}")
+            object.__setattr__(self, name, v)
+        if self.lstm_activation not in ("relu", "tanh"):
+            raise ValueError(f"TPNetConfig.lstm_activation must be 'relu' or 'tanh', "
+                             f"got {self.lstm_activation!r}")
+        if not (self.layer_norm_eps > 0 and math.isfinite(self.layer_norm_eps)):
+            raise ValueError(f"TPNetConfig.layer_norm_eps must be > 0, got {self.layer_norm_eps}")
+        if not (math.isfinite(self.norm_lo) and math.isfinite(self.norm_hi)
+                and self.norm_hi > self.norm_lo):
+            raise ValueError(f"TPNetConfig: need norm_lo < norm_hi, got {self.norm_lo}, {self.norm_hi}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "TPNetConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown TPNetConfig field(s): {sorted(unknown)}")
+        return cls(**d)
+
+
+def param_shapes(cfg: TPNetConfig) -> dict[str, tuple[int, ...]]:
+    """The name and shape of every parameter the config needs, in forward order.
+
+    Names: ``<block>.<layer>.w|b`` for dense/point-wise layers, ``lstmI.fwd|bwd.kernel|recurrent|bias``
+    (Keras layout and gate order i, f, c, o), ``lnI.gamma|beta``. Identity transform nets have no
+    parameters at all.
+    """
+    shapes: dict[str, tuple[int, ...]] = {}
+
+    def stack(prefix: str, cin: int, widths: Sequence[int]) -> int:
+        for i, cout in enumerate(widths):
+            shapes[f"{prefix}.{i}.w"] = (cin, cout)
+            shapes[f"{prefix}.{i}.b"] = (cout,)
+            cin = cout
+        return cin
+
+    def tnet(prefix: str, k: int, mlp: Sequence[int], fc: Sequence[int]) -> None:
+        stack(f"{prefix}.fc", stack(f"{prefix}.mlp", k, mlp), fc)
+        shapes[f"{prefix}.out.w"] = (fc[-1], k * k)
+        shapes[f"{prefix}.out.b"] = (k * k,)
+
+    if cfg.input_transform_trained:
+        tnet("input_tnet", cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
+    c = stack("mlp1", cfg.dim, cfg.mlp1)
+    if cfg.feature_transform_trained:
+        tnet("feature_tnet", c, cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
+    c = stack("mlp2", c, cfg.mlp2)
+    shapes["global.w"] = (c, cfg.global_features)
+    shapes["global.b"] = (cfg.global_features,)
+    c = cfg.global_features
+    for i, u in enumerate(cfg.lstm_units, start=1):
+        for d in ("fwd", "bwd"):
+            shapes[f"lstm{i}.{d}.kernel"] = (c, 4 * u)
+            shapes[f"lstm{i}.{d}.recurrent"] = (u, 4 * u)
+            shapes[f"lstm{i}.{d}.bias"] = (4 * u,)
+        c = 2 * u
+        shapes[f"ln{i}.gamma"] = (c,)
+        shapes[f"ln{i}.beta"] = (c,)
+    shapes["head.w"] = (c, cfg.n_out * cfg.dim)
+    shapes["head.b"] = (cfg.n_out * cfg.dim,)
+    return shapes
+
+
+def _as_dtype(dtype: Any) -> np.dtype:
+    dt = np.dtype(dtype)
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    return dt
+
+
+class TPNet:
+    """A TP-Net with its parameters in one dtype. Build it with :func:`init_random`,
+    :func:`tpnet_ref.load` or an importer in :mod:`tpnet_ref.weights`."""
+
+    def __init__(self, config: TPNetConfig, params: dict[str, np.ndarray],
+                 dtype: Any = "float32", meta: dict[str, Any] | None = None) -> None:
+        self.config = config
+        self.dtype = _as_dtype(dtype)
+        self.meta: dict[str, Any] = dict(meta or {})
+        expected = param_shapes(config)
+        missing = [k for k in expected if k not in params]
+        extra = [k for k in params if k not in expected]
+        if missing or extra:
+            raise ValueError(f"parameters do not fit the config: missing {missing}, unexpected {extra}")
+        self.params: dict[str, np.ndarray] = {}
+        for name, shape in expected.items():
+            p = as_real_array(params[name], f"parameter {name!r}")
+            if p.shape != shape:
+                raise ValueError(f"parameter {name!r}: expected shape {shape}, got {p.shape}")
+            if not np.isfinite(p).all():
+                raise ValueError(f"parameter {name!r}: contains NaN or infinite values")
+            self.params[name] = np.ascontiguousarray(p, dtype=self.dtype)
+        self._prepare()
+
+    # ----------------------------------------------------------------- set-up
+    def _prepare(self) -> None:
+        """Group the parameters the way the forward pass consumes them."""
+        cfg, p = self.config, self.params
+
+        def stack(prefix: str, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+            return [(p[f"{prefix}.{i}.w"], p[f"{prefix}.{i}.b"]) for i in range(n)]
+
+        def tnet(prefix: str, mlp: Sequence[int], fc: Sequence[int]):
+            return (stack(f"{prefix}.mlp", len(mlp)), stack(f"{prefix}.fc", len(fc)),
+                    (p[f"{prefix}.out.w"], p[f"{prefix}.out.b"]))
+
+        self._input_tnet = (tnet("input_tnet", cfg.input_tnet_mlp, cfg.input_tnet_fc)
+                            if cfg.input_transform_trained else None)
+        self._mlp1 = stack("mlp1", len(cfg.mlp1))
+        self._feature_tnet = (tnet("feature_tnet", cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
+                              if cfg.feature_transform_trained else None)
+        self._mlp2 = stack("mlp2", len(cfg.mlp2))
+        self._lstms = [
+            (tuple(p[f"lstm{i}.fwd.{k}"] for k in ("kernel", "recurrent", "bias")),
+             tuple(p[f"lstm{i}.bwd.{k}"] for k in ("kernel", "recurrent", "bias")),
+             p[f"ln{i}.gamma"], p[f"ln{i}.beta"])
+            for i in range(1, len(cfg.lstm_units) + 1)
+        ]
+        self._lo = self.dtype.type(cfg.norm_lo)
+        self._scale = self.dtype.type(cfg.norm_hi - cfg.norm_lo)
+
+    def astype(self, dtype: Any) -> "TPNet":
+        """The same network with its parameters in ``dtype`` (float32 or float64)."""
+        return TPNet(self.config, self.params, dtype, self.meta)
+
+    @property
+    def num_params(self) -> int:
+        """Number of stored parameters (identity transform nets count zero)."""
+        return int(sum(p.size for p in self.params.values()))
+
+    def __repr__(self) -> str:
+        c = self.config
+        return (f"TPNet(m={c.m}, n_out={c.n_out}, lstm={c.lstm_units}, act={c.lstm_activation}, "
+                f"transforms={'trained' if c.input_transform_trained else 'identity'}/"
+                f"{'trained' if c.feature_transform_trained else 'identity'}, "
+                f"params={self.num_params:,}, dtype={self.dtype.name})")
+
+    def save(self, path: str, **provenance: Any) -> None:
+        """Write the native HDF5 weights file (see :mod:`tpnet_ref.weights`)."""
+        from .weights import save_native
+        save_native(self, path, **provenance)
+
+    # ------------------------------------------------------------ coordinates
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        """World units -> model coordinates (SPEC §5)."""
+        return (x - self._lo) / self._scale
+
+    def denormalize(self, x: np.ndarray) -> np.ndarray:
+        """Model coordinates -> world units."""
+        return x * self._scale + self._lo
+
+    # ---------------------------------------------------------------- forward
+    def frame_features(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
+        """Global feature ``G`` of every frame.
+
+        ``points (P, dim)``: the frames' points one frame after another, each frame already in
+        canonical order (see :func:`canonical_order`); ``counts (F,)`` points per frame
+        -> ``(F, global_features)``.
+        """
+        x = points
+        if self._input_tnet is not None:
+            x = L.apply_transform(x, L.transform_net(x, counts, *self._input_tnet), counts)
+        h = L.pointwise_mlp(x, self._mlp1)
+        if self._feature_tnet is not None:
+            h = L.apply_transform(h, L.transform_net(h, counts, *self._feature_tnet), counts)
+        h = L.pointwise_mlp(h, self._mlp2)
+        g = L.segment_max(h, counts)
+        return L.dense(g, self.params["global.w"], self.params["global.b"], "relu")
+
+    def sequence_head(self, features: np.ndarray) -> np.ndarray:
+        """Prediction network: ``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1]."""
+        act = self.config.lstm_activation
+        eps = self.config.layer_norm_eps
+        h = features
+        last = len(self._lstms) - 1
+        with np.errstate(over="ignore", invalid="ignore"):
+            for i, (fwd, bwd, gamma, beta) in enumerate(self._lstms):
+                h = L.bidirectional_lstm(h, fwd, bwd, act, return_sequences=i < last)
+                h = L.layer_norm(h, gamma, beta, eps)
+            y = L.dense(h, self.params["head.w"], self.params["head.b"], "sigmoid")
+        if not np.isfinite(y).all():
+            raise NonFiniteResultError(
+                f"the prediction network overflowed in {self.dtype.name} (the ReLU LSTM's state is "
+                "unbounded); the input is far outside the training range — try dtype='float64'")
+        return y.reshape(-1, self.config.n_out, self.config.dim)
+
+    # ------------------------------------------------------------ public API
+    def _frames_to_features(self, frames: list[np.ndarray], normalized: bool) -> np.ndarray:
+        """Validated frames (each ``(N_i, dim)``) -> their global features ``(F, k)``."""
+        counts = np.fromiter((f.shape[0] for f in frames), dtype=np.intp, count=len(frames))
+        pts = np.concatenate(frames, axis=0).astype(self.dtype, copy=False)
+        if not normalized:
+            pts = self.normalize(pts)
+        else:
+            pts = pts + self.dtype.type(0.0)  # a copy, and -0.0 -> +0.0 for a canonical order
+        pts = pts[canonical_order(pts, counts)]
+        return self.frame_features(pts, counts)
+
+    def _check_window(self, window: Any, name: str) -> list[np.ndarray]:
+        m, dim = self.config.m, self.config.dim
+        if isinstance(window, np.ndarray) or not isinstance(window, Sequence):
+            arr = as_real_array(window, name)
+            if arr.ndim != 3 or arr.shape[-1] != dim:
+                raise ValueError(f"{name}: expected shape (m={m}, N, {dim}) or a sequence of m "
+                                 f"arrays (N_i, {dim}), got an array of shape {arr.shape}")
+            frames = [arr[i] for i in range(arr.shape[0])]
+        else:
+            frames = list(window)
+        if len(frames) != m:
+            raise ValueError(f"{name}: the model takes m={m} frames, got {len(frames)}")
+        return [as_point_set(f, f"{name}[{i}]", dim) for i, f in enumerate(frames)]
+
+    def predict(self, window: Any, normalized: bool = False) -> np.ndarray:
+        """Next point set. ``window``: ``(m, N, dim)`` or m arrays ``(N_i, dim)`` -> ``(n_out, dim)``."""
+        return self.predict_batch([window], normalized=normalized)[0]
+
+    def predict_batch(self, windows: Any, normalized: bool = False) -> np.ndarray:
+        """Next point set of each window: ``(B, m, N, dim)`` or B windows -> ``(B, n_out, dim)``."""
+        if isinstance(windows, np.ndarray):
+            arr = as_real_array(windows, "windows")
+            if arr.ndim != 4:
+                raise ValueError(f"windows: expected shape (B, m, N, {self.config.dim}) or a "
+                                 f"sequence of windows, got an array of shape {arr.shape}")
+            windows = list(arr)
+        elif not isinstance(windows, Sequence) or isinstance(windows, (str, bytes)):
+            raise TypeError(f"windows: expected an array or a sequence of windows, "
+                            f"got {type(windows).__name__}")
+        if len(windows) == 0:
+            raise ValueError("windows: empty batch")
+        frames: list[np.ndarray] = []
+        for b, w in enumerate(windows):
+            frames.extend(self._check_window(w, f"windows[{b}]"))
+        g = self._frames_to_features(frames, normalized)
+        y = self.sequence_head(g.reshape(len(windows), self.config.m, -1))
+        return y if normalized else self.denormalize(y)
+
+    def rollout(self, window: Any, steps: int, normalized: bool = False) -> np.ndarray:
+        """Recursive prediction: ``steps`` future point sets ``(steps, n_out, dim)``.
+
+        After each step the window slides by one frame and the prediction becomes its newest
+        frame. Each frame's global feature is computed once and kept.
+        """
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise ValueError(f"steps: expected a positive integer, got {steps!r}")
+        frames = self._check_window(window, "window")
+        m = self.config.m
+        feats = np.empty((m + int(steps), self.config.global_features), dtype=self.dtype)
+        feats[:m] = self._frames_to_features(frames, normalized)
+        out = np.empty((int(steps), self.config.n_out, self.config.dim), dtype=self.dtype)
+        ones = np.array([self.config.n_out])
+        for s in range(int(steps)):
+            y = self.sequence_head(feats[None, s:s + m])[0]
+            out[s] = y
+            feats[m + s] = self.frame_features(y[canonical_order(y, ones)], ones)[0]
+        return out if normalized else self.denormalize(out)
+
+
+def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Indices that sort each frame's points by x, then y (then the remaining coordinates).
+
+    ``points (P, dim)``, ``counts (F,)`` -> ``(P,)`` indices into ``points``. Points that tie
+    on every coordinate are identical rows, so the sorted matrix does not depend on the input
+    order at all.
+    """
+    frame_id = np.repeat(np.arange(len(counts)), counts)
+    keys = [points[:, d] for d in range(points.shape[1] - 1, -1, -1)] + [frame_id]
+    return np.lexsort(keys)
+
+
+def init_random(config: TPNetConfig | None = None, seed: int = 0, dtype: Any = "float32",
+                transform_scale: float = 0.1) -> TPNet:
+    """A randomly initialised TP-Net (Glorot-uniform kernels, small random biases, LSTM forget
+    bias 1, non-trivial transform nets when the config asks for trained ones), for tests and
+    benchmarks. Deterministic in ``seed``.
+    """
+    cfg = config or TPNetConfig()
+    rng = np.random.default_rng(seed)
+    params: dict[str, np.ndarray] = {}
+    for name, shape in param_shapes(cfg).items():
+        if len(shape) == 2:
+            limit = math.sqrt(6.0 / (shape[0] + shape[1]))
+            if name.endswith(".out.w"):
+                limit = transform_scale / math.sqrt(shape[0])
+            params[name] = rng.uniform(-limit, limit, size=shape)
+        elif name.endswith(".out.b"):
+            k = int(round(math.sqrt(shape[0])))
+            params[name] = np.eye(k).ravel() + rng.uniform(-transform_scale, transform_scale, shape)
+        elif name.endswith("gamma"):
+            params[name] = 1.0 + rng.uniform(-0.2, 0.2, size=shape)
+        elif name.endswith(".bias") and name.startswith("lstm"):
+            u = shape[0] // 4
+            b = rng.uniform(-0.1, 0.1, size=shape)
+            b[u:2 * u] += 1.0  # Keras unit_forget_bias
+            params[name] = b
+        else:
+            params[name] = rng.uniform(-0.1, 0.1, size=shape)
+    return TPNet(cfg, params, dtype, meta={"producer": "tpnet_ref.model.init_random",
+                                           "seed": int(seed)})
+
+
+# ------------------------------------------------------------------------ CLI
+def add_cli(sub: Any) -> None:
+    p = sub.add_parser("info", help="describe a weights file (config, parameters, provenance)")
+    p.add_argument("weights", nargs="?", default=None,
+                   help="native weights file (default: the shipped m=4 model)")
+    p.set_defaults(func=_cli_info)
+
+    p = sub.add_parser("predict", help="predict the next point set(s) from a window in a .npy file")
+    p.add_argument("window", help=".npy file holding an (m, N, 2) window in world units")
+    p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
+    p.add_argument("--steps", type=int, default=1, help="frames to roll out (default 1)")
+    p.add_argument("--normalized", action="store_true", help="window is in model coordinates")
+    p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
+    p.add_argument("-o", "--output", default=None, help=".npy file for the (steps, n_out, 2) result")
+    p.set_defaults(func=_cli_predict)
+
+
+def _cli_info(args: Any) -> int:
+    from .weights import load
+    model = load(args.weights, dtype="float64")
+    print(model)
+    for k, v in model.config.to_dict().items():
+        print(f"  {k:26s} {v}")
+    for k, v in sorted(model.meta.items()):
+        print(f"  meta.{k:21s} {v}")
+    return 0
+
+
+def _cli_predict(args: Any) -> int:
+    from .weights import load
+    model = load(args.weights, dtype=args.dtype)
+    window = np.load(args.window, allow_pickle=False)
+    out = model.rollout(window, args.steps, normalized=args.normalized)
+    if args.output:
+        np.save(args.output, out)
+        print(f"wrote {out.shape} to {args.output}")
+    else:
+        np.set_printoptions(precision=4, suppress=True)
+        print(out)
+    return 0
+
+
+__all__ = ["TPNetConfig", "TPNet", "param_shapes", "init_random", "canonical_order",
+           "NORM_LO", "NORM_HI"]
