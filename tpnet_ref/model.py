@@ -280,7 +280,7 @@ class TPNet:
 
     def predict(self, window: Any, normalized: bool = False) -> np.ndarray:
         """Next point set. ``window``: ``(m, N, dim)`` or m arrays ``(N_i, dim)`` -> ``(n_out, dim)``."""
-        return self.predict_batch([window], normalized=normalized)[0]
+        return self._predict_frames(self._check_window(window, "window"), 1, normalized)[0]
 
     def predict_batch(self, windows: Any, normalized: bool = False) -> np.ndarray:
         """Next point set of each window: ``(B, m, N, dim)`` or B windows -> ``(B, n_out, dim)``."""
@@ -298,8 +298,12 @@ class TPNet:
         frames: list[np.ndarray] = []
         for b, w in enumerate(windows):
             frames.extend(self._check_window(w, f"windows[{b}]"))
+        return self._predict_frames(frames, len(windows), normalized)
+
+    def _predict_frames(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
+        """``batch * m`` validated frames, window after window -> ``(batch, n_out, dim)``."""
         g = self._frames_to_features(frames, normalized)
-        y = self.sequence_head(g.reshape(len(windows), self.config.m, -1))
+        y = self.sequence_head(g.reshape(batch, self.config.m, -1))
         return y if normalized else self.denormalize(y)
 
     def rollout(self, window: Any, steps: int, normalized: bool = False) -> np.ndarray:

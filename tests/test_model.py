@@ -1,0 +1,255 @@
+"""The NumPy forward pass: layer semantics, exactness, API equivalences, weights round trip."""
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import tpnet_ref
+from tpnet_ref.model import NORM_HI, NORM_LO, TPNetConfig, init_random, param_shapes
+
+import reference_python as ref
+
+TINY = TPNetConfig(m=3, n_out=3, input_tnet_mlp=(3, 2), input_tnet_fc=(2,), mlp1=(2, 3),
+                   feature_tnet_mlp=(2,), feature_tnet_fc=(3, 2), mlp2=(3, 2), global_features=2,
+                   lstm_units=(2, 1, 3), input_transform_trained=True,
+                   feature_transform_trained=True)
+
+
+def _as_lists(params):
+    return {k: v.tolist() for k, v in params.items()}
+
+
+def _window(rng, m=4, n=30, lo=5.0, hi=40.0):
+    return rng.uniform(lo, hi, size=(m, n, 2))
+
+
+@pytest.fixture(scope="module")
+def model64():
+    return init_random(seed=3, dtype="float64")
+
+
+@pytest.fixture(scope="module")
+def model32(model64):
+    return model64.astype("float32")
+
+
+# --------------------------------------------------------------- layer semantics
+@pytest.mark.parametrize("act", ["relu", "tanh"])
+@pytest.mark.parametrize("transforms", [True, False])
+def test_tiny_network_matches_scalar_reference(act, transforms):
+    cfg = dataclasses.replace(TINY, lstm_activation=act, input_transform_trained=transforms,
+                              feature_transform_trained=transforms, layer_norm_eps=0.37)
+    model = init_random(cfg, seed=11, dtype="float64", transform_scale=0.5)
+    rng = np.random.default_rng(5)
+    window = [rng.uniform(-1, 2, size=(n, 2)) for n in (4, 1, 6)]  # ragged on purpose
+    got = model.predict(window, normalized=True)
+    want = np.array(ref.predict_normalized([w.tolist() for w in window], _as_lists(model.params), cfg))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-13)
+
+
+def test_scalar_reference_sees_gate_order_and_eps():
+    """Guard the guard: swapping two gates or changing eps must change the reference's answer."""
+    cfg = dataclasses.replace(TINY, layer_norm_eps=0.37)
+    model = init_random(cfg, seed=2, dtype="float64", transform_scale=0.5)
+    window = [np.random.default_rng(1).uniform(0, 1, size=(5, 2)) for _ in range(3)]
+    base = model.predict(window, normalized=True)
+    p = dict(model.params)
+    u = cfg.lstm_units[0]
+    for key in ("lstm1.fwd.kernel", "lstm1.fwd.recurrent", "lstm1.fwd.bias"):
+        a = p[key].copy()
+        a[..., 0:u], a[..., u:2 * u] = p[key][..., u:2 * u], p[key][..., 0:u]  # swap i and f
+        p[key] = a
+    swapped = type(model)(cfg, p, "float64").predict(window, normalized=True)
+    assert np.abs(swapped - base).max() > 1e-6
+    other_eps = type(model)(dataclasses.replace(cfg, layer_norm_eps=1e-5), model.params, "float64")
+    assert np.abs(other_eps.predict(window, normalized=True) - base).max() > 1e-6
+
+
+def test_bidirectional_last_output_uses_backward_state_at_first_step():
+    """return_sequences=False: backward half = backward LSTM after the whole reversed sequence."""
+    from tpnet_ref import layers as L
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(2, 5, 3))
+    w = [(rng.normal(size=(3, 8)), rng.normal(size=(2, 8)), rng.normal(size=8)) for _ in range(2)]
+    full = L.bidirectional_lstm(x, w[0], w[1], "relu", return_sequences=True)
+    last = L.bidirectional_lstm(x, w[0], w[1], "relu", return_sequences=False)
+    np.testing.assert_array_equal(last[:, :2], full[:, -1, :2])
+    np.testing.assert_array_equal(last[:, 2:], full[:, 0, 2:])
+    # the backward direction equals a forward LSTM over the time-reversed input, re-aligned
+    back = L.lstm(x[:, ::-1].copy(), *w[1], activation="relu")[:, ::-1]
+    np.testing.assert_allclose(full[:, :, 2:], back, atol=1e-12)
+
+
+def test_sigmoid_is_stable_at_extremes():
+    from tpnet_ref.layers import sigmoid
+    x = np.array([-1e4, -50.0, 0.0, 50.0, 1e4], dtype=np.float32)
+    with np.errstate(over="raise", invalid="raise", divide="raise"):
+        y = sigmoid(x)
+    assert y.dtype == np.float32
+    np.testing.assert_allclose(y, [0.0, 1.9287e-22, 0.5, 1.0, 1.0], rtol=1e-4, atol=0)
+
+
+# ------------------------------------------------------------------ the network
+def test_released_shapes_and_parameter_count():
+    full = TPNetConfig(input_transform_trained=True, feature_transform_trained=True)
+    shapes = param_shapes(full)
+    assert shapes["input_tnet.out.w"] == (128, 4) and shapes["feature_tnet.out.w"] == (128, 4096)
+    assert shapes["lstm1.fwd.kernel"] == (128, 2048) and shapes["lstm1.fwd.recurrent"] == (512, 2048)
+    assert shapes["lstm2.bwd.kernel"] == (1024, 1024) and shapes["lstm3.fwd.kernel"] == (512, 1024)
+    assert shapes["ln1.gamma"] == (1024,) and shapes["head.w"] == (512, 60)
+    n_full = sum(int(np.prod(s)) for s in shapes.values())
+    assert n_full == 8_112_192  # SPEC: "about 8.1 million"
+    n_released = sum(int(np.prod(s)) for s in param_shapes(TPNetConfig()).values())
+    assert n_released < n_full  # identity transform nets carry no parameters
+
+
+def test_output_shape_range_and_units(model32):
+    rng = np.random.default_rng(0)
+    y = tpnet_ref.predict(_window(rng), model=model32)
+    assert y.shape == (30, 2) and y.dtype == np.float32
+    assert np.all(y >= NORM_LO - 1e-4) and np.all(y <= NORM_HI + 1e-4)  # sigmoid head, denormalised
+    yn = model32.predict(model32.normalize(_window(np.random.default_rng(0))), normalized=True)
+    np.testing.assert_allclose(model32.denormalize(yn), y, atol=1e-4)
+
+
+def test_predict_batch_equals_predict(model32, model64):
+    rng = np.random.default_rng(1)
+    windows = np.stack([_window(rng) for _ in range(7)])
+    for model, tol in ((model64, 1e-11), (model32, 5e-4)):
+        batch = tpnet_ref.predict_batch(windows, model=model)
+        single = np.stack([tpnet_ref.predict(w, model=model) for w in windows])
+        assert batch.shape == (7, 30, 2)
+        np.testing.assert_allclose(batch, single, rtol=0, atol=tol)
+
+
+def test_ragged_windows_and_batches(model64):
+    rng = np.random.default_rng(2)
+    frames = [rng.uniform(5, 40, size=(n, 2)) for n in (30, 7, 1, 64)]
+    y = tpnet_ref.predict(frames, model=model64)
+    assert y.shape == (30, 2) and np.isfinite(y).all()
+    # duplicating points leaves the max-pooled features, hence the prediction, unchanged
+    dup = [np.concatenate([f, f[: max(1, len(f) // 2)]]) for f in frames]
+    np.testing.assert_allclose(tpnet_ref.predict(dup, model=model64), y, rtol=0, atol=1e-11)
+    other = _window(rng)
+    batch = tpnet_ref.predict_batch([frames, other, dup], model=model64)
+    np.testing.assert_allclose(batch[0], y, atol=1e-11)
+    np.testing.assert_allclose(batch[1], tpnet_ref.predict(other, model=model64), atol=1e-11)
+
+
+def test_float32_agrees_with_float64(model32, model64):
+    rng = np.random.default_rng(4)
+    windows = np.stack([_window(rng) for _ in range(16)])
+    d1 = np.abs(model32.predict_batch(windows) - model64.predict_batch(windows)).max()
+    assert d1 < 1e-3  # world units (1e-3 / 42.7 ~ 2.3e-5 in model coordinates)
+    d80 = np.abs(model32.rollout(windows[0], 80) - model64.rollout(windows[0], 80)).max()
+    assert d80 < 1e-2
+
+
+def test_rollout_slides_the_window(model64):
+    rng = np.random.default_rng(5)
+    w = model64.normalize(_window(rng))
+    out = tpnet_ref.rollout(w, 6, model=model64, normalized=True)
+    assert out.shape == (6, 30, 2)
+    frames = list(w)
+    for s in range(6):
+        want = model64.predict(np.stack(frames[-4:]), normalized=True)
+        np.testing.assert_allclose(out[s], want, rtol=0, atol=1e-12)
+        frames.append(want)
+    np.testing.assert_allclose(tpnet_ref.rollout(model64.denormalize(w), 6, model=model64),
+                               model64.denormalize(out), atol=1e-9)
+
+
+def test_rollout_computes_each_frame_feature_once(model64, monkeypatch):
+    calls = []
+    orig = type(model64).frame_features
+
+    def counting(self, points, counts):
+        calls.append(len(counts))
+        return orig(self, points, counts)
+
+    monkeypatch.setattr(type(model64), "frame_features", counting)
+    model64.rollout(_window(np.random.default_rng(6)), 10)
+    assert sum(calls) == 4 + 10  # m initial frames + one per predicted frame (the last unused)
+
+
+def test_tanh_switch_changes_the_cell():
+    cfg = TPNetConfig(lstm_activation="tanh")
+    a = init_random(cfg, seed=1, dtype="float64")
+    b = type(a)(TPNetConfig(), a.params, "float64")
+    w = _window(np.random.default_rng(7))
+    ya, yb = a.predict(w), b.predict(w)
+    assert np.isfinite(ya).all() and np.abs(ya - yb).max() > 1e-6
+
+
+# ------------------------------------------------------------- weights round trip
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_native_round_trip_is_bit_exact(tmp_path, dtype):
+    cfg = dataclasses.replace(TINY, lstm_activation="tanh", norm_lo=-3.0, norm_hi=7.5)
+    model = init_random(cfg, seed=9, dtype=dtype)
+    path = tmp_path / "w.h5"
+    model.save(path, source="unit test")
+    back = tpnet_ref.load(path, dtype=dtype)
+    assert back.config == cfg
+    assert back.meta["source"] == "unit test" and "created" in back.meta
+    for k, v in model.params.items():
+        assert back.params[k].dtype == v.dtype
+        np.testing.assert_array_equal(back.params[k], v)
+    w = [np.random.default_rng(0).uniform(-2, 6, size=(5, 2)) for _ in range(3)]
+    np.testing.assert_array_equal(back.predict(w), model.predict(w))
+
+
+def test_load_without_shipped_weights_says_so(tmp_path, monkeypatch):
+    monkeypatch.setenv("TPNET_WEIGHTS_DIR", str(tmp_path))
+    with pytest.raises(FileNotFoundError, match="no shipped weights"):
+        tpnet_ref.load()
+
+
+def test_load_refuses_a_foreign_hdf5(tmp_path):
+    import h5py
+    path = tmp_path / "foreign.h5"
+    with h5py.File(path, "w") as f:
+        f["x"] = np.zeros(3)
+    with pytest.raises(ValueError, match="not a tpnet_ref weights file"):
+        tpnet_ref.load(path)
+
+
+# ------------------------------------------------------------------ bad input
+@pytest.mark.parametrize("bad, exc, msg", [
+    (np.zeros((3, 30, 2)), ValueError, "m=4"),
+    (np.zeros((4, 30, 3)), ValueError, "shape"),
+    (np.zeros((4, 0, 2)), ValueError, "empty"),
+    (np.full((4, 30, 2), np.nan), ValueError, "NaN"),
+    (np.full((4, 30, 2), "a"), TypeError, "real numbers"),
+    (np.zeros((4, 30, 2), dtype=complex), TypeError, "real numbers"),
+    ([np.zeros((3, 2))] * 3, ValueError, "m=4"),
+    ([np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)], ValueError, r"window\[3\]"),
+])
+def test_bad_windows_get_clear_errors(model32, bad, exc, msg):
+    with pytest.raises(exc, match=msg):
+        model32.predict(bad)
+
+
+def test_bad_rollout_steps(model32):
+    w = _window(np.random.default_rng(0))
+    for steps in (0, -1, 2.5, True):
+        with pytest.raises(ValueError, match="steps"):
+            model32.rollout(w, steps)
+
+
+def test_import_is_light():
+    code = (
+        "import sys, numpy as np, tpnet_ref\n"
+        "from tpnet_ref.model import init_random\n"
+        "m = init_random(seed=0)\n"
+        "tpnet_ref.predict(np.random.default_rng(0).uniform(5, 40, (4, 30, 2)), model=m)\n"
+        "tpnet_ref.rollout(np.random.default_rng(0).uniform(5, 40, (4, 30, 2)), 2, model=m)\n"
+        "bad = [k for k in ('numba', 'torch', 'tensorflow', 'keras', 'jax', 'pymunk', 'scipy')\n"
+        "       if k in sys.modules]\n"
+        "print(','.join(bad))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"predict imported {out.stdout.strip()}"
