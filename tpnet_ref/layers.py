@@ -133,6 +133,84 @@ def lstm(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndar
     return out
 
 
+def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
+                bwd: tuple[np.ndarray, np.ndarray, np.ndarray]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lay out a bidirectional LSTM's Keras weights for :func:`bilstm_fused`.
+
+    ``fwd``/``bwd``: (kernel ``(C, 4u)``, recurrent ``(u, 4u)``, bias ``(4u,)``), gates i, f, c, o.
+    Returns kernel ``(C, 8u)`` = [forward | backward], recurrent ``(2, u, 4u)``, bias ``(8u,)``,
+    each direction's gates reordered to i, f, o, c so that the three sigmoid gates are adjacent.
+    """
+    def reorder(a: np.ndarray) -> np.ndarray:
+        u = a.shape[-1] // 4
+        return np.concatenate([a[..., :2 * u], a[..., 3 * u:], a[..., 2 * u:3 * u]], axis=-1)
+
+    kernel = np.ascontiguousarray(np.concatenate([reorder(fwd[0]), reorder(bwd[0])], axis=-1))
+    recurrent = np.ascontiguousarray(np.stack([reorder(fwd[1]), reorder(bwd[1])]))
+    bias = np.concatenate([reorder(fwd[2]), reorder(bwd[2])])
+    return kernel, recurrent, bias
+
+
+def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
+                 activation: str = "relu", return_sequences: bool = True) -> np.ndarray:
+    """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`.
+
+    Same result as two :func:`lstm` calls, computed faster: one GEMM projects every step of both
+    directions, both directions advance together (one batched matmul per step, the step-0
+    recurrent product is skipped because h = 0), and the gates are updated in place.
+    ``x (B, T, C)`` -> ``(B, T, 2u)`` or, with ``return_sequences=False``, ``(B, 2u)``.
+    """
+    bsz, steps, _ = x.shape
+    u = recurrent.shape[1]
+    xp = x.reshape(bsz * steps, -1) @ kernel
+    xp += bias
+    xp = xp.reshape(bsz, steps, 2, 4 * u)
+    relu_act = activation == "relu"
+    if not relu_act and activation != "tanh":
+        _activation(activation)  # raises the error naming the activation
+    dt = x.dtype
+    z = np.empty((2, bsz, 4 * u), dtype=dt)
+    c = np.zeros((2, bsz, u), dtype=dt)
+    h = np.zeros((2, bsz, u), dtype=dt)
+    tmp = np.empty((2, bsz, u), dtype=dt)
+    out = np.empty((bsz, steps, 2, u), dtype=dt) if return_sequences else None
+    half = dt.type(0.5)
+    for s in range(steps):
+        tf, tb = s, steps - 1 - s
+        if s == 0:
+            z[0] = xp[:, tf, 0]
+            z[1] = xp[:, tb, 1]
+        else:
+            np.matmul(h, recurrent, out=z)
+            z[0] += xp[:, tf, 0]
+            z[1] += xp[:, tb, 1]
+        gates = z[..., :3 * u]                      # i, f, o: sigmoid(x) = 0.5 tanh(x/2) + 0.5
+        gates *= half
+        np.tanh(gates, out=gates)
+        gates *= half
+        gates += half
+        g = z[..., 3 * u:]                          # cell candidate
+        if relu_act:
+            np.maximum(g, 0, out=g)
+        else:
+            np.tanh(g, out=g)
+        c *= z[..., u:2 * u]                        # c = f*c + i*g
+        np.multiply(z[..., :u], g, out=tmp)
+        c += tmp
+        if relu_act:                                # h = o * act(c)
+            np.maximum(c, 0, out=h)
+        else:
+            np.tanh(c, out=h)
+        h *= z[..., 2 * u:3 * u]
+        if out is not None:
+            out[:, tf, 0] = h[0]
+            out[:, tb, 1] = h[1]
+    if out is not None:
+        return out.reshape(bsz, steps, 2 * u)
+    return np.concatenate([h[0], h[1]], axis=-1)
+
+
 def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
                        bwd: tuple[np.ndarray, np.ndarray, np.ndarray], activation: str = "relu",
                        return_sequences: bool = True) -> np.ndarray:
@@ -143,11 +221,8 @@ def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndar
     ``return_sequences=False`` -> ``(B, 2u)``: the forward state after the last step and the
     backward state after it has consumed the whole reversed sequence (its row ``t = 0``).
     """
-    hf = lstm(x, *fwd, activation=activation)
-    hb = lstm(x, *bwd, activation=activation, reverse=True)
-    if return_sequences:
-        return np.concatenate([hf, hb], axis=-1)
-    return np.concatenate([hf[:, -1], hb[:, 0]], axis=-1)
+    return bilstm_fused(x, *fuse_bilstm(fwd, bwd), activation=activation,
+                        return_sequences=return_sequences)
 
 
 def layer_norm(x: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: float) -> np.ndarray:

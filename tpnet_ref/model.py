@@ -31,6 +31,8 @@ from .validation import NonFiniteResultError, as_point_set, as_real_array
 #: world-unit range of the particle centres used for normalisation (SPEC §5)
 NORM_LO = 1.1438
 NORM_HI = 43.8562
+#: points per block of the feature extractor (activations of a block stay in cache)
+BLOCK_POINTS = 2048
 
 
 @dataclass(frozen=True)
@@ -179,8 +181,8 @@ class TPNet:
                               if cfg.feature_transform_trained else None)
         self._mlp2 = stack("mlp2", len(cfg.mlp2))
         self._lstms = [
-            (tuple(p[f"lstm{i}.fwd.{k}"] for k in ("kernel", "recurrent", "bias")),
-             tuple(p[f"lstm{i}.bwd.{k}"] for k in ("kernel", "recurrent", "bias")),
+            (L.fuse_bilstm(*(tuple(p[f"lstm{i}.{d}.{k}"] for k in ("kernel", "recurrent", "bias"))
+                             for d in ("fwd", "bwd"))),
              p[f"ln{i}.gamma"], p[f"ln{i}.beta"])
             for i in range(1, len(cfg.lstm_units) + 1)
         ]
@@ -223,8 +225,23 @@ class TPNet:
 
         ``points (P, dim)``: the frames' points one frame after another, each frame already in
         canonical order (see :func:`canonical_order`); ``counts (F,)`` points per frame
-        -> ``(F, global_features)``.
+        -> ``(F, global_features)``. Large inputs go through the extractor in blocks of whole
+        frames (about ``BLOCK_POINTS`` points each) so that the per-point activations stay in
+        cache; each frame's feature depends on its own points only.
         """
+        counts = np.asarray(counts)
+        if points.shape[0] <= BLOCK_POINTS:
+            return self._features_block(points, counts)
+        ends = np.cumsum(counts)
+        out = np.empty((len(counts), self.config.global_features), dtype=self.dtype)
+        f0, p0 = 0, 0
+        while f0 < len(counts):
+            f1 = max(f0 + 1, int(np.searchsorted(ends, p0 + BLOCK_POINTS, side="right")))
+            out[f0:f1] = self._features_block(points[p0:ends[f1 - 1]], counts[f0:f1])
+            f0, p0 = f1, int(ends[f1 - 1])
+        return out
+
+    def _features_block(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
         x = points
         if self._input_tnet is not None:
             x = L.apply_transform(x, L.transform_net(x, counts, *self._input_tnet), counts)
@@ -242,8 +259,8 @@ class TPNet:
         h = features
         last = len(self._lstms) - 1
         with np.errstate(over="ignore", invalid="ignore"):
-            for i, (fwd, bwd, gamma, beta) in enumerate(self._lstms):
-                h = L.bidirectional_lstm(h, fwd, bwd, act, return_sequences=i < last)
+            for i, (fused, gamma, beta) in enumerate(self._lstms):
+                h = L.bilstm_fused(h, *fused, activation=act, return_sequences=i < last)
                 h = L.layer_norm(h, gamma, beta, eps)
             y = L.dense(h, self.params["head.w"], self.params["head.b"], "sigmoid")
         if not np.isfinite(y).all():
@@ -334,8 +351,19 @@ def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:
     on every coordinate are identical rows, so the sorted matrix does not depend on the input
     order at all.
     """
+    counts = np.asarray(counts)
+    dim = points.shape[1]
+    if counts.size and np.all(counts == counts[0]):
+        # equal frames: stable sorts within each row, least significant coordinate first
+        a = points.reshape(counts.size, int(counts[0]), dim)
+        idx = np.argsort(a[..., dim - 1], axis=1, kind="stable")
+        for d in range(dim - 2, -1, -1):
+            key = np.take_along_axis(a[..., d], idx, axis=1)
+            idx = np.take_along_axis(idx, np.argsort(key, axis=1, kind="stable"), axis=1)
+        idx += (np.arange(counts.size) * int(counts[0]))[:, None]
+        return idx.ravel()
     frame_id = np.repeat(np.arange(len(counts)), counts)
-    keys = [points[:, d] for d in range(points.shape[1] - 1, -1, -1)] + [frame_id]
+    keys = [points[:, d] for d in range(dim - 1, -1, -1)] + [frame_id]
     return np.lexsort(keys)
 
 
