@@ -126,6 +126,20 @@ def test_predict_batch_equals_predict(model32, model64):
         np.testing.assert_allclose(batch, single, rtol=0, atol=tol)
 
 
+def test_blocked_feature_extractor_matches_per_window(model64):
+    """Batches larger than one block of the extractor (2048 points) give the per-window result."""
+    rng = np.random.default_rng(8)
+    windows = [[rng.uniform(5, 40, size=(n, 2)) for n in rng.integers(1, 200, size=4)]
+               for _ in range(12)]
+    assert sum(len(f) for w in windows for f in w) > 2048
+    batch = tpnet_ref.predict_batch(windows, model=model64)
+    single = np.stack([tpnet_ref.predict(w, model=model64) for w in windows])
+    np.testing.assert_allclose(batch, single, rtol=0, atol=1e-11)
+    big = np.stack([_window(rng, n=64) for _ in range(20)])
+    np.testing.assert_allclose(model64.predict_batch(big),
+                               np.stack([model64.predict(w) for w in big]), rtol=0, atol=1e-11)
+
+
 def test_ragged_windows_and_batches(model64):
     rng = np.random.default_rng(2)
     frames = [rng.uniform(5, 40, size=(n, 2)) for n in (30, 7, 1, 64)]

@@ -1,0 +1,215 @@
+"""Inference speed of tpnet_ref against its peers, measured side by side in one run.
+
+    python bench/bench_inference.py            # full run (about 2 minutes on 2 cores)
+    python bench/bench_inference.py --quick    # fewer repetitions
+
+Every peer runs the same weights (a random network of the released shape, m = 4, N = 30,
+identity transform nets, as every checkpoint of the released code has): tpnet_ref float32 and
+float64, onnxruntime (graph built by ``bench/onnx_peer.py``), PyTorch eager
+(``tpnet_ref.torch_model``). Peers that are not installed are skipped and said so. Also: the
+same network with trained (non-identity) transform nets, an 80-frame rollout against 80
+independent ``predict`` calls, cold start and peak memory in fresh processes. Prints each
+figure, the ratio to each peer and the targets of the performance issue.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
+
+import tpnet_ref  # noqa: E402
+from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
+
+
+def machine() -> str:
+    cpu = platform.processor() or "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    blas = "?"
+    try:
+        cfg = np.show_config(mode="dicts")
+        b = cfg["Build Dependencies"]["blas"]
+        blas = f"{b['name']} {b['version']}"
+    except Exception:
+        pass
+    return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
+            f"NumPy {np.__version__} ({blas})")
+
+
+def timeit(fn, min_time: float, min_reps: int = 3) -> float:
+    """Median seconds per call of ``fn`` over at least ``min_time`` seconds."""
+    fn()
+    times: list[float] = []
+    start = time.perf_counter()
+    while len(times) < min_reps or time.perf_counter() - start < min_time:
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def torch_peer(model):
+    """A callable running the PyTorch model on a normalised batch, or None if unavailable."""
+    try:
+        import torch
+        from tpnet_ref.torch_model import from_numpy
+    except ImportError as exc:
+        return None, f"skipped ({exc})"
+    net = from_numpy(model).eval()
+    torch.set_num_threads(os.cpu_count() or 1)
+
+    def run(x: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return net(torch.from_numpy(x)).numpy()
+
+    return run, f"torch {torch.__version__}"
+
+
+def onnx_peer(model):
+    try:
+        import onnxruntime as ort
+        from onnx_peer import onnx_session
+    except ImportError as exc:
+        return None, f"skipped ({exc})"
+    sess = onnx_session(model)
+    return (lambda x: sess.run(None, {"window": x})[0]), f"onnxruntime {ort.__version__}"
+
+
+COLD = r"""
+import time
+t0 = time.perf_counter()
+import numpy as np, sys
+import tpnet_ref
+m = tpnet_ref.load(sys.argv[1])
+y = tpnet_ref.predict(np.random.default_rng(0).uniform(5, 40, (4, 30, 2)), model=m)
+t1 = time.perf_counter()
+def hwm():  # peak resident set of this process image, MB (ru_maxrss would include the parent's)
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM"):
+            return float(line.split()[1]) / 1024
+rss1 = hwm()
+m.predict_batch(np.random.default_rng(0).uniform(5, 40, (256, 4, 30, 2)))
+rss2 = hwm()
+bad = [k for k in ("numba", "torch", "onnxruntime", "tensorflow", "keras") if k in sys.modules]
+print(t1 - t0, rss1, rss2, ",".join(bad))
+"""
+
+
+def cold_start(weights: Path, runs: int = 3) -> tuple[float, float, float, str]:
+    res = []
+    for _ in range(runs):
+        out = subprocess.run([sys.executable, "-c", COLD, str(weights)], check=True,
+                             capture_output=True, text=True).stdout.split()
+        res.append(out)
+    t = float(np.median([float(r[0]) for r in res]))
+    return t, float(res[-1][1]), float(res[-1][2]), (res[-1][3] if len(res[-1]) > 3 else "")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions")
+    ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    args = ap.parse_args(argv)
+    t_min = 0.5 if args.quick else 2.0
+
+    print(f"machine: {machine()}")
+    cfg = TPNetConfig()
+    m32 = init_random(cfg, seed=0, dtype="float32")
+    m64 = m32.astype("float64")
+    m_tn = init_random(TPNetConfig(input_transform_trained=True, feature_transform_trained=True),
+                       seed=0, dtype="float32")
+    rng = np.random.default_rng(0)
+    x1 = rng.uniform(0.1, 0.9, (1, 4, 30, 2)).astype(np.float32)
+    x256 = rng.uniform(0.1, 0.9, (256, 4, 30, 2)).astype(np.float32)
+    print(f"network: {m32}\n")
+
+    rows: dict[str, dict[str, float]] = {}
+
+    def measure(label: str, fn) -> None:
+        lat = timeit(lambda: fn(x1), t_min, 20)
+        thr = 256 / timeit(lambda: fn(x256), t_min * 2, 3)
+        rows[label] = {"b1_ms": lat * 1e3, "b256_per_s": thr}
+        print(f"  {label:38s} B=1 {lat * 1e3:7.3f} ms   B=256 {thr:8.1f} windows/s", flush=True)
+
+    print("one-step prediction (normalised input, same weights):")
+    measure("tpnet_ref float32", lambda x: m32.predict_batch(x, normalized=True))
+    measure("tpnet_ref float64", lambda x: m64.predict_batch(x.astype(np.float64), normalized=True))
+    measure("tpnet_ref float32, transform nets computed",
+            lambda x: m_tn.predict_batch(x, normalized=True))
+    peers = {}
+    for label, (fn, note) in (("onnxruntime", onnx_peer(m32)), ("PyTorch eager", torch_peer(m32))):
+        if fn is None:
+            print(f"  {label:38s} {note}")
+            continue
+        diff = float(np.abs(fn(x256) - m64.predict_batch(x256.astype(np.float64), normalized=True)).max())
+        peers[label] = note
+        measure(f"{label} ({note})", fn)
+        print(f"  {'':38s} max |peer - tpnet_ref float64| = {diff:.2e}")
+        rows[label] = rows.pop(f"{label} ({note})")
+
+    print("\n80-frame rollout (float32):")
+    w0 = x1[0]
+    roll = timeit(lambda: m32.rollout(w0, 80, normalized=True), t_min, 3)
+    frames = list(w0) + list(m32.rollout(w0, 80, normalized=True))
+    wins = [np.stack(frames[s:s + 4]) for s in range(80)]
+    naive = timeit(lambda: [m32.predict(w, normalized=True) for w in wins], t_min, 3)
+    print(f"  rollout(window, 80)            {roll * 1e3:8.2f} ms  ({roll / 80 * 1e3:.3f} ms/frame)")
+    print(f"  80 x predict(window)           {naive * 1e3:8.2f} ms  -> rollout is {naive / roll:.2f}x faster")
+
+    print("\ncold start in a fresh process (import + load + first predict), peak memory:")
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "w.h5"
+        m32.save(path)
+        cold, rss1, rss2, bad = cold_start(path)
+    print(f"  cold start {cold:.3f} s; peak RSS {rss1:.0f} MB after first predict, "
+          f"{rss2:.0f} MB after a B=256 batch; frameworks imported: {bad or 'none'}")
+
+    r = rows
+    ours = r["tpnet_ref float32"]
+    print("\nratios and targets:")
+    checks = []
+    if "onnxruntime" in r:
+        lat_ratio = ours["b1_ms"] / r["onnxruntime"]["b1_ms"]
+        thr_ratio = ours["b256_per_s"] / r["onnxruntime"]["b256_per_s"]
+        checks += [("B=1 latency / onnxruntime (target <= 0.5)", lat_ratio, lat_ratio <= 0.5),
+                   ("B=256 throughput / onnxruntime (target >= 1.0)", thr_ratio, thr_ratio >= 1.0)]
+    if "PyTorch eager" in r:
+        checks += [("B=1 latency / PyTorch", ours["b1_ms"] / r["PyTorch eager"]["b1_ms"], None),
+                   ("B=256 throughput / PyTorch",
+                    ours["b256_per_s"] / r["PyTorch eager"]["b256_per_s"], None)]
+    f64 = r["tpnet_ref float64"]["b1_ms"] / ours["b1_ms"]
+    f64t = ours["b256_per_s"] / r["tpnet_ref float64"]["b256_per_s"]
+    checks += [("rollout speed-up over 80 predicts (target >= 3)", naive / roll, naive / roll >= 3),
+               ("cold start seconds (target <= 1)", cold, cold <= 1.0),
+               ("float64 / float32 time, B=1 (target <= 2.5)", f64, f64 <= 2.5),
+               ("float64 / float32 time, B=256 (target <= 2.5)", f64t, f64t <= 2.5)]
+    for label, val, ok in checks:
+        mark = "" if ok is None else ("  MET" if ok else "  NOT MET")
+        print(f"  {label:50s} {val:8.3f}{mark}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(
+            {"machine": machine(), "rows": rows, "peers": peers, "rollout_ms": roll * 1e3,
+             "naive_80_ms": naive * 1e3, "cold_start_s": cold, "rss_mb": [rss1, rss2],
+             "checks": [(a, b, c) for a, b, c in checks]}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,118 @@
+"""The same TP-Net as an ONNX graph, for onnxruntime as a peer in the benchmarks.
+
+Built directly from a :class:`tpnet_ref.model.TPNet` (float32) with ``onnx.helper``: point-wise
+layers are MatMul/Add/Relu on ``(B*m*N, C)``, max-pooling is ReduceMax, the LSTMs are ONNX
+``LSTM`` ops (bidirectional, activations Sigmoid/Relu/Relu as Keras' ``activation='relu'``, gate
+order converted from Keras i,f,c,o to ONNX i,o,f,c), LayerNormalization (opset 17).
+Input ``window`` ``(B, m, N, 2)`` normalised, output ``(B, n_out, 2)``; N is fixed at export.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def _ifco_to_iofc(a: np.ndarray) -> np.ndarray:
+    """Reorder the gate blocks on axis 0 from Keras (i, f, c, o) to ONNX (i, o, f, c)."""
+    i, f, c, o = np.split(a, 4, axis=0)
+    return np.concatenate([i, o, f, c], axis=0)
+
+
+def build_onnx(model, n_points: int = 30, opset: int = 17):
+    """ONNX ``ModelProto`` computing ``model``'s forward pass in float32 (batch is dynamic)."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    cfg, p = model.config, model.params
+    f32 = {k: np.asarray(v, dtype=np.float32) for k, v in p.items()}
+    nodes, inits = [], []
+    counter = [0]
+
+    def name(base: str) -> str:
+        counter[0] += 1
+        return f"{base}_{counter[0]}"
+
+    def const(arr: np.ndarray, base: str) -> str:
+        n = name(base)
+        inits.append(numpy_helper.from_array(np.asarray(arr), n))
+        return n
+
+    def op(kind: str, inputs: list[str], **attrs) -> str:
+        out = name(kind.lower())
+        nodes.append(helper.make_node(kind, inputs, [out], **attrs))
+        return out
+
+    def dense(x: str, prefix: str, act: str | None = "Relu") -> str:
+        y = op("Add", [op("MatMul", [x, const(f32[f"{prefix}.w"], prefix + "_w")]),
+                       const(f32[f"{prefix}.b"], prefix + "_b")])
+        return op(act, [y]) if act else y
+
+    def reshape(x: str, shape: list[int]) -> str:
+        return op("Reshape", [x, const(np.array(shape, dtype=np.int64), "shape")])
+
+    def maxpool(x: str, channels: int) -> str:  # (F*N, C) -> (F, C)
+        return op("ReduceMax", [reshape(x, [-1, n_points, channels])], axes=[1], keepdims=0)
+
+    def tnet(x: str, prefix: str, k: int, mlp, fc) -> str:  # (F*N, k) -> (F*N, k)
+        h = x
+        for i in range(len(mlp)):
+            h = dense(h, f"{prefix}.mlp.{i}")
+        g = maxpool(h, mlp[-1])
+        for i in range(len(fc)):
+            g = dense(g, f"{prefix}.fc.{i}")
+        t = reshape(dense(g, f"{prefix}.out", act=None), [-1, k, k])
+        return reshape(op("MatMul", [reshape(x, [-1, n_points, k]), t]), [-1, k])
+
+    x = reshape("window", [-1, cfg.dim])
+    if cfg.input_transform_trained:
+        x = tnet(x, "input_tnet", cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
+    for i in range(len(cfg.mlp1)):
+        x = dense(x, f"mlp1.{i}")
+    if cfg.feature_transform_trained:
+        x = tnet(x, "feature_tnet", cfg.mlp1[-1], cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
+    for i in range(len(cfg.mlp2)):
+        x = dense(x, f"mlp2.{i}")
+    g = dense(maxpool(x, cfg.mlp2[-1]), "global")
+    seq = op("Transpose", [reshape(g, [-1, cfg.m, cfg.global_features])], perm=[1, 0, 2])
+    act = "Relu" if cfg.lstm_activation == "relu" else "Tanh"
+    n_layers = len(cfg.lstm_units)
+    for li, u in enumerate(cfg.lstm_units, start=1):
+        w = np.stack([_ifco_to_iofc(f32[f"lstm{li}.{d}.kernel"].T) for d in ("fwd", "bwd")])
+        r = np.stack([_ifco_to_iofc(f32[f"lstm{li}.{d}.recurrent"].T) for d in ("fwd", "bwd")])
+        b = np.stack([np.concatenate([_ifco_to_iofc(f32[f"lstm{li}.{d}.bias"]),
+                                      np.zeros(4 * u, np.float32)]) for d in ("fwd", "bwd")])
+        y, y_h = name("lstm_y"), name("lstm_yh")
+        nodes.append(helper.make_node(
+            "LSTM", [seq, const(w, "W"), const(r, "R"), const(b, "B")], [y, y_h],
+            hidden_size=u, direction="bidirectional",
+            activations=["Sigmoid", act, act, "Sigmoid", act, act]))
+        if li < n_layers:  # (m, 2, B, u) -> (m, B, 2u)
+            h = reshape(op("Transpose", [y], perm=[0, 2, 1, 3]), [cfg.m, -1, 2 * u])
+        else:  # Y_h (2, B, u): forward after the last step, backward after the whole sequence
+            h = reshape(op("Transpose", [y_h], perm=[1, 0, 2]), [-1, 2 * u])
+        seq = op("LayerNormalization", [h, const(f32[f"ln{li}.gamma"], "gamma"),
+                                        const(f32[f"ln{li}.beta"], "beta")],
+                 axis=-1, epsilon=float(cfg.layer_norm_eps))
+    out = reshape(dense(seq, "head", act="Sigmoid"), [-1, cfg.n_out, cfg.dim])
+    nodes.append(helper.make_node("Identity", [out], ["prediction"]))
+    graph = helper.make_graph(
+        nodes, "tpnet",
+        [helper.make_tensor_value_info("window", TensorProto.FLOAT, ["B", cfg.m, n_points, cfg.dim])],
+        [helper.make_tensor_value_info("prediction", TensorProto.FLOAT, ["B", cfg.n_out, cfg.dim])],
+        inits)
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
+    proto.ir_version = min(proto.ir_version, 9)
+    onnx.checker.check_model(proto)
+    return proto
+
+
+def onnx_session(model, n_points: int = 30, threads: int | None = None):
+    """An onnxruntime ``InferenceSession`` (CPU) for ``model``; ``run(window)`` -> prediction."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    if threads:
+        opts.intra_op_num_threads = threads
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    sess = ort.InferenceSession(build_onnx(model, n_points).SerializeToString(), opts,
+                                providers=["CPUExecutionProvider"])
+    return sess
