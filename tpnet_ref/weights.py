@@ -171,3 +171,195 @@ def load(path: str | os.PathLike | None = None, dtype: Any = "float32") -> TPNet
                 "(see the training recipe), or set TPNET_WEIGHTS_DIR; pass a path to load "
                 "another file, or use tpnet_ref.model.init_random() for a random network")
     return load_native(path, dtype)
+
+
+# =============================================================================== importers
+# Shared by every importer: a flat ``{native name: array}`` built with explicit, shape-asserting
+# key maps, then handed to TPNet (which checks every shape against the config once more).
+
+def _check_shape(arr: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarray:
+    if tuple(arr.shape) != tuple(shape):
+        raise ValueError(f"{what}: shape {tuple(arr.shape)}, expected {tuple(shape)}")
+    return arr
+
+
+def _torch_key_map(cfg: TPNetConfig) -> list[tuple[str, str, str]]:
+    """``(torch name, native name, how)`` for every parameter; how is ``T`` (transpose),
+    ``=`` (copy) or ``+`` (the native tensor is the sum of this and the ``_hh`` bias)."""
+    rows: list[tuple[str, str, str]] = []
+
+    def stack(tprefix: str, nprefix: str, n: int) -> None:
+        for i in range(n):
+            rows.append((f"{tprefix}.{i}.weight", f"{nprefix}.{i}.w", "T"))
+            rows.append((f"{tprefix}.{i}.bias", f"{nprefix}.{i}.b", "="))
+
+    def tnet(prefix: str, nmlp: int, nfc: int) -> None:
+        stack(f"{prefix}.mlp", f"{prefix}.mlp", nmlp)
+        stack(f"{prefix}.fc", f"{prefix}.fc", nfc)
+        rows.append((f"{prefix}.out.weight", f"{prefix}.out.w", "T"))
+        rows.append((f"{prefix}.out.bias", f"{prefix}.out.b", "="))
+
+    if cfg.input_transform_trained:
+        tnet("input_tnet", len(cfg.input_tnet_mlp), len(cfg.input_tnet_fc))
+    stack("mlp1", "mlp1", len(cfg.mlp1))
+    if cfg.feature_transform_trained:
+        tnet("feature_tnet", len(cfg.feature_tnet_mlp), len(cfg.feature_tnet_fc))
+    stack("mlp2", "mlp2", len(cfg.mlp2))
+    rows.append(("global_fc.weight", "global.w", "T"))
+    rows.append(("global_fc.bias", "global.b", "="))
+    for i in range(1, len(cfg.lstm_units) + 1):
+        for sfx, d in (("_l0", "fwd"), ("_l0_reverse", "bwd")):
+            rows.append((f"lstm{i}.weight_ih{sfx}", f"lstm{i}.{d}.kernel", "T"))
+            rows.append((f"lstm{i}.weight_hh{sfx}", f"lstm{i}.{d}.recurrent", "T"))
+            rows.append((f"lstm{i}.bias_ih{sfx}", f"lstm{i}.{d}.bias", "+"))
+        rows.append((f"ln{i}.weight", f"ln{i}.gamma", "="))
+        rows.append((f"ln{i}.bias", f"ln{i}.beta", "="))
+    rows.append(("head.weight", "head.w", "T"))
+    rows.append(("head.bias", "head.b", "="))
+    return rows
+
+
+def torch_state_to_native(sd: dict[str, np.ndarray], cfg: TPNetConfig) -> dict[str, np.ndarray]:
+    """PyTorch-layout tensors (NumPy arrays) -> native parameters, every shape asserted.
+
+    Linear ``weight (out, in)`` -> ``w (in, out)``; LSTM ``weight_ih (4u, in)`` ->
+    ``kernel (in, 4u)``, ``weight_hh (4u, u)`` -> ``recurrent (u, 4u)``, ``bias_ih + bias_hh``
+    -> ``bias (4u,)``. PyTorch's gate order i, f, g, o is Keras's i, f, c, o: no reordering.
+    Raises ``ValueError`` naming every missing or unexpected key.
+    """
+    shapes = param_shapes(cfg)
+    rows = _torch_key_map(cfg)
+    expected = {t for t, _, _ in rows} | {t.replace("bias_ih", "bias_hh") for t, _, h in rows
+                                          if h == "+"}
+    missing = sorted(expected - set(sd))
+    extra = sorted(set(sd) - expected - {"_extra_state"})
+    if missing or extra:
+        raise ValueError(f"torch state dict does not fit {_describe(cfg)}: missing {missing}, "
+                         f"unexpected {extra}")
+    out: dict[str, np.ndarray] = {}
+    for tname, nname, how in rows:
+        shape = shapes[nname]
+        a = np.asarray(sd[tname])
+        if how == "T":
+            out[nname] = _check_shape(a, shape[::-1], tname).T
+        elif how == "+":
+            b = np.asarray(sd[tname.replace("bias_ih", "bias_hh")])
+            out[nname] = (_check_shape(a, shape, tname)
+                          + _check_shape(b, shape, tname.replace("bias_ih", "bias_hh")))
+        else:
+            out[nname] = _check_shape(a, shape, tname)
+    return out
+
+
+def native_to_torch_state(params: dict[str, np.ndarray], cfg: TPNetConfig) -> dict[str, np.ndarray]:
+    """Native parameters -> PyTorch-layout arrays (the LSTM bias goes to ``bias_ih``,
+    ``bias_hh`` is zero)."""
+    out: dict[str, np.ndarray] = {}
+    for tname, nname, how in _torch_key_map(cfg):
+        a = np.asarray(params[nname])
+        if how == "T":
+            out[tname] = np.ascontiguousarray(a.T)
+        elif how == "+":
+            out[tname] = a.copy()
+            out[tname.replace("bias_ih", "bias_hh")] = np.zeros_like(a)
+        else:
+            out[tname] = a.copy()
+    return out
+
+
+def _describe(cfg: TPNetConfig) -> str:
+    return (f"m={cfg.m}, n_out={cfg.n_out}, lstm_units={cfg.lstm_units}, transforms "
+            f"{'trained' if cfg.input_transform_trained else 'identity'}/"
+            f"{'trained' if cfg.feature_transform_trained else 'identity'}")
+
+
+def _stack_widths(sd: dict[str, Any], prefix: str) -> tuple[int, ...]:
+    widths = []
+    while f"{prefix}.{len(widths)}.weight" in sd:
+        widths.append(int(sd[f"{prefix}.{len(widths)}.weight"].shape[0]))
+    return tuple(widths)
+
+
+def _infer_torch_config(sd: dict[str, Any], m: int, layer_norm_eps: float,
+                        lstm_activation: str) -> TPNetConfig:
+    """Config of a bare state dict (no ``_extra_state``), read from its shapes."""
+    need = ("mlp1.0.weight", "mlp2.0.weight", "global_fc.weight", "lstm1.weight_hh_l0",
+            "head.weight")
+    missing = [k for k in need if k not in sd]
+    if missing:
+        raise ValueError(f"not a TP-Net torch state dict: missing {missing} "
+                         f"(keys present: {sorted(sd)[:8]}...)")
+    kw: dict[str, Any] = {}
+    dim = int(sd["mlp1.0.weight"].shape[1])
+    kw["dim"] = dim
+    kw["mlp1"] = _stack_widths(sd, "mlp1")
+    kw["mlp2"] = _stack_widths(sd, "mlp2")
+    kw["global_features"] = int(sd["global_fc.weight"].shape[0])
+    units = []
+    while f"lstm{len(units) + 1}.weight_hh_l0" in sd:
+        units.append(int(sd[f"lstm{len(units) + 1}.weight_hh_l0"].shape[1]))
+    kw["lstm_units"] = tuple(units)
+    n2 = int(sd["head.weight"].shape[0])
+    if n2 % dim:
+        raise ValueError(f"head.weight has {n2} outputs, not a multiple of dim={dim}")
+    kw["n_out"] = n2 // dim
+    for prefix, flag in (("input_tnet", "input_transform_trained"),
+                         ("feature_tnet", "feature_transform_trained")):
+        if f"{prefix}.out.weight" in sd:
+            kw[flag] = True
+            kw[f"{prefix}_mlp"] = _stack_widths(sd, f"{prefix}.mlp")
+            kw[f"{prefix}_fc"] = _stack_widths(sd, f"{prefix}.fc")
+    return TPNetConfig(m=m, layer_norm_eps=layer_norm_eps, lstm_activation=lstm_activation, **kw)
+
+
+def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
+                 lstm_activation: str = "relu", dtype: Any = "float32") -> TPNet:
+    """A :class:`TPNet` from the project's PyTorch model (:mod:`tpnet_ref.torch_model`).
+
+    ``source``: a path to a ``torch.save``'d state dict (or a dict ``{"state_dict": ...}``), or
+    the state dict itself. Files are read with ``torch.load(weights_only=True)``: no pickled
+    code runs, and anything but tensors and plain containers is refused. The config (including
+    the LayerNorm eps) comes from the state dict's ``_extra_state`` when present (what
+    ``TorchTPNet.state_dict()`` writes); otherwise it is read from the shapes, with ``m``,
+    ``layer_norm_eps`` and ``lstm_activation`` from the keyword arguments.
+    """
+    import torch
+
+    where = "state dict"
+    if isinstance(source, (str, os.PathLike)):
+        where = str(source)
+        if not Path(source).is_file():
+            raise FileNotFoundError(f"torch checkpoint not found: {source}")
+        try:
+            obj = torch.load(source, map_location="cpu", weights_only=True)
+        except Exception as exc:  # UnpicklingError, RuntimeError, ... from a refused payload
+            raise ValueError(f"{where}: not a weights-only torch checkpoint ({type(exc).__name__}: "
+                             f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
+    else:
+        obj = source
+    if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
+        obj = obj["state_dict"]
+    if not isinstance(obj, dict):
+        raise ValueError(f"{where}: expected a state dict, got {type(obj).__name__}")
+    sd: dict[str, np.ndarray] = {}
+    extra = obj.get("_extra_state")
+    for k, v in obj.items():
+        if k == "_extra_state":
+            continue
+        if not isinstance(v, torch.Tensor):
+            raise ValueError(f"{where}: entry {k!r} is a {type(v).__name__}, not a tensor")
+        if not v.is_floating_point():
+            raise ValueError(f"{where}: entry {k!r} has dtype {v.dtype}, expected floating point")
+        sd[k] = v.detach().cpu().double().numpy()
+    if isinstance(extra, dict) and extra.get("format") == "tpnet_ref-torch":
+        cfg = TPNetConfig.from_dict(dict(extra["config"]))
+        how = "config from _extra_state"
+    else:
+        cfg = _infer_torch_config(sd, m, layer_norm_eps, lstm_activation)
+        how = f"config read from shapes (m={m}, layer_norm_eps={layer_norm_eps} given)"
+    params = torch_state_to_native(sd, cfg)
+    for k, v in params.items():
+        if not np.isfinite(v).all():
+            raise ValueError(f"{where}: parameter {k!r} contains NaN or infinite values")
+    meta = {"source": where, "source_format": "torch state dict", "import_note": how}
+    return TPNet(cfg, params, dtype, meta)
