@@ -23,18 +23,19 @@ def _windows(b=3, n=30, seed=0):
     return np.random.default_rng(seed).uniform(0.2, 0.8, (b, 4, n, 2))
 
 
-@pytest.mark.parametrize("dtype", ["float32", "float64"])
-@pytest.mark.parametrize("trained", [False, True])
-def test_torch_roundtrip_matches_numpy(tmp_path, dtype, trained):
-    """Full-size model: torch forward + 8-step rollout == NumPy forward after import_torch."""
-    cfg = TPNetConfig(input_transform_trained=trained, feature_transform_trained=trained)
+@pytest.mark.parametrize("dtype,trained,size", [("float32", False, "full"), ("float64", False, "small"),
+                                                ("float32", True, "small"), ("float64", True, "small")])
+def test_torch_roundtrip_matches_numpy(tmp_path, dtype, trained, size):
+    """torch forward + 8-step rollout == NumPy forward after import_torch (released sizes once)."""
+    kw = {} if size == "full" else SMALL
+    cfg = TPNetConfig(input_transform_trained=trained, feature_transform_trained=trained, **kw)
     ref = init_random(cfg, seed=3, dtype=dtype)
     net = TorchTPNet.from_numpy(ref)
     path = tmp_path / "ckpt.pt"
     torch.save(net.state_dict(), path)
     model = import_torch(path, dtype=dtype)
     assert model.config == cfg
-    w = _windows().astype(dtype)
+    w = _windows(n=cfg.n_out).astype(dtype)
     with torch.no_grad():
         yt = net(torch.from_numpy(w)).numpy()
         rt = net.rollout(torch.from_numpy(w[:1]), 8).numpy()[0]
