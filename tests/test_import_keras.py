@@ -1,0 +1,127 @@
+"""import_keras_h5 against committed files written by TF-Keras 2 and Keras 3 (see
+tests/fixtures/make_keras_fixtures.py, which also wrote the frameworks' outputs)."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from tpnet_ref.cli import main
+from tpnet_ref.weights import import_checkpoint, import_keras_h5, load_native
+
+FIX = Path(__file__).parent / "fixtures"
+BOUND = 1e-5
+CASES = [  # file, outputs, transforms trained, what the report must say
+    ("tf2_released.h5", "tf2_released", False, "TF-Keras 2 whole model"),
+    ("tf2_released_weights.h5", "tf2_released", False, "TF-Keras 2 save_weights"),
+    ("tf2_trained_bn.h5", "tf2_trained_bn", True, "folded 15 BatchNorm"),
+    ("tf2_trained_bn_weights.h5", "tf2_trained_bn", True, "folded 15 BatchNorm"),
+    ("k3_trained.weights.h5", "k3_trained", True, "Keras 3 .weights.h5"),
+    ("k3_trained.keras", "k3_trained", True, "Keras 3 .keras archive"),
+]
+
+
+@pytest.mark.parametrize("fname,outputs,trained,says", CASES)
+def test_keras_fixture_matches_framework(fname, outputs, trained, says):
+    model = import_keras_h5(FIX / fname)
+    data = np.load(FIX / f"{outputs}.npz")
+    cfg = model.config
+    assert (cfg.m, cfg.n_out, cfg.lstm_activation, cfg.layer_norm_eps) == (4, 30, "relu", 1e-3)
+    assert cfg.input_transform_trained is trained and cfg.feature_transform_trained is trained
+    assert says in model.meta["import_report"]
+    if not trained:
+        assert "identity" in model.meta["import_report"] and model.meta["dropped_params"] > 0
+    for dtype in ("float32", "float64"):
+        m = model.astype(dtype)
+        step = m.predict_batch(data["windows"], normalized=True)
+        assert np.abs(step - data["step"]).max() <= BOUND, dtype
+        roll = np.stack([m.rollout(w, 8, normalized=True) for w in data["windows"]])
+        assert np.abs(roll - data["rollout"]).max() <= BOUND, dtype
+
+
+def test_cli_import_keras(tmp_path, capsys):
+    assert main(["import", str(FIX / "k3_trained.keras"), str(tmp_path / "n.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "Keras 3 .keras archive" in out and "m=4" in out and "trained" in out
+    model = load_native(tmp_path / "n.h5")
+    data = np.load(FIX / "k3_trained.npz")
+    assert np.abs(model.predict_batch(data["windows"], normalized=True) - data["step"]).max() <= BOUND
+    assert import_checkpoint(tmp_path / "n.h5").config == model.config  # native passes through
+
+
+def _copy(tmp_path, name="tf2_released_weights.h5"):
+    dst = tmp_path / name
+    shutil.copy(FIX / name, dst)
+    return dst
+
+
+def _drop_layer(path, layer):
+    with h5py.File(path, "r+") as f:
+        g = f["single_step_model"]
+        names = [n.decode() if isinstance(n, bytes) else str(n) for n in g.attrs["weight_names"]]
+        names = [n for n in names if not n.startswith(layer + "/")]
+        g.attrs["weight_names"] = names
+        del g[layer]
+
+
+def test_missing_conv_layer_is_named(tmp_path):
+    p = _copy(tmp_path)
+    _drop_layer(p, "conv2d_4")
+    with pytest.raises(ValueError, match="found 10 Conv2D layers"):
+        import_keras_h5(p)
+
+
+def test_missing_layernorm_and_dataset(tmp_path):
+    p = _copy(tmp_path)
+    _drop_layer(p, "layer_normalization_1")
+    with pytest.raises(ValueError, match="3 Bidirectional layers but 2 LayerNormalization"):
+        import_keras_h5(p)
+    p = _copy(tmp_path, "tf2_released.h5")
+    with h5py.File(p, "r+") as f:
+        del f["model_weights/single_step_model/bidirectional_1/backward_lstm_1/lstm_cell/bias:0"]
+    with pytest.raises(ValueError, match="missing 'bidirectional_1/backward_lstm_1/lstm_cell/bias:0'"):
+        import_keras_h5(p)
+
+
+def test_wrong_shape_is_named(tmp_path):
+    p = _copy(tmp_path)
+    with h5py.File(p, "r+") as f:
+        g = f["single_step_model/bidirectional_2/forward_lstm_2/lstm_cell"]
+        del g["recurrent_kernel:0"]
+        g.create_dataset("recurrent_kernel:0", data=np.zeros((12, 40), np.float32))
+    with pytest.raises(ValueError, match=r"bidirectional_2 \(fwd\) recurrent_kernel: shape \(12, 40\)"):
+        import_keras_h5(p)
+    p = _copy(tmp_path, "k3_trained.weights.h5")
+    with h5py.File(p, "r+") as f:
+        g = f["layers/functional/layers/dense/vars"]
+        del g["0"]
+        g.create_dataset("0", data=np.zeros((23, 60), np.float32))
+    with pytest.raises(ValueError, match="head FC.*expected \\(24, any\\)"):
+        import_keras_h5(p)
+
+
+def test_unknown_layout_and_links_refused(tmp_path):
+    p = tmp_path / "other.h5"
+    with h5py.File(p, "w") as f:
+        f.create_dataset("x", data=np.zeros(3))
+    with pytest.raises(ValueError, match="unknown layout"):
+        import_keras_h5(p)
+    p = _copy(tmp_path)
+    with h5py.File(p, "r+") as f:
+        g = f["single_step_model/dense_5"]
+        del g["bias:0"]
+        g["bias:0"] = h5py.SoftLink("/single_step_model/dense_4/bias:0")
+    with pytest.raises(ValueError, match="SoftLink; links are not accepted"):
+        import_keras_h5(p)
+    p = _copy(tmp_path)
+    with h5py.File(p, "r+") as f:
+        g = f["single_step_model/dense_5"]
+        del g["bias:0"]
+        g["bias:0"] = h5py.ExternalLink("elsewhere.h5", "/x")
+    with pytest.raises(ValueError, match="ExternalLink"):
+        import_keras_h5(p)
+    with pytest.raises(FileNotFoundError):
+        import_keras_h5(tmp_path / "nope.h5")

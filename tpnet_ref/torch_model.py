@@ -1,0 +1,254 @@
+"""TP-Net in PyTorch, with the Keras semantics of the released code (optional ``train`` extra).
+
+Exactly the network of SPEC §2 and :mod:`tpnet_ref.model`: per-point MLPs as ``nn.Linear``,
+identity or trained transform nets per :class:`~tpnet_ref.model.TPNetConfig`, bidirectional
+LSTMs with a hand-written cell (``relu`` or ``tanh``; ``nn.LSTM`` is tanh-only), LayerNorm with
+the config's eps (Keras: 1e-3), a sigmoid head. No canonical point sort (max-pooling is
+permutation invariant up to rounding).
+
+Parameter names follow PyTorch conventions, so a state dict reads like a PyTorch model's:
+
+    mlp1.0.weight (64, 2)            <-> native mlp1.0.w (2, 64)          (transposed)
+    lstm1.weight_ih_l0 (4u, in)      <-> native lstm1.fwd.kernel (in, 4u) (transposed; i,f,g,o
+    lstm1.bias_ih_l0 + bias_hh_l0    <-> native lstm1.fwd.bias             == Keras i,f,c,o)
+    lstm1.*_l0_reverse               <-> native lstm1.bwd.*
+    ln1.weight / ln1.bias            <-> native ln1.gamma / ln1.beta
+
+The bidirectional LSTM's parameters have exactly ``nn.LSTM(bidirectional=True)``'s names and
+layout. ``state_dict()`` carries the config (hence the LayerNorm eps) as ``_extra_state``, so
+``torch.save(net.state_dict(), path)`` is a checkpoint that
+:func:`tpnet_ref.weights.import_torch` reads without further arguments.
+
+This module is never imported by ``predict``.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .model import TPNet, TPNetConfig
+
+#: tag stored in ``_extra_state`` so importers recognise our checkpoints
+TORCH_FORMAT = "tpnet_ref-torch"
+
+
+def _act(name: str):
+    return torch.relu if name == "relu" else torch.tanh
+
+
+class BiLSTM(nn.Module):
+    """Keras ``Bidirectional(LSTM(units, activation=act))``, merge ``concat``.
+
+    Parameters are named and laid out like ``nn.LSTM(cin, units, bidirectional=True)``:
+    ``weight_ih_l0 (4u, cin)``, ``weight_hh_l0 (4u, u)``, ``bias_ih_l0``, ``bias_hh_l0 (4u,)``,
+    the same with ``_reverse`` for the backward direction; gate order i, f, g, o.
+    """
+
+    def __init__(self, cin: int, units: int, activation: str = "relu",
+                 return_sequences: bool = True) -> None:
+        super().__init__()
+        self.units = units
+        self.activation = activation
+        self.return_sequences = return_sequences
+        for sfx in ("_l0", "_l0_reverse"):
+            self.register_parameter("weight_ih" + sfx, nn.Parameter(torch.empty(4 * units, cin)))
+            self.register_parameter("weight_hh" + sfx, nn.Parameter(torch.empty(4 * units, units)))
+            self.register_parameter("bias_ih" + sfx, nn.Parameter(torch.zeros(4 * units)))
+            self.register_parameter("bias_hh" + sfx, nn.Parameter(torch.zeros(4 * units)))
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        u = self.units
+        for sfx in ("_l0", "_l0_reverse"):
+            nn.init.xavier_uniform_(getattr(self, "weight_ih" + sfx))
+            for k in range(4):  # Keras: orthogonal recurrent kernel per gate
+                nn.init.orthogonal_(getattr(self, "weight_hh" + sfx).data[k * u:(k + 1) * u])
+            b = getattr(self, "bias_ih" + sfx)
+            nn.init.zeros_(b)
+            b.data[u:2 * u] = 1.0  # unit_forget_bias
+            nn.init.zeros_(getattr(self, "bias_hh" + sfx))
+
+    def _direction(self, x: torch.Tensor, sfx: str, reverse: bool) -> torch.Tensor:
+        """``x (B, T, C)`` -> ``(B, T, u)`` (row t: state after consuming step t)."""
+        u = self.units
+        act = _act(self.activation)
+        bsz, steps, _ = x.shape
+        # input projection of every step in one matmul, both biases folded in
+        xp = F.linear(x, getattr(self, "weight_ih" + sfx),
+                      getattr(self, "bias_ih" + sfx) + getattr(self, "bias_hh" + sfx))
+        w_hh_t = getattr(self, "weight_hh" + sfx).t()
+        h = x.new_zeros(bsz, u)
+        c = x.new_zeros(bsz, u)
+        outs: list[torch.Tensor] = [h] * steps
+        order = range(steps - 1, -1, -1) if reverse else range(steps)
+        for t in order:
+            z = xp[:, t] + h @ w_hh_t
+            i, f, g, o = z.split(u, dim=1)
+            c = torch.sigmoid(f) * c + torch.sigmoid(i) * act(g)
+            h = torch.sigmoid(o) * act(c)
+            outs[t] = h
+        return torch.stack(outs, dim=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``(B, T, C)`` -> ``(B, T, 2u)`` or, without sequences, ``(B, 2u)``."""
+        hf = self._direction(x, "_l0", reverse=False)
+        hb = self._direction(x, "_l0_reverse", reverse=True)
+        if self.return_sequences:
+            return torch.cat([hf, hb], dim=-1)
+        return torch.cat([hf[:, -1], hb[:, 0]], dim=-1)
+
+
+def _linear_stack(cin: int, widths: tuple[int, ...]) -> nn.ModuleList:
+    layers = nn.ModuleList()
+    for cout in widths:
+        layers.append(nn.Linear(cin, cout))
+        cin = cout
+    return layers
+
+
+class TNet(nn.Module):
+    """PointNet transform net: per-point MLP, max over points, FC stack, linear FC to K*K.
+    Initialised as the released code does: output weights zero, bias the flattened identity."""
+
+    def __init__(self, k: int, mlp: tuple[int, ...], fc: tuple[int, ...]) -> None:
+        super().__init__()
+        self.k = k
+        self.mlp = _linear_stack(k, mlp)
+        self.fc = _linear_stack(mlp[-1], fc)
+        self.out = nn.Linear(fc[-1], k * k)
+        nn.init.zeros_(self.out.weight)
+        with torch.no_grad():
+            self.out.bias.copy_(torch.eye(k).flatten())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``(F, N, K)`` -> ``(F, K, K)``."""
+        for lin in self.mlp:
+            x = torch.relu(lin(x))
+        g = x.amax(dim=1)
+        for lin in self.fc:
+            g = torch.relu(lin(g))
+        return self.out(g).view(-1, self.k, self.k)
+
+
+class TorchTPNet(nn.Module):
+    """TP-Net (SPEC §2) built from a :class:`TPNetConfig`; forward ``(B, m, N, dim)`` normalised
+    windows -> ``(B, n_out, dim)``."""
+
+    def __init__(self, config: TPNetConfig | None = None) -> None:
+        super().__init__()
+        cfg = config or TPNetConfig()
+        self.config = cfg
+        self.input_tnet = (TNet(cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
+                           if cfg.input_transform_trained else None)
+        self.mlp1 = _linear_stack(cfg.dim, cfg.mlp1)
+        c = cfg.mlp1[-1]
+        self.feature_tnet = (TNet(c, cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
+                             if cfg.feature_transform_trained else None)
+        self.mlp2 = _linear_stack(c, cfg.mlp2)
+        self.global_fc = nn.Linear(cfg.mlp2[-1], cfg.global_features)
+        c = cfg.global_features
+        n = len(cfg.lstm_units)
+        for i, u in enumerate(cfg.lstm_units, start=1):
+            self.add_module(f"lstm{i}", BiLSTM(c, u, cfg.lstm_activation, return_sequences=i < n))
+            c = 2 * u
+            self.add_module(f"ln{i}", nn.LayerNorm(c, eps=cfg.layer_norm_eps))
+        self.head = nn.Linear(c, cfg.n_out * cfg.dim)
+
+    # ---------------------------------------------------------------- config in the state dict
+    def get_extra_state(self) -> dict[str, Any]:
+        return {"format": TORCH_FORMAT, "config": self.config.to_dict()}
+
+    def set_extra_state(self, state: Any) -> None:
+        if not isinstance(state, dict) or state.get("format") != TORCH_FORMAT:
+            raise ValueError("state dict's _extra_state is not a tpnet_ref-torch config")
+        cfg = TPNetConfig.from_dict(state["config"])
+        if cfg != self.config:
+            raise ValueError(f"state dict was saved for {cfg}, this module has {self.config}")
+
+    # ---------------------------------------------------------------- forward
+    def frame_features(self, points: torch.Tensor) -> torch.Tensor:
+        """Global feature of each frame: ``(F, N, dim)`` -> ``(F, global_features)``."""
+        x = points
+        if self.input_tnet is not None:
+            x = torch.bmm(x, self.input_tnet(x))
+        for lin in self.mlp1:
+            x = torch.relu(lin(x))
+        if self.feature_tnet is not None:
+            x = torch.bmm(x, self.feature_tnet(x))
+        for lin in self.mlp2:
+            x = torch.relu(lin(x))
+        return torch.relu(self.global_fc(x.amax(dim=1)))
+
+    def sequence_head(self, feats: torch.Tensor) -> torch.Tensor:
+        """``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1]."""
+        h = feats
+        for i in range(1, len(self.config.lstm_units) + 1):
+            h = getattr(self, f"ln{i}")(getattr(self, f"lstm{i}")(h))
+        return torch.sigmoid(self.head(h)).view(-1, self.config.n_out, self.config.dim)
+
+    def forward(self, windows: torch.Tensor) -> torch.Tensor:
+        """``(B, m, N, dim)`` normalised windows -> next point sets ``(B, n_out, dim)``."""
+        b, m, n, d = windows.shape
+        g = self.frame_features(windows.reshape(b * m, n, d))
+        return self.sequence_head(g.view(b, m, -1))
+
+    def rollout(self, windows: torch.Tensor, steps: int) -> torch.Tensor:
+        """Recursive prediction (window slides by one, prediction appended), each frame's
+        features computed once: ``(B, m, N, dim)`` -> ``(B, steps, n_out, dim)``.
+        Differentiable, for the 8-step training loss."""
+        b, m, n, d = windows.shape
+        feats = list(self.frame_features(windows.reshape(b * m, n, d)).view(b, m, -1).unbind(1))
+        outs = []
+        for _ in range(int(steps)):
+            y = self.sequence_head(torch.stack(feats[-m:], dim=1))
+            outs.append(y)
+            feats.append(self.frame_features(y))
+        return torch.stack(outs, dim=1)
+
+    def recursive_loss(self, windows: torch.Tensor, targets: torch.Tensor,
+                       first_weight: float = 9.0) -> torch.Tensor:
+        """The published loss ``9·CD(P_{t+1}) + Σ_{i=2..S} CD(P_{t+i})`` (released-code Chamfer:
+        Euclidean, both directions summed, batch mean). ``targets (B, S, N, dim)``, S = 8."""
+        pred = self.rollout(windows, targets.shape[1])
+        w = torch.ones(targets.shape[1], dtype=pred.dtype, device=pred.device)
+        w[0] = first_weight
+        return (chamfer_released(pred, targets) * w).sum()
+
+    # ---------------------------------------------------------------- conversion
+    def native_state(self) -> dict[str, np.ndarray]:
+        """Parameters under their native names and Keras layout (float64 NumPy arrays)."""
+        from .weights import torch_state_to_native
+        sd = {k: v.detach().cpu().double().numpy() for k, v in self.state_dict().items()
+              if k != "_extra_state"}
+        return torch_state_to_native(sd, self.config)
+
+    def to_numpy(self, dtype: Any = "float32") -> TPNet:
+        """The same network as a NumPy :class:`TPNet`."""
+        return TPNet(self.config, self.native_state(), dtype, {"producer": "tpnet_ref.torch_model"})
+
+    @classmethod
+    def from_numpy(cls, model: TPNet) -> "TorchTPNet":
+        """A module with ``model``'s config and parameters (in ``model``'s dtype)."""
+        from .weights import native_to_torch_state
+        net = cls(model.config)
+        dt = torch.float64 if model.dtype == np.float64 else torch.float32
+        sd = {k: torch.from_numpy(np.ascontiguousarray(v))
+              for k, v in native_to_torch_state(model.params, model.config).items()}
+        sd["_extra_state"] = net.get_extra_state()
+        net.load_state_dict(sd)
+        return net.to(dt)
+
+
+def chamfer_released(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Released-code Chamfer distance, not squared, both directions summed, no 1/|P|:
+    ``p (B, ..., N, d)``, ``q (B, ..., M, d)`` -> ``(...)`` averaged over the batch axis 0."""
+    dist = torch.cdist(p, q)
+    per = dist.amin(dim=-1).sum(dim=-1) + dist.amin(dim=-2).sum(dim=-1)
+    return per.mean(dim=0)
+
+
+__all__ = ["TorchTPNet", "BiLSTM", "TNet", "chamfer_released", "TORCH_FORMAT"]
