@@ -68,10 +68,10 @@ def torch_peer(model):
     """A callable running the PyTorch model on a normalised batch, or None if unavailable."""
     try:
         import torch
-        from tpnet_ref.torch_model import from_numpy
+        from tpnet_ref.torch_model import TorchTPNet
     except ImportError as exc:
         return None, f"skipped ({exc})"
-    net = from_numpy(model).eval()
+    net = TorchTPNet.from_numpy(model).eval()
     torch.set_num_threads(os.cpu_count() or 1)
 
     def run(x: np.ndarray) -> np.ndarray:
