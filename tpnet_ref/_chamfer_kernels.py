@@ -47,11 +47,42 @@ def _brute_pair(A, B, dA, iA, dB, iB):
         iA[i] = bi
 
 
+@njit(cache=True)
+def _brute_pair_dist(A, B, dA, dB):
+    """Distances only (no indices): branch-free minima that the compiler vectorizes (~3x faster)."""
+    n = A.shape[0]
+    m = B.shape[0]
+    bx = np.empty(m)
+    by = np.empty(m)
+    for j in range(m):
+        bx[j] = B[j, 0]
+        by[j] = B[j, 1]
+        dB[j] = np.inf
+    for i in range(n):
+        ax = A[i, 0]
+        ay = A[i, 1]
+        best = np.inf
+        for j in range(m):
+            dx = ax - bx[j]
+            dy = ay - by[j]
+            d = dx * dx + dy * dy
+            best = min(best, d)
+            dB[j] = min(dB[j], d)
+        dA[i] = best
+
+
 @njit(parallel=True, cache=True)
-def nn_brute(P, Q, ip, iq, dP, iP, dQ, iQ):
-    """Brute force over a batch: pair b is (P[ip[b]], Q[iq[b]]); fills dP, iP (B, N), dQ, iQ (B, M)."""
-    for b in prange(ip.shape[0]):
-        _brute_pair(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b])
+def nn_brute(P, Q, ip, iq, dP, iP, dQ, iQ, with_index):
+    """Brute force over a batch: pair b is (P[ip[b]], Q[iq[b]]); fills dP, iP (B, N), dQ, iQ (B, M).
+
+    With ``with_index=False`` iP and iQ are left untouched.
+    """
+    if with_index:
+        for b in prange(ip.shape[0]):
+            _brute_pair(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b])
+    else:
+        for b in prange(ip.shape[0]):
+            _brute_pair_dist(P[ip[b]], Q[iq[b]], dP[b], dQ[b])
 
 
 @njit(cache=True)

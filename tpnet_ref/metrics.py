@@ -43,7 +43,7 @@ _METHODS = ("auto", "brute", "grid", "kdtree")
 _REDUCTIONS = ("none", "sum", "mean")
 
 # Brute force when N·M <= _BRUTE_FACTOR·(N + M) (roughly min(N, M) <= 2·_BRUTE_FACTOR).
-_BRUTE_FACTOR = 48
+_BRUTE_FACTOR = 128
 # A pair with N + M >= _LARGE is handled alone, parallel over its query points.
 _LARGE = 20_000
 # Grid search is abandoned for scipy's k-d tree when points crowd into a few cells:
@@ -78,8 +78,11 @@ def _prepare(P: Any, Q: Any, centre: bool):
     if centre:
         Pf = Pf - Pf.mean(axis=1, keepdims=True)
         Qf = Qf - Qf.mean(axis=1, keepdims=True)
-    ip = np.broadcast_to(np.arange(Pf.shape[0]).reshape(lp), lead).ravel()
-    iq = np.broadcast_to(np.arange(Qf.shape[0]).reshape(lq), lead).ravel()
+    Pf = Pf if Pf.flags.writeable else Pf.copy()  # read-only arrays are another numba type
+    Qf = Qf if Qf.flags.writeable else Qf.copy()
+    # pair b is (Pf[ip[b]], Qf[iq[b]]); fresh writable int64 arrays (one numba signature)
+    ip = np.array(np.broadcast_to(np.arange(Pf.shape[0]).reshape(lp), lead), np.int64).ravel()
+    iq = np.array(np.broadcast_to(np.arange(Qf.shape[0]).reshape(lq), lead), np.int64).ravel()
     return Pf, Qf, ip, iq, lead
 
 
@@ -91,10 +94,11 @@ def _pair_kdtree(A: np.ndarray, B: np.ndarray, dA, iA, dB, iB) -> None:
     dB[:] = ((B - A[iB]) ** 2).sum(axis=1)
 
 
-def _nearest(Pf, Qf, ip, iq, method: str):
+def _nearest(Pf, Qf, ip, iq, method: str, with_index: bool = False):
     """Squared nearest-neighbour distances and indices both ways for each pair b.
 
-    Returns dP, iP (B, N) (for P[ip[b]] in Q[iq[b]]) and dQ, iQ (B, M).
+    Returns dP, iP (B, N) (for P[ip[b]] in Q[iq[b]]) and dQ, iQ (B, M); the indices are
+    only guaranteed with ``with_index=True``.
     """
     B, N, M = ip.shape[0], Pf.shape[1], Qf.shape[1]
     dP = np.empty((B, N), np.float64)
@@ -109,7 +113,7 @@ def _nearest(Pf, Qf, ip, iq, method: str):
         return dP, iP, dQ, iQ
     huge = max(np.abs(Pf).max(), np.abs(Qf).max()) > _HUGE
     if method == "brute" or huge or (method == "auto" and N * M <= _BRUTE_FACTOR * (N + M)):
-        _kernels().nn_brute(Pf, Qf, ip, iq, dP, iP, dQ, iQ)
+        _kernels().nn_brute(Pf, Qf, ip, iq, dP, iP, dQ, iQ, with_index)
     elif N + M >= _LARGE or B == 1:
         K = _kernels()
         for b in range(B):
@@ -189,7 +193,7 @@ def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
     if not isinstance(return_grad, (bool, np.bool_)):
         raise TypeError(f"return_grad: expected a bool, got {type(return_grad).__name__}")
     Pf, Qf, ip, iq, lead = _prepare(P, Q, False)
-    dP, iP, dQ, iQ = _nearest(Pf, Qf, ip, iq, method)
+    dP, iP, dQ, iQ = _nearest(Pf, Qf, ip, iq, method, bool(return_grad))
     if variant == "paper":
         values = dP.sum(axis=1) + dQ.sum(axis=1)
     else:
