@@ -51,7 +51,8 @@ def machine() -> str:
         pk = "not installed"
     return (f"CPU: {cpu}; os.cpu_count()={os.cpu_count()}; usable cores="
             f"{len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'}; "
-            f"numba threads={numba.config.NUMBA_NUM_THREADS}\n"
+            f"numba threads={numba.config.NUMBA_NUM_THREADS}; "
+            f"load average before the run={os.getloadavg()[0]:.2f}\n"
             f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__}, "
             f"scipy {scipy.__version__}, pykdtree {pk}, {platform.platform()}")
 

@@ -86,6 +86,16 @@ def nn_brute(P, Q, ip, iq, dP, iP, dQ, iQ, with_index):
 
 
 @njit(cache=True)
+def nn_brute_serial(P, Q, ip, iq, dP, iP, dQ, iQ, with_index):
+    """``nn_brute`` on one thread (small work: no cost of starting the thread pool)."""
+    for b in range(ip.shape[0]):
+        if with_index:
+            _brute_pair(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b])
+        else:
+            _brute_pair_dist(P[ip[b]], Q[iq[b]], dP[b], dQ[b])
+
+
+@njit(cache=True)
 def grid_build(T):
     """Cell list of T (m, 2): points sorted by row-major cell.
 
@@ -244,6 +254,13 @@ def _grid_pair(A, B, dA, iA, dB, iB):
 def nn_grid(P, Q, ip, iq, dP, iP, dQ, iQ):
     """Grid method over a batch, parallel over pairs (same interface as ``nn_brute``)."""
     for b in prange(ip.shape[0]):
+        _grid_pair(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b])
+
+
+@njit(cache=True)
+def nn_grid_serial(P, Q, ip, iq, dP, iP, dQ, iQ):
+    """``nn_grid`` on one thread."""
+    for b in range(ip.shape[0]):
         _grid_pair(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b])
 
 

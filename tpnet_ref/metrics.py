@@ -44,6 +44,8 @@ _REDUCTIONS = ("none", "sum", "mean")
 
 # Brute force when N·M <= _BRUTE_FACTOR·(N + M) (roughly min(N, M) <= 2·_BRUTE_FACTOR).
 _BRUTE_FACTOR = 128
+# Work (distance evaluations) below which one thread beats starting the thread pool.
+_PARALLEL_WORK = 1 << 18
 # A pair with N + M >= _LARGE is handled alone, parallel over its query points.
 _LARGE = 20_000
 # Grid search is abandoned for scipy's k-d tree when points crowd into a few cells:
@@ -111,11 +113,12 @@ def _nearest(Pf, Qf, ip, iq, method: str, with_index: bool = False):
         for b in range(B):
             _pair_kdtree(Pf[ip[b]], Qf[iq[b]], dP[b], iP[b], dQ[b], iQ[b])
         return dP, iP, dQ, iQ
+    K = _kernels()
     huge = max(np.abs(Pf).max(), np.abs(Qf).max()) > _HUGE
     if method == "brute" or huge or (method == "auto" and N * M <= _BRUTE_FACTOR * (N + M)):
-        _kernels().nn_brute(Pf, Qf, ip, iq, dP, iP, dQ, iQ, with_index)
-    elif N + M >= _LARGE or B == 1:
-        K = _kernels()
+        nn = K.nn_brute if B * N * M >= _PARALLEL_WORK else K.nn_brute_serial
+        nn(Pf, Qf, ip, iq, dP, iP, dQ, iQ, with_index)
+    elif N + M >= _LARGE or (B == 1 and 32 * (N + M) >= _PARALLEL_WORK):
         for b in range(B):
             A, C = Pf[ip[b]], Qf[iq[b]]
             ga, gc = K.grid_build(A), K.grid_build(C)
@@ -125,7 +128,8 @@ def _nearest(Pf, Qf, ip, iq, method: str, with_index: bool = False):
                 K.grid_query_all(ga, gc, dP[b], iP[b])
                 K.grid_query_all(gc, ga, dQ[b], iQ[b])
     else:
-        _kernels().nn_grid(Pf, Qf, ip, iq, dP, iP, dQ, iQ)
+        nn = K.nn_grid if 32 * B * (N + M) >= _PARALLEL_WORK else K.nn_grid_serial
+        nn(Pf, Qf, ip, iq, dP, iP, dQ, iQ)
     return dP, iP, dQ, iQ
 
 
