@@ -189,7 +189,7 @@ def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
     With ``return_grad=True`` returns ``(loss, grad_P, grad_Q)``: the gradient of the reduced
     loss (of the sum of the per-pair losses for ``"none"``) with respect to P and Q, shaped like
     them (float64, or the input's floating dtype). It is the gradient for fixed nearest-neighbour
-    assignments (ties go to the lowest index); for ``"released"`` a zero distance contributes 0.
+    assignments (ties broken by search order); for ``"released"`` a zero distance contributes 0.
     """
     _check_choice(variant, "variant", _VARIANTS)
     _check_choice(reduction, "reduction", _REDUCTIONS)
