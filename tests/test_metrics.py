@@ -162,12 +162,14 @@ def test_loss_values_and_reductions():
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
-@pytest.mark.parametrize("reduction", ["mean", "sum", "none"])
-def test_loss_gradient_matches_finite_differences(variant, reduction):
+@pytest.mark.parametrize("reduction,method", [("mean", "auto"), ("sum", "grid"),
+                                              ("none", "kdtree")])
+def test_loss_gradient_matches_finite_differences(variant, reduction, method):
     rng = np.random.default_rng(6)
     P = rng.random((3, 8, 2))
     Q = rng.random((5, 2))  # broadcast against the batch: its gradient sums over the pairs
-    loss, gP, gQ = chamfer_loss(P, Q, variant, reduction=reduction, return_grad=True)
+    loss, gP, gQ = chamfer_loss(P, Q, variant, reduction=reduction, return_grad=True,
+                                method=method)
     assert gP.shape == P.shape and gQ.shape == Q.shape
 
     def f(P, Q):
@@ -239,11 +241,17 @@ def test_overflow_is_an_error_not_inf():
 
 
 def test_import_does_not_load_numba():
+    import os
+
+    import tpnet_ref
+    root = os.path.dirname(os.path.dirname(os.path.abspath(tpnet_ref.__file__)))
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
     code = ("import sys, tpnet_ref, tpnet_ref.metrics; "
+            f"assert tpnet_ref.__file__.startswith({root!r}), tpnet_ref.__file__; "
             "assert 'numba' not in sys.modules, 'numba imported'; "
             "tpnet_ref.metrics.position_error([[0, 0]], [[1, 0]]); "
             "assert 'numba' in sys.modules")
-    subprocess.run([sys.executable, "-c", code], check=True)
+    subprocess.run([sys.executable, "-c", code], check=True, env=env)
 
 
 # ------------------------------------------------------------ properties
