@@ -92,8 +92,8 @@ def test_broadcasting_and_result_shapes():
     # a batch of zero pairs
     assert position_error(np.zeros((0, N, 2)), Q[0]).shape == (0,)
     # the batched grid kernel (medium sets, several pairs) agrees with brute force
-    A = rng.random((4, 800, 2))
-    B = rng.random((4, 500, 2)) * 3
+    A = rng.random((8, 800, 2))  # enough work for the parallel kernel
+    B = rng.random((8, 500, 2)) * 3
     for v in VARIANTS:
         np.testing.assert_allclose(position_error(A, B, v, method="grid"),
                                    position_error(A, B, v, method="brute"), rtol=1e-13)
@@ -188,6 +188,20 @@ def test_loss_gradient_matches_finite_differences(variant, reduction, method):
         np.testing.assert_allclose(G, num, rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_loss_gradient_batched_paths_agree(variant):
+    """Parallel brute force with indices, parallel grid, and k-d tree give the same gradient."""
+    rng = np.random.default_rng(8)
+    P = rng.random((300, 30, 2))
+    Q = rng.random((300, 31, 2))
+    ref = chamfer_loss(P, Q, variant, return_grad=True, method="kdtree")
+    for method in ("auto", "grid"):
+        got = chamfer_loss(P, Q, variant, return_grad=True, method=method)
+        assert got[0] == pytest.approx(ref[0], rel=1e-12)
+        np.testing.assert_allclose(got[1], ref[1], rtol=1e-10, atol=1e-14)
+        np.testing.assert_allclose(got[2], ref[2], rtol=1e-10, atol=1e-14)
+
+
 def test_loss_gradient_dtype_follows_input():
     P = np.random.default_rng(0).random((10, 2)).astype(np.float32)
     _, gP, gQ = chamfer_loss(P, P[::-1] + 0.1, return_grad=True)
@@ -262,7 +276,7 @@ point_sets = st.integers(1, 40).flatmap(lambda n: hnp.arrays(np.float64, (n, 2),
 grid_sets = st.integers(1, 40).flatmap(
     lambda n: hnp.arrays(np.float64, (n, 2), elements=st.integers(-3, 3).map(float)))
 any_sets = st.one_of(point_sets, grid_sets)
-FAST = settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+FAST = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 @FAST

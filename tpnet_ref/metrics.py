@@ -83,8 +83,11 @@ def _prepare(P: Any, Q: Any, centre: bool):
     Pf = Pf if Pf.flags.writeable else Pf.copy()  # read-only arrays are another numba type
     Qf = Qf if Qf.flags.writeable else Qf.copy()
     # pair b is (Pf[ip[b]], Qf[iq[b]]); fresh writable int64 arrays (one numba signature)
-    ip = np.array(np.broadcast_to(np.arange(Pf.shape[0]).reshape(lp), lead), np.int64).ravel()
-    iq = np.array(np.broadcast_to(np.arange(Qf.shape[0]).reshape(lq), lead), np.int64).ravel()
+    if lp == lq:
+        ip = iq = np.arange(Pf.shape[0], dtype=np.int64)
+    else:
+        ip = np.array(np.broadcast_to(np.arange(Pf.shape[0]).reshape(lp), lead), np.int64).ravel()
+        iq = np.array(np.broadcast_to(np.arange(Qf.shape[0]).reshape(lq), lead), np.int64).ravel()
     return Pf, Qf, ip, iq, lead
 
 
