@@ -53,3 +53,13 @@ def as_point_set(x: Any, name: str, dim: int = 2, dtype: np.dtype | type | None 
     if arr.shape[0] == 0 and not allow_empty:
         raise ValueError(f"{name}: is empty (0 points)")
     return check_finite(arr, name)
+
+
+def as_point_sets(x: Any, name: str, dim: int = 2, dtype: np.dtype | type | None = None) -> np.ndarray:
+    """``x`` as a finite ``(..., N, dim)`` array (a batch of point sets) with ``N >= 1``."""
+    arr = as_real_array(x, name, dtype)
+    if arr.ndim < 2 or arr.shape[-1] != dim:
+        raise ValueError(f"{name}: expected shape (..., N, {dim}), got {arr.shape}")
+    if arr.shape[-2] == 0:
+        raise ValueError(f"{name}: is empty (0 points per set, shape {arr.shape})")
+    return check_finite(arr, name)

@@ -1,0 +1,153 @@
+"""Benchmark of tpnet_ref.metrics against scipy's cKDTree and pykdtree (not a test).
+
+    PYTHONPATH=. python bench/bench_metrics.py [--quick]
+
+Prints the machine, then ratios measured in this run (best of several repeats each):
+1. a batch of 10,000 pairs of 30-point sets vs a Python loop of cKDTree queries;
+2. one pair of N = 10^5 and 10^6 uniform points vs cKDTree(...).query(workers=-1) and pykdtree,
+   both directions, same metric (released variant: sum of Euclidean nearest distances);
+3. first-call time in a fresh process with an empty numba cache, and with the cache warm.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def best_of(fn, repeats: int) -> tuple[float, object]:
+    best, out = np.inf, None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def machine() -> str:
+    cpu = platform.processor() or "?"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    import numba
+    import scipy
+    try:
+        import pykdtree
+        pk = getattr(pykdtree, "__version__", "installed")
+    except ImportError:
+        pk = "not installed"
+    return (f"CPU: {cpu}; os.cpu_count()={os.cpu_count()}; usable cores="
+            f"{len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'}; "
+            f"numba threads={numba.config.NUMBA_NUM_THREADS}; "
+            f"load average before the run={os.getloadavg()[0]:.2f}\n"
+            f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__}, "
+            f"scipy {scipy.__version__}, pykdtree {pk}, {platform.platform()}")
+
+
+def bench_batch(repeats: int) -> None:
+    from scipy.spatial import cKDTree
+
+    from tpnet_ref.metrics import position_error
+    rng = np.random.default_rng(1)
+    P = rng.random((10_000, 30, 2))
+    Q = rng.random((10_000, 30, 2))
+    position_error(P[:2], Q[:2], "released")  # load compiled kernels
+
+    def loop():
+        out = np.empty(len(P))
+        for b in range(len(P)):
+            dp = cKDTree(Q[b]).query(P[b])[0]
+            dq = cKDTree(P[b]).query(Q[b])[0]
+            out[b] = dp.sum() + dq.sum()
+        return out
+
+    t_nb, r_nb = best_of(lambda: position_error(P, Q, "released"), repeats)
+    t_kd, r_kd = best_of(loop, max(1, repeats // 2))
+    assert np.allclose(r_nb, r_kd, rtol=1e-12, atol=0)
+    print(f"[1] batch 10000 x (30 vs 30 points), released: tpnet_ref {t_nb * 1e3:.2f} ms, "
+          f"Python loop of cKDTree {t_kd * 1e3:.1f} ms -> {t_kd / t_nb:.1f}x faster (target >= 20x)")
+
+
+def bench_large(n: int, repeats: int) -> None:
+    from scipy.spatial import cKDTree
+
+    from tpnet_ref.metrics import position_error
+    rng = np.random.default_rng(n)
+    P = rng.random((n, 2))
+    Q = rng.random((n, 2)) * 0.9 + 0.05
+    position_error(P[:3000], Q[:3000], "released")  # load compiled kernels
+
+    def scipy_kd():
+        return (cKDTree(Q).query(P, workers=-1)[0].sum()
+                + cKDTree(P).query(Q, workers=-1)[0].sum())
+
+    t_nb, r_nb = best_of(lambda: position_error(P, Q, "released"), repeats)
+    t_kd, r_kd = best_of(scipy_kd, repeats)
+    assert np.isclose(r_nb, r_kd, rtol=1e-10)
+    line = (f"[2] one pair N = M = {n:,}, released: tpnet_ref {t_nb * 1e3:.1f} ms, "
+            f"cKDTree(workers=-1) {t_kd * 1e3:.1f} ms ({t_kd / t_nb:.2f}x)")
+    try:
+        from pykdtree.kdtree import KDTree
+
+        def py_kd():
+            return (KDTree(Q).query(P, k=1)[0].sum() + KDTree(P).query(Q, k=1)[0].sum())
+        t_pk, r_pk = best_of(py_kd, repeats)
+        assert np.isclose(r_nb, r_pk, rtol=1e-10)
+        line += f", pykdtree {t_pk * 1e3:.1f} ms ({t_pk / t_nb:.2f}x)"
+    except ImportError:
+        line += ", pykdtree not installed"
+    print(line + "   [ratio = other time / tpnet_ref time; > 1 means tpnet_ref is faster]")
+
+
+_FIRST_CALL = """
+import time, numpy as np
+t0 = time.perf_counter()
+from tpnet_ref.metrics import position_error, shape_error, chamfer_loss
+rng = np.random.default_rng(0)
+position_error(rng.random((4, 30, 2)), rng.random((4, 30, 2)))           # brute force
+position_error(rng.random((2, 400, 2)), rng.random((2, 400, 2)))         # batched grid
+position_error(rng.random((30000, 2)), rng.random((30000, 2)))           # parallel grid
+print(f"{time.perf_counter() - t0:.3f}")
+"""
+
+
+def bench_compile() -> None:
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache,
+                   PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        times = []
+        for _ in range(2):  # first with the empty cache, then warm
+            out = subprocess.run([sys.executable, "-c", _FIRST_CALL], env=env, check=True,
+                                 capture_output=True, text=True).stdout
+            times.append(float(out.strip().splitlines()[-1]))
+    print(f"[3] fresh process, import + first calls of all three kernels: "
+          f"empty numba cache {times[0]:.2f} s, warm cache {times[1]:.2f} s")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repeats, skip N = 10^6")
+    args = ap.parse_args()
+    reps = 3 if args.quick else 7
+    print(machine())
+    bench_batch(reps)
+    for n in ((100_000,) if args.quick else (100_000, 1_000_000)):
+        bench_large(n, reps if n < 10 ** 6 else 3)
+    bench_compile()
+
+
+if __name__ == "__main__":
+    main()
