@@ -99,7 +99,7 @@ def main() -> None:
     files = [(fix / f, fix / f"{s}.npz") for f, s in (
         ("tf2_released.h5", "tf2_released"), ("tf2_released_weights.h5", "tf2_released"),
         ("tf2_trained_bn.h5", "tf2_trained_bn"), ("k3_trained.weights.h5", "k3_trained"),
-        ("k3_trained.keras", "k3_trained"))]
+        ("k3_trained.keras", "k3_trained"), ("k3_legacy.h5", "k3_trained"))]
     if args.keras_full:
         d = Path(args.keras_full)
         files += [(d / "tf2_full.h5", d / "tf2_full.npz"),

@@ -15,12 +15,14 @@ from tpnet_ref.weights import import_checkpoint, import_keras_h5, load_native
 FIX = Path(__file__).parent / "fixtures"
 BOUND = 1e-5
 CASES = [  # file, outputs, transforms trained, what the report must say
-    ("tf2_released.h5", "tf2_released", False, "TF-Keras 2 whole model"),
-    ("tf2_released_weights.h5", "tf2_released", False, "TF-Keras 2 save_weights"),
+    ("tf2_released.h5", "tf2_released", False, "TF-Keras 2 HDF5 whole model (model_weights/), "
+                                                "names with ':0'"),
+    ("tf2_released_weights.h5", "tf2_released", False, "TF-Keras 2 HDF5 save_weights"),
     ("tf2_trained_bn.h5", "tf2_trained_bn", True, "folded 15 BatchNorm"),
     ("tf2_trained_bn_weights.h5", "tf2_trained_bn", True, "folded 15 BatchNorm"),
     ("k3_trained.weights.h5", "k3_trained", True, "Keras 3 .weights.h5"),
     ("k3_trained.keras", "k3_trained", True, "Keras 3 .keras archive"),
+    ("k3_legacy.h5", "k3_trained", True, "names without ':0'"),
 ]
 
 

@@ -527,6 +527,10 @@ def _vars_layout(root: Any, where: str) -> list[_KLayer]:
     return out
 
 
+def _py_list(x: Any) -> list[str]:
+    return [_py_str(v) for v in x]
+
+
 def _py_str(x: Any) -> str:
     return x.decode() if isinstance(x, bytes) else str(x)
 
@@ -648,8 +652,13 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
         root = f["model_weights"] if "model_weights" in f else f
         if "layer_names" in root.attrs:
             layers = _named_layout(root, where)
-            layout = layout or ("TF-Keras 2 whole model (model_weights/)" if "model_weights" in f
-                                else "TF-Keras 2 save_weights")
+            ver = _py_str(f.attrs.get("keras_version", root.attrs.get("keras_version", "?")))
+            fw = "TF-Keras 2" if ver.startswith("2") else f"Keras {ver}"
+            colon = any(_py_str(n).endswith(":0") for ln in _py_list(root.attrs["layer_names"])
+                        for n in _py_list(_safe_child(root, ln, where).attrs.get("weight_names", [])))
+            layout = layout or (f"{fw} HDF5 " + ("whole model (model_weights/)" if "model_weights"
+                                                  in f else "save_weights")
+                                + f", names {'with' if colon else 'without'} ':0'")
             ordered = True
         elif "layers" in root:
             layers = _vars_layout(root, where)
