@@ -537,7 +537,8 @@ def _py_str(x: Any) -> str:
 
 def _config_facts(cfg_json: Any) -> dict[str, Any]:
     """m (first 4-D input), LayerNorm/BatchNorm eps and LSTM activation from a Keras model config."""
-    facts: dict[str, Any] = {"ln_eps": set(), "bn_eps": set(), "lstm_act": set()}
+    facts: dict[str, Any] = {"ln_eps": set(), "bn_eps": set(), "lstm_act": set(),
+                             "unsupported": []}
 
     def visit(o: Any) -> None:
         if isinstance(o, dict):
@@ -551,8 +552,15 @@ def _config_facts(cfg_json: Any) -> dict[str, Any]:
                     facts["ln_eps"].add(float(c["epsilon"]))
                 elif cls == "BatchNormalization" and "epsilon" in c:
                     facts["bn_eps"].add(float(c["epsilon"]))
-                elif cls == "LSTM" and "activation" in c:
-                    facts["lstm_act"].add(str(c["activation"]))
+                elif cls == "LSTM":
+                    if "activation" in c:
+                        facts["lstm_act"].add(str(c["activation"]))
+                    if c.get("recurrent_activation", "sigmoid") != "sigmoid":
+                        facts["unsupported"].append(
+                            f"LSTM recurrent_activation={c['recurrent_activation']!r} (only sigmoid)")
+                elif cls == "Bidirectional" and c.get("merge_mode", "concat") != "concat":
+                    facts["unsupported"].append(
+                        f"Bidirectional merge_mode={c['merge_mode']!r} (only concat)")
             for v in o.values():
                 visit(v)
         elif isinstance(o, list):
@@ -681,6 +689,9 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
 def _keras_to_native(layers: list[_KLayer], ordered: bool, facts: dict[str, Any],
                      m: int | None, ln_eps: float | None, act: str | None, where: str,
                      dtype: Any) -> tuple[TPNet, str]:
+    if facts["unsupported"]:
+        raise ValueError(f"{where}: the model config uses what TP-Net does not: "
+                         f"{sorted(set(facts['unsupported']))}")
     by = {k: [ln for ln in layers if ln.kind == k] for k in _KERAS_TYPES}
     if not ordered:
         # Keras 3: counters per model; frame layers live in the model that holds the convs
