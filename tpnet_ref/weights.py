@@ -1,4 +1,12 @@
-"""Weights I/O: the native HDF5 file (read and write).
+"""Weights I/O: the native HDF5 file (read and write) and the importers of framework checkpoints.
+
+- :func:`load` / :func:`load_native` / :func:`save_native`: the native file (below).
+- :func:`import_keras_h5`: Keras checkpoints of the released architecture (TF-Keras 2 HDF5 as
+  the authors' code writes them, Keras 3 ``.weights.h5`` / ``.keras`` / legacy ``.h5``).
+- :func:`import_torch`: state dicts of :mod:`tpnet_ref.torch_model` (``weights_only`` loading).
+- :func:`import_checkpoint`: any of these, told apart by content; ``tpnet import SRC DST``.
+
+Mapping tables and measured differences: ``docs/weights.md``.
 
 Native format (``format = "tpnet_ref-weights"``, ``format_version = 1``), one HDF5 file:
 
@@ -333,8 +341,10 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
         try:
             obj = torch.load(source, map_location="cpu", weights_only=True)
         except Exception as exc:  # UnpicklingError, RuntimeError, ... from a refused payload
-            raise ValueError(f"{where}: not a weights-only torch checkpoint ({type(exc).__name__}: "
-                             f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
+            raise ValueError(f"{where}: not a weights-only torch checkpoint: "
+                             f"torch.load(weights_only=True) refused it ({type(exc).__name__}); "
+                             "only tensors and plain containers are read, never pickled objects"
+                             ) from None
     else:
         obj = source
     if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
@@ -887,6 +897,11 @@ def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any
         if is_keras:
             return import_keras_h5(p, dtype=dtype, **kw)
     torch_kw = {k: v for k, v in kw.items() if v is not None}
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise ValueError(f"{p}: neither HDF5 nor a .keras archive; reading it as a PyTorch "
+                         "checkpoint needs torch (pip install 'tpnet-ref[train]')") from None
     model = import_torch(p, dtype=dtype, **torch_kw)
     model.meta["import_report"] = (f"torch state dict; m={model.config.m}, N={model.config.n_out}, "
                                    f"params={model.num_params:,}; {model.meta['import_note']}")
