@@ -324,8 +324,8 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
                  lstm_activation: str = "relu", dtype: Any = "float32") -> TPNet:
     """A :class:`TPNet` from the project's PyTorch model (:mod:`tpnet_ref.torch_model`).
 
-    ``source``: a path to a ``torch.save``'d state dict (or a dict ``{"state_dict": ...}``), or
-    the state dict itself. Files are read with ``torch.load(weights_only=True)``: no pickled
+    ``source``: a path to a ``torch.save``'d state dict (or a dict ``{"state_dict": ...}``), the
+    state dict itself, or a :class:`~tpnet_ref.torch_model.TorchTPNet`. Files are read with ``torch.load(weights_only=True)``: no pickled
     code runs, and anything but tensors and plain containers is refused. The config (including
     the LayerNorm eps) comes from the state dict's ``_extra_state`` when present (what
     ``TorchTPNet.state_dict()`` writes); otherwise it is read from the shapes, with ``m``,
@@ -345,6 +345,8 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
                              f"torch.load(weights_only=True) refused it ({type(exc).__name__}); "
                              "only tensors and plain containers are read, never pickled objects"
                              ) from None
+    elif isinstance(source, torch.nn.Module):
+        obj = source.state_dict()
     else:
         obj = source
     if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
