@@ -175,3 +175,17 @@ def test_config_facts_are_read(tmp_path):
     _edit_config(p, edit2)
     with pytest.raises(ValueError, match="recurrent_activation='hard_sigmoid'"):
         import_keras_h5(p)
+
+
+def test_file_without_transform_nets(tmp_path):
+    """The released file with its dead transform-net layers removed imports to the same network:
+    dead weights are exactly that."""
+    p = _copy(tmp_path)
+    for layer in ("conv2d", "conv2d_1", "conv2d_2", "dense", "dense_1",
+                  "conv2d_5", "conv2d_6", "conv2d_7", "dense_2", "dense_3"):
+        _drop_layer(p, layer)
+    model = import_keras_h5(p)
+    assert "no transform nets" in model.meta["import_report"]
+    ref = import_keras_h5(FIX / "tf2_released_weights.h5")
+    assert model.params.keys() == ref.params.keys()
+    assert all(np.array_equal(model.params[k], ref.params[k]) for k in ref.params)
