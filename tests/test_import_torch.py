@@ -56,7 +56,7 @@ def test_bare_state_dict_and_eps(tmp_path):
         yt = net(torch.from_numpy(w)).numpy()
     assert np.abs(model.predict_batch(w, normalized=True) - yt).max() <= 1e-12
     # with the config in _extra_state the eps travels with the weights
-    model2 = import_torch(net.state_dict(), dtype="float64")
+    model2 = import_torch(net, dtype="float64")
     assert model2.config.layer_norm_eps == 1e-5 and model2.config.m == 3
 
 

@@ -1,4 +1,12 @@
-"""Weights I/O: the native HDF5 file (read and write).
+"""Weights I/O: the native HDF5 file (read and write) and the importers of framework checkpoints.
+
+- :func:`load` / :func:`load_native` / :func:`save_native`: the native file (below).
+- :func:`import_keras_h5`: Keras checkpoints of the released architecture (TF-Keras 2 HDF5 as
+  the authors' code writes them, Keras 3 ``.weights.h5`` / ``.keras`` / legacy ``.h5``).
+- :func:`import_torch`: state dicts of :mod:`tpnet_ref.torch_model` (``weights_only`` loading).
+- :func:`import_checkpoint`: any of these, told apart by content; ``tpnet import SRC DST``.
+
+Mapping tables and measured differences: ``docs/weights.md``.
 
 Native format (``format = "tpnet_ref-weights"``, ``format_version = 1``), one HDF5 file:
 
@@ -316,8 +324,8 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
                  lstm_activation: str = "relu", dtype: Any = "float32") -> TPNet:
     """A :class:`TPNet` from the project's PyTorch model (:mod:`tpnet_ref.torch_model`).
 
-    ``source``: a path to a ``torch.save``'d state dict (or a dict ``{"state_dict": ...}``), or
-    the state dict itself. Files are read with ``torch.load(weights_only=True)``: no pickled
+    ``source``: a path to a ``torch.save``'d state dict (or a dict ``{"state_dict": ...}``), the
+    state dict itself, or a :class:`~tpnet_ref.torch_model.TorchTPNet`. Files are read with ``torch.load(weights_only=True)``: no pickled
     code runs, and anything but tensors and plain containers is refused. The config (including
     the LayerNorm eps) comes from the state dict's ``_extra_state`` when present (what
     ``TorchTPNet.state_dict()`` writes); otherwise it is read from the shapes, with ``m``,
@@ -333,8 +341,12 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
         try:
             obj = torch.load(source, map_location="cpu", weights_only=True)
         except Exception as exc:  # UnpicklingError, RuntimeError, ... from a refused payload
-            raise ValueError(f"{where}: not a weights-only torch checkpoint ({type(exc).__name__}: "
-                             f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
+            raise ValueError(f"{where}: not a weights-only torch checkpoint: "
+                             f"torch.load(weights_only=True) refused it ({type(exc).__name__}); "
+                             "only tensors and plain containers are read, never pickled objects"
+                             ) from None
+    elif isinstance(source, torch.nn.Module):
+        obj = source.state_dict()
     else:
         obj = source
     if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
@@ -527,13 +539,18 @@ def _vars_layout(root: Any, where: str) -> list[_KLayer]:
     return out
 
 
+def _py_list(x: Any) -> list[str]:
+    return [_py_str(v) for v in x]
+
+
 def _py_str(x: Any) -> str:
     return x.decode() if isinstance(x, bytes) else str(x)
 
 
 def _config_facts(cfg_json: Any) -> dict[str, Any]:
     """m (first 4-D input), LayerNorm/BatchNorm eps and LSTM activation from a Keras model config."""
-    facts: dict[str, Any] = {"ln_eps": set(), "bn_eps": set(), "lstm_act": set()}
+    facts: dict[str, Any] = {"ln_eps": set(), "bn_eps": set(), "lstm_act": set(),
+                             "unsupported": []}
 
     def visit(o: Any) -> None:
         if isinstance(o, dict):
@@ -547,8 +564,15 @@ def _config_facts(cfg_json: Any) -> dict[str, Any]:
                     facts["ln_eps"].add(float(c["epsilon"]))
                 elif cls == "BatchNormalization" and "epsilon" in c:
                     facts["bn_eps"].add(float(c["epsilon"]))
-                elif cls == "LSTM" and "activation" in c:
-                    facts["lstm_act"].add(str(c["activation"]))
+                elif cls == "LSTM":
+                    if "activation" in c:
+                        facts["lstm_act"].add(str(c["activation"]))
+                    if c.get("recurrent_activation", "sigmoid") != "sigmoid":
+                        facts["unsupported"].append(
+                            f"LSTM recurrent_activation={c['recurrent_activation']!r} (only sigmoid)")
+                elif cls == "Bidirectional" and c.get("merge_mode", "concat") != "concat":
+                    facts["unsupported"].append(
+                        f"Bidirectional merge_mode={c['merge_mode']!r} (only concat)")
             for v in o.values():
                 visit(v)
         elif isinstance(o, list):
@@ -648,8 +672,13 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
         root = f["model_weights"] if "model_weights" in f else f
         if "layer_names" in root.attrs:
             layers = _named_layout(root, where)
-            layout = layout or ("TF-Keras 2 whole model (model_weights/)" if "model_weights" in f
-                                else "TF-Keras 2 save_weights")
+            ver = _py_str(f.attrs.get("keras_version", root.attrs.get("keras_version", "?")))
+            fw = "TF-Keras 2" if ver.startswith("2") else f"Keras {ver}"
+            colon = any(_py_str(n).endswith(":0") for ln in _py_list(root.attrs["layer_names"])
+                        for n in _py_list(_safe_child(root, ln, where).attrs.get("weight_names", [])))
+            layout = layout or (f"{fw} HDF5 " + ("whole model (model_weights/)" if "model_weights"
+                                                  in f else "save_weights")
+                                + f", names {'with' if colon else 'without'} ':0'")
             ordered = True
         elif "layers" in root:
             layers = _vars_layout(root, where)
@@ -672,6 +701,9 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
 def _keras_to_native(layers: list[_KLayer], ordered: bool, facts: dict[str, Any],
                      m: int | None, ln_eps: float | None, act: str | None, where: str,
                      dtype: Any) -> tuple[TPNet, str]:
+    if facts["unsupported"]:
+        raise ValueError(f"{where}: the model config uses what TP-Net does not: "
+                         f"{sorted(set(facts['unsupported']))}")
     by = {k: [ln for ln in layers if ln.kind == k] for k in _KERAS_TYPES}
     if not ordered:
         # Keras 3: counters per model; frame layers live in the model that holds the convs
@@ -867,6 +899,11 @@ def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any
         if is_keras:
             return import_keras_h5(p, dtype=dtype, **kw)
     torch_kw = {k: v for k, v in kw.items() if v is not None}
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise ValueError(f"{p}: neither HDF5 nor a .keras archive; reading it as a PyTorch "
+                         "checkpoint needs torch (pip install 'tpnet-ref[train]')") from None
     model = import_torch(p, dtype=dtype, **torch_kw)
     model.meta["import_report"] = (f"torch state dict; m={model.config.m}, N={model.config.n_out}, "
                                    f"params={model.num_params:,}; {model.meta['import_note']}")

@@ -15,12 +15,14 @@ from tpnet_ref.weights import import_checkpoint, import_keras_h5, load_native
 FIX = Path(__file__).parent / "fixtures"
 BOUND = 1e-5
 CASES = [  # file, outputs, transforms trained, what the report must say
-    ("tf2_released.h5", "tf2_released", False, "TF-Keras 2 whole model"),
-    ("tf2_released_weights.h5", "tf2_released", False, "TF-Keras 2 save_weights"),
+    ("tf2_released.h5", "tf2_released", False, "TF-Keras 2 HDF5 whole model (model_weights/), "
+                                                "names with ':0'"),
+    ("tf2_released_weights.h5", "tf2_released", False, "TF-Keras 2 HDF5 save_weights"),
     ("tf2_trained_bn.h5", "tf2_trained_bn", True, "folded 15 BatchNorm"),
     ("tf2_trained_bn_weights.h5", "tf2_trained_bn", True, "folded 15 BatchNorm"),
     ("k3_trained.weights.h5", "k3_trained", True, "Keras 3 .weights.h5"),
     ("k3_trained.keras", "k3_trained", True, "Keras 3 .keras archive"),
+    ("k3_legacy.h5", "k3_trained", True, "names without ':0'"),
 ]
 
 
@@ -125,3 +127,65 @@ def test_unknown_layout_and_links_refused(tmp_path):
         import_keras_h5(p)
     with pytest.raises(FileNotFoundError):
         import_keras_h5(tmp_path / "nope.h5")
+
+
+def _edit_config(path, fn):
+    import json
+    with h5py.File(path, "r+") as f:
+        cfg = json.loads(f.attrs["model_config"])
+        fn(cfg)
+        f.attrs["model_config"] = json.dumps(cfg)
+
+
+def _each(o, cls):
+    if isinstance(o, dict):
+        if o.get("class_name") == cls:
+            yield o["config"]
+        for v in o.values():
+            yield from _each(v, cls)
+    elif isinstance(o, list):
+        for v in o:
+            yield from _each(v, cls)
+
+
+def test_config_facts_are_read(tmp_path):
+    """m, LayerNorm eps and LSTM activation come from a whole-model file's config; keywords
+    fill in for a save_weights file; unsupported LSTM settings are refused by name."""
+    p = _copy(tmp_path, "tf2_released.h5")
+
+    def edit(cfg):
+        for c in _each(cfg, "LayerNormalization"):
+            c["epsilon"] = 1e-5
+        for c in _each(cfg, "InputLayer"):
+            if len(c["batch_input_shape"]) == 4:
+                c["batch_input_shape"][1] = 5
+
+    _edit_config(p, edit)
+    c = import_keras_h5(p).config
+    assert (c.m, c.layer_norm_eps) == (5, 1e-5)
+    c = import_keras_h5(FIX / "tf2_released_weights.h5", m=3, layer_norm_eps=1e-4,
+                        lstm_activation="tanh").config
+    assert (c.m, c.layer_norm_eps, c.lstm_activation) == (3, 1e-4, "tanh")
+    p = _copy(tmp_path, "tf2_released.h5")
+
+    def edit2(cfg):
+        for c in _each(cfg, "LSTM"):
+            c["recurrent_activation"] = "hard_sigmoid"
+
+    _edit_config(p, edit2)
+    with pytest.raises(ValueError, match="recurrent_activation='hard_sigmoid'"):
+        import_keras_h5(p)
+
+
+def test_file_without_transform_nets(tmp_path):
+    """The released file with its dead transform-net layers removed imports to the same network:
+    dead weights are exactly that."""
+    p = _copy(tmp_path)
+    for layer in ("conv2d", "conv2d_1", "conv2d_2", "dense", "dense_1",
+                  "conv2d_5", "conv2d_6", "conv2d_7", "dense_2", "dense_3"):
+        _drop_layer(p, layer)
+    model = import_keras_h5(p)
+    assert "no transform nets" in model.meta["import_report"]
+    ref = import_keras_h5(FIX / "tf2_released_weights.h5")
+    assert model.params.keys() == ref.params.keys()
+    assert all(np.array_equal(model.params[k], ref.params[k]) for k in ref.params)
