@@ -19,6 +19,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
 from box2d_scene import simulate_box2d  # noqa: E402
+from naive_pymunk import simulate_naive  # noqa: E402
 
 from tpnet_ref.sim import simulate  # noqa: E402
 
@@ -55,6 +56,9 @@ def parse_kw(items: list[str]) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", type=int, default=60)
+    ap.add_argument("--model", default="sim", choices=("sim", "naive", "box2d-perturbed"),
+                    help="sim: tpnet_ref.sim; naive: bench/naive_pymunk.py; box2d-perturbed: "
+                         "Box2D started 1e-4 to the right (Box2D's own sensitivity)")
     ap.add_argument("kw", nargs="*")
     args = ap.parse_args()
     kw = parse_kw(args.kw)
@@ -67,13 +71,18 @@ def main() -> int:
         t0 = time.perf_counter()
         b = simulate_box2d(f, a, x, y, 600)
         t1 = time.perf_counter()
-        p = simulate(f, a, x, y, 600, **kw)
+        if args.model == "sim":
+            p = simulate(f, a, x, y, 600, **kw)
+        elif args.model == "naive":
+            p = simulate_naive(f, a, x, y, 600)
+        else:
+            p = simulate_box2d(f, a, x + 1e-4, y, 600)
         t2 = time.perf_counter()
         t_b2 += t1 - t0
         t_pm += t2 - t1
         cen[c] = np.linalg.norm(p.mean(1) - b.mean(1), axis=1)
         shp[c] = [shape_error(p[r], b[r]) for r in rows]
-    print(f"{len(cases)} cases, kwargs {kw or '(defaults)'}")
+    print(f"{len(cases)} cases, model {args.model}, kwargs {kw or '(defaults)'}")
     print(f"{'step':>5} {'centroid mean':>14} {'median':>8} {'max':>8} {'shape err mean':>15}")
     for j, (s, r) in enumerate(zip(STEPS, rows)):
         print(f"{s:5d} {cen[:, r].mean():14.4f} {np.median(cen[:, r]):8.4f} "

@@ -382,6 +382,21 @@ class Scene:
         """``(N, 2)`` current particle centres (a copy)."""
         return self.read()[: self.n, 0:2].copy()
 
+    def energy(self) -> float:
+        """Mechanical energy now (from ``buf``; call ``read`` first): linear and rotational
+        kinetic, gravitational and spring potential energy (springs as ideal springs of
+        stiffness ``mu (2 pi f)^2``)."""
+        p = self.params
+        n = self.n
+        b = self.buf
+        # pymunk's stored velocity already holds the next step's gravity kick; remove it
+        v = b[:n, 2:4] - p.dt * np.asarray(p.gravity, dtype=float)
+        ke = 0.5 * p.mass * float((v ** 2).sum()) + 0.5 * p.inertia * float((b[:n, 4] ** 2).sum())
+        pe = -p.mass * float((b[:n, 0:2] @ np.asarray(p.gravity, dtype=float)).sum())
+        d = b[self.pairs[:, 1], 0:2] - b[self.pairs[:, 0], 0:2]
+        stretch = np.sqrt((d ** 2).sum(1)) - self.rest
+        return ke + pe + 0.5 * spring_energy_k(p) * float((stretch ** 2).sum())
+
     def step(self) -> None:
         """Advance one ``dt`` (velocities in ``buf`` must be current: call ``read`` first)."""
         p = self.params
@@ -528,13 +543,15 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
 
 
 def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 600, *,
-             params: SceneParams | None = None, **kwargs: Any) -> np.ndarray:
+             params: SceneParams | None = None, return_energy: bool = False,
+             **kwargs: Any) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Particle centres ``(steps, n_particles, 2)`` (float64, world units) of one trajectory.
 
     ``force``: impulse magnitude per particle; ``angle_deg``: its direction (0 = +x, 90 = +y);
     ``(x, y)``: start centre of the ring. Row 0 is the initial state, row k the state after k
     steps of ``dt``. Any ``SceneParams`` field can be given as a keyword (e.g. ``frequency=4``,
-    ``walls=False``); unknown keywords raise ``TypeError``.
+    ``walls=False``); unknown keywords raise ``TypeError``. With ``return_energy`` also the
+    ``(steps,)`` mechanical energy per row (``Scene.energy``).
     """
     if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, (int, np.integer)):
         raise TypeError(f"steps: expected an integer, got {type(steps).__name__}")
@@ -546,17 +563,22 @@ def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 60
     scene = build_scene(x, y, force, angle_deg, p)
     n = p.n_particles
     out = np.empty((steps, n, 2))
+    en = np.empty(steps) if return_energy else None
     for k in range(steps):
         buf = scene.read()
         out[k] = buf[:n, 0:2]
+        if en is not None:
+            en[k] = scene.energy()
         if scene.asleep:
             out[k + 1:] = out[k]
+            if en is not None:
+                en[k + 1:] = en[k]
             break
         if k + 1 < steps:
             scene.step()
     if not np.isfinite(out).all():  # pragma: no cover - guarded by validation and the solver
         raise FloatingPointError("simulate: non-finite positions; parameters beyond the solver")
-    return out
+    return (out, en) if en is not None else out
 
 
 def _replace(p: SceneParams, kwargs: dict[str, Any]) -> SceneParams:
@@ -570,22 +592,9 @@ def _replace(p: SceneParams, kwargs: dict[str, Any]) -> SceneParams:
     return dataclasses.replace(p, **kwargs)
 
 
-def energy(traj: np.ndarray, params: SceneParams | None = None) -> np.ndarray:
-    """Mechanical energy per row ``(steps,)`` from positions alone: translational kinetic energy
-    from central differences (ends one-sided), gravitational and spring potential energy.
-    Rotation is ignored (it is only fed by friction, which removes energy)."""
-    p = params or SceneParams()
-    traj = np.asarray(traj, dtype=float)
-    v = np.gradient(traj, p.dt, axis=0)
-    ke = 0.5 * p.mass * (v ** 2).sum(axis=(1, 2))
-    g = np.asarray(p.gravity, dtype=float)
-    pe = -p.mass * (traj @ g).sum(axis=1)
-    pairs = spring_pairs(p.n_particles, p.spring_reach)
-    rest = np.linalg.norm(traj[0, pairs[:, 1]] - traj[0, pairs[:, 0]], axis=1)
-    length = np.linalg.norm(traj[:, pairs[:, 1]] - traj[:, pairs[:, 0]], axis=2)
-    k = 0.5 * p.mass * (2 * math.pi * p.frequency) ** 2   # reduced mass m/2
-    se = 0.5 * k * ((length - rest) ** 2).sum(axis=1)
-    return ke + pe + se
+def spring_energy_k(params: SceneParams) -> float:
+    """Stiffness of one spring, ``mu (2 pi f)^2`` with the pair's reduced mass ``mu = m/2``."""
+    return 0.5 * params.mass * (2.0 * math.pi * params.frequency) ** 2
 
 
 # --------------------------------------------------------------------------- CLI
@@ -665,4 +674,4 @@ def show(traj: np.ndarray, path: str, *, every: int = 4, title: str = "",
 
 
 __all__ = ["SceneParams", "Scene", "simulate", "build_scene", "ring_positions", "spring_pairs",
-           "connected_matrix", "validate_params", "energy", "show"]
+           "connected_matrix", "validate_params", "spring_energy_k", "show"]
