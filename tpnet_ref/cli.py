@@ -16,6 +16,8 @@ from collections.abc import Sequence
 # module path -> the sub-commands it registers (for the record; each module's add_cli is called)
 COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.model",
+    "tpnet_ref.sim",
+    "tpnet_ref.data",
 )
 
 

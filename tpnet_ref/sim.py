@@ -205,8 +205,8 @@ def _kernels() -> Any:
 
     @njit(cache=True, fastmath=False)
     def advance(pos, vel, ang, out_pos, ia, ib, rest, lam, inv_mass, h, omega, zeta, iters,
-                slop, max_tr, max_rot, walls, lo, hi, radius, mass, inertia, mu, e_wall,
-                v_thresh):  # pragma: no cover - compiled
+                slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch, radius,
+                mass, inertia, mu, e_wall, v_thresh):  # pragma: no cover - compiled
         """Springs (Box2D soft distance joints) + clamps + wall time of impact, in place.
 
         pos (N, 2) positions now; vel (N, 2), ang (N,) velocities after pymunk's contact solve,
@@ -250,7 +250,31 @@ def _kernels() -> Any:
             vel[a, 1] -= inv_mass[a] * py
             vel[b, 0] += inv_mass[b] * px
             vel[b, 1] += inv_mass[b] * py
-        # -- sequential impulses (b2DistanceJoint::SolveVelocityConstraints)
+        # -- wall contacts of touching particles, solved together with the springs (Box2D
+        #    solves joints and contacts in one loop). pymunk has already solved these contacts
+        #    on the velocities before the springs; here only the extra impulse that stops the
+        #    springs from driving a particle into a wall: normal impulse >= 0, friction within
+        #    mu times that extra normal impulse (so the total stays within mu times the total).
+        nc = 0
+        c_i = np.empty(4 * n, np.int64)
+        c_nx = np.empty(4 * n)
+        c_ny = np.empty(4 * n)
+        c_ln = np.zeros(4 * n)
+        c_lt = np.zeros(4 * n)
+        if walls:
+            for i in range(n):
+                for ax in range(2):
+                    for side in range(2):
+                        gap = pos[i, ax] - face_lo if side == 0 else face_hi - pos[i, ax]
+                        if gap < touch:
+                            c_i[nc] = i
+                            sg = 1.0 if side == 0 else -1.0
+                            c_nx[nc] = sg if ax == 0 else 0.0
+                            c_ny[nc] = sg if ax == 1 else 0.0
+                            nc += 1
+        rt = radius  # r x t for r = -radius n, t = (n.y, -n.x)
+        mt = 1.0 / (1.0 / mass + rt * rt / inertia)
+        # -- sequential impulses (b2DistanceJoint::SolveVelocityConstraints, then contacts)
         for _ in range(iters):
             for j in range(s):
                 a = ia[j]
@@ -264,6 +288,29 @@ def _kernels() -> Any:
                 vel[a, 1] -= inv_mass[a] * py
                 vel[b, 0] += inv_mass[b] * px
                 vel[b, 1] += inv_mass[b] * py
+            for c in range(nc):
+                i = c_i[c]
+                nx = c_nx[c]
+                ny = c_ny[c]
+                tx = ny
+                ty = -nx
+                # friction (velocity of the contact point v + w x r, r = -radius n)
+                vt = (vel[i, 0] + ang[i] * radius * ny) * tx \
+                    + (vel[i, 1] - ang[i] * radius * nx) * ty
+                lim = mu * c_ln[c]
+                new_lt = min(max(c_lt[c] - mt * vt, -lim), lim)
+                dl = new_lt - c_lt[c]
+                c_lt[c] = new_lt
+                vel[i, 0] += dl * tx / mass
+                vel[i, 1] += dl * ty / mass
+                ang[i] += rt * dl / inertia
+                # normal: no approach
+                vn = vel[i, 0] * nx + vel[i, 1] * ny
+                new_ln = max(c_ln[c] - mass * vn, 0.0)
+                dl = new_ln - c_ln[c]
+                c_ln[c] = new_ln
+                vel[i, 0] += dl * nx / mass
+                vel[i, 1] += dl * ny / mass
         vmax2 = 0.0
         wmax2 = 0.0
         for i in range(n):
@@ -287,7 +334,7 @@ def _kernels() -> Any:
             px = pos[i, 0]
             py = pos[i, 1]
             rem = 1.0
-            if walls:
+            if toi:
                 for _ev in range(4):
                     best = 2.0
                     axis = -1
@@ -343,6 +390,22 @@ def _kernels() -> Any:
                         break
             out_pos[i, 0] = px + rem * h * vel[i, 0]
             out_pos[i, 1] = py + rem * h * vel[i, 1]
+            # -- wall position correction (b2ContactSolver::SolvePositionConstraints:
+            #    10 iterations, baumgarte 0.2, at most 0.2 per iteration, slop kept)
+            if walls:
+                for ax in range(2):
+                    for side in range(2):
+                        q = out_pos[i, ax]
+                        sep = (q - face_lo if side == 0 else face_hi - q) - touch
+                        if sep < -slop:
+                            s0 = sep
+                            for _it in range(10):
+                                corr = 0.2 * (sep + slop)
+                                if corr < -0.2:
+                                    corr = -0.2
+                                if corr < 0.0:
+                                    sep -= corr
+                            out_pos[i, ax] = q + (sep - s0 if side == 0 else s0 - sep)
         return vmax2, wmax2
 
     _KERNELS["advance"] = advance
@@ -412,7 +475,8 @@ class Scene:
             pos, vel, ang, out, self.pairs[:, 0], self.pairs[:, 1], self.rest, self.lam,
             self.inv_mass, p.dt, 2.0 * math.pi * p.frequency, p.damping_ratio, p.iterations,
             p.contact_slop, p.max_translation or 0.0, p.max_rotation or 0.0,
-            p.walls and p.continuous, p.free_lo + p.toi_distance, p.free_hi - p.toi_distance,
+            p.walls, p.walls and p.continuous, p.free_lo + p.toi_distance,
+            p.free_hi - p.toi_distance, p.free_lo, p.free_hi, p.particle_radius + p.wall_skin,
             p.particle_radius, p.mass, p.inertia,
             math.sqrt(p.particle_friction * p.wall_friction),
             max(p.particle_restitution, p.wall_restitution), p.restitution_threshold)
