@@ -39,8 +39,10 @@ def test_scene_construction():
     np.testing.assert_allclose(pos, np.stack([30 + 2 * np.sin(a), 35 + 2 * np.cos(a)], 1),
                                atol=1e-12)
     np.testing.assert_allclose(sc.rest, 4 * np.sin(np.pi * d / 30), atol=1e-12)
-    statics = [s for s in sc.space.shapes if s.body.body_type == s.body.STATIC]
-    assert len(statics) == 4
+    # the walls are half-planes in the step kernel, not pymunk shapes
+    assert len(sc.space.shapes) == 30
+    assert sc.params.free_lo == 1.0 and sc.params.free_hi == 44.0
+    assert sc.wall_ln.shape == (30, 4)
     assert sc.space.collision_slop == pytest.approx(0.005)
     assert sc.space.iterations == 10
 
@@ -49,6 +51,8 @@ def test_no_walls_builds_none():
     sc = build_scene(30.0, 35.0, params=SceneParams(walls=False))
     assert all(s.body.body_type == s.body.DYNAMIC for s in sc.space.shapes)
     assert len(sc.space.shapes) == 30
+    traj = simulate(1.6, 270.0, 22.0, 4.0, steps=100, walls=False)
+    assert traj[-1, :, 1].max() < 0.0        # falls through where the floor would be
 
 
 def test_spring_pairs_small_ring():

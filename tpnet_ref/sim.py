@@ -206,7 +206,7 @@ def _kernels() -> Any:
     @njit(cache=True, fastmath=False)
     def advance(pos, vel, ang, out_pos, ia, ib, rest, lam, inv_mass, h, omega, zeta, iters,
                 slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch, radius,
-                mass, inertia, mu, e_wall, v_thresh):  # pragma: no cover - compiled
+                mass, inertia, mu, e_wall, v_thresh, wl_n, wl_t):  # pragma: no cover
         """Springs (Box2D soft distance joints) + clamps + wall time of impact, in place.
 
         pos (N, 2) positions now; vel (N, 2), ang (N,) velocities after pymunk's contact solve,
@@ -221,6 +221,46 @@ def _kernels() -> Any:
         bias = np.empty(s)
         gam = np.empty(s)
         meff = np.empty(s)
+        # -- wall contacts (b2ContactSolver): a particle touches a wall when its centre is
+        #    closer than radius + skin to the face. Restitution bias from the approach
+        #    speed before warm starting, then warm start with last step's impulses.
+        skin = touch - radius
+        nc = 0
+        c_i = np.empty(4 * n, np.int64)
+        c_k = np.empty(4 * n, np.int64)
+        c_nx = np.empty(4 * n)
+        c_ny = np.empty(4 * n)
+        c_r = np.empty(4 * n)
+        c_b = np.empty(4 * n)
+        for i in range(n):
+            for k in range(4):
+                ax = k // 2
+                side = k % 2
+                gap = pos[i, ax] - face_lo if side == 0 else face_hi - pos[i, ax]
+                if walls and gap < touch:
+                    sg = 1.0 if side == 0 else -1.0
+                    nx = sg if ax == 0 else 0.0
+                    ny = sg if ax == 1 else 0.0
+                    c_i[nc] = i
+                    c_k[nc] = k
+                    c_nx[nc] = nx
+                    c_ny[nc] = ny
+                    # contact point midway between the surfaces (b2WorldManifold)
+                    c_r[nc] = 0.5 * (radius + gap - skin)
+                    vn = vel[i, 0] * nx + vel[i, 1] * ny
+                    c_b[nc] = -e_wall * vn if vn < -v_thresh else 0.0
+                    nc += 1
+                else:
+                    wl_n[i, k] = 0.0
+                    wl_t[i, k] = 0.0
+        for c in range(nc):
+            i = c_i[c]
+            k = c_k[c]
+            ln = wl_n[i, k]
+            lt = wl_t[i, k]
+            vel[i, 0] += (ln * c_nx[c] + lt * c_ny[c]) / mass
+            vel[i, 1] += (ln * c_ny[c] - lt * c_nx[c]) / mass
+            ang[i] += c_r[c] * lt / inertia
         # -- init velocity constraints + warm start (b2DistanceJoint::InitVelocityConstraints)
         for j in range(s):
             a = ia[j]
@@ -250,31 +290,7 @@ def _kernels() -> Any:
             vel[a, 1] -= inv_mass[a] * py
             vel[b, 0] += inv_mass[b] * px
             vel[b, 1] += inv_mass[b] * py
-        # -- wall contacts of touching particles, solved together with the springs (Box2D
-        #    solves joints and contacts in one loop). pymunk has already solved these contacts
-        #    on the velocities before the springs; here only the extra impulse that stops the
-        #    springs from driving a particle into a wall: normal impulse >= 0, friction within
-        #    mu times that extra normal impulse (so the total stays within mu times the total).
-        nc = 0
-        c_i = np.empty(4 * n, np.int64)
-        c_nx = np.empty(4 * n)
-        c_ny = np.empty(4 * n)
-        c_ln = np.zeros(4 * n)
-        c_lt = np.zeros(4 * n)
-        if walls:
-            for i in range(n):
-                for ax in range(2):
-                    for side in range(2):
-                        gap = pos[i, ax] - face_lo if side == 0 else face_hi - pos[i, ax]
-                        if gap < touch:
-                            c_i[nc] = i
-                            sg = 1.0 if side == 0 else -1.0
-                            c_nx[nc] = sg if ax == 0 else 0.0
-                            c_ny[nc] = sg if ax == 1 else 0.0
-                            nc += 1
-        rt = radius  # r x t for r = -radius n, t = (n.y, -n.x)
-        mt = 1.0 / (1.0 / mass + rt * rt / inertia)
-        # -- sequential impulses (b2DistanceJoint::SolveVelocityConstraints, then contacts)
+        # -- sequential impulses: joints, then contacts (b2Island::Solve)
         for _ in range(iters):
             for j in range(s):
                 a = ia[j]
@@ -290,25 +306,29 @@ def _kernels() -> Any:
                 vel[b, 1] += inv_mass[b] * py
             for c in range(nc):
                 i = c_i[c]
+                k = c_k[c]
                 nx = c_nx[c]
                 ny = c_ny[c]
+                rc = c_r[c]
                 tx = ny
                 ty = -nx
-                # friction (velocity of the contact point v + w x r, r = -radius n)
-                vt = (vel[i, 0] + ang[i] * radius * ny) * tx \
-                    + (vel[i, 1] - ang[i] * radius * nx) * ty
-                lim = mu * c_ln[c]
-                new_lt = min(max(c_lt[c] - mt * vt, -lim), lim)
-                dl = new_lt - c_lt[c]
-                c_lt[c] = new_lt
+                # friction first: velocity of the contact point v + w x r, r = -rc n
+                vt = (vel[i, 0] + ang[i] * rc * ny) * tx + (vel[i, 1] - ang[i] * rc * nx) * ty
+                mt = 1.0 / (1.0 / mass + rc * rc / inertia)
+                lim = mu * wl_n[i, k]
+                old = wl_t[i, k]
+                new = min(max(old - mt * vt, -lim), lim)
+                wl_t[i, k] = new
+                dl = new - old
                 vel[i, 0] += dl * tx / mass
                 vel[i, 1] += dl * ty / mass
-                ang[i] += rt * dl / inertia
-                # normal: no approach
+                ang[i] += rc * dl / inertia
+                # then the normal impulse (accumulated >= 0)
                 vn = vel[i, 0] * nx + vel[i, 1] * ny
-                new_ln = max(c_ln[c] - mass * vn, 0.0)
-                dl = new_ln - c_ln[c]
-                c_ln[c] = new_ln
+                old = wl_n[i, k]
+                new = max(old - mass * (vn - c_b[c]), 0.0)
+                wl_n[i, k] = new
+                dl = new - old
                 vel[i, 0] += dl * nx / mass
                 vel[i, 1] += dl * ny / mass
         vmax2 = 0.0
@@ -441,6 +461,8 @@ class Scene:
     lam: np.ndarray              # (S,) accumulated spring impulses (warm starting)
     inv_mass: np.ndarray         # (N,)
     buf: np.ndarray              # ((N + n_static), 5) pymunk batch layout: x, y, vx, vy, w
+    wall_ln: np.ndarray          # (N, 4) accumulated wall normal impulses (left, right, bottom,
+    wall_lt: np.ndarray          # (N, 4) top) and friction impulses, for warm starting
     sleep_time: float = 0.0
     asleep: bool = False
     _batch: Any = field(default=None, repr=False)
@@ -495,7 +517,8 @@ class Scene:
             p.free_hi - p.toi_distance, p.free_lo, p.free_hi, p.particle_radius + p.wall_skin,
             p.particle_radius, p.mass, p.inertia,
             math.sqrt(p.particle_friction * p.wall_friction),
-            max(p.particle_restitution, p.wall_restitution), p.restitution_threshold)
+            max(p.particle_restitution, p.wall_restitution), p.restitution_threshold,
+            self.wall_ln, self.wall_lt)
         if p.sleep:
             if (vmax2 > B2_LINEAR_SLEEP_TOLERANCE ** 2
                     or wmax2 > B2_ANGULAR_SLEEP_TOLERANCE ** 2):
@@ -549,18 +572,12 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     # pymunk removes the fraction 1 - bias**dt of the penetration per step
     space.collision_bias = (1.0 - p.contact_bias) ** (1.0 / p.dt)
     space.damping = 1.0
-    # Box2D mixes friction by geometric mean and restitution by max; pymunk multiplies both.
-    # sqrt(mu) on every shape makes products geometric means; restitution: see below.
-    e_p, e_w = p.particle_restitution, p.wall_restitution
-    if p.walls:
-        t, s = p.wall_thickness, p.box_size
-        for x0, y0, x1, y1 in ((0, 0, s, t), (0, s - t, s, s), (0, 0, t, s), (s - t, 0, s, s)):
-            wall = pymunk.Poly(space.static_body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)],
-                               radius=p.wall_skin)
-            wall.friction = math.sqrt(p.wall_friction)
-            wall.elasticity = max(e_p, e_w)
-            wall.collision_type = 2
-            space.add(wall)
+    # The walls are not pymunk shapes: they are four axis-aligned half-planes handled in the
+    # kernel (contacts solved with the springs, time of impact, position correction). pymunk
+    # handles the particle-particle contacts. Box2D mixes friction by geometric mean and
+    # restitution by max; pymunk multiplies: sqrt(mu) per shape gives mu for a pair, and a
+    # pre_solve handler sets the restitution when it is neither 0 nor 1.
+    e_p = p.particle_restitution
     start = ring_positions(x, y, p.n_particles, p.ring_radius)
     v0 = force / p.mass * np.array([math.cos(math.radians(angle_deg)),
                                     math.sin(math.radians(angle_deg))])
@@ -576,7 +593,7 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
         shape = pymunk.Circle(body, p.particle_radius)
         shape.density = p.density
         shape.friction = math.sqrt(p.particle_friction)
-        shape.elasticity = 1.0 if p.walls and max(e_p, e_w) > 0 else 0.0
+        shape.elasticity = math.sqrt(e_p)
         shape.collision_type = 1
         space.add(body, shape)
         bodies.append(body)
@@ -589,22 +606,12 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
             arbiter.process_collision = False   # Box2D: collideConnected = False
 
     def particle_pre_solve(arbiter: Any, _space: Any, _data: Any) -> None:
-        arbiter.restitution = e_p  # max(e_p, e_p)
+        # Box2D: max(e_p, e_p) = e_p, and only above the restitution threshold
+        a, b = arbiter.bodies
+        vrel = (b.velocity - a.velocity).dot(arbiter.normal)
+        arbiter.restitution = e_p if abs(vrel) > p.restitution_threshold else 0.0
 
-    need_pp_restitution = p.walls and max(e_p, e_w) > 0 and e_p != 1.0
-    space.on_collision(1, 1, begin=begin,
-                       pre_solve=particle_pre_solve if need_pp_restitution else None)
-    if p.walls and max(e_p, e_w) > 0 and p.restitution_threshold > 0:
-        thr = p.restitution_threshold
-
-        def wall_pre_solve(arbiter: Any, _space: Any, _data: Any) -> None:
-            # Box2D applies restitution only when the approach speed exceeds the threshold
-            body = arbiter.bodies[0] if arbiter.bodies[0].body_type == pymunk.Body.DYNAMIC \
-                else arbiter.bodies[1]
-            if abs(body.velocity.dot(arbiter.normal)) < thr:
-                arbiter.restitution = 0.0
-
-        space.on_collision(1, 2, pre_solve=wall_pre_solve)
+    space.on_collision(1, 1, begin=begin, pre_solve=particle_pre_solve if e_p > 0 else None)
 
     pairs = spring_pairs(p.n_particles, p.spring_reach)
     rest = np.linalg.norm(start[pairs[:, 1]] - start[pairs[:, 0]], axis=1)
@@ -617,7 +624,8 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     setbuf = pb.Buffer()
     setbuf.set_float_buf(buf)
     scene = Scene(params=p, space=space, bodies=bodies, pairs=pairs, rest=rest,
-                  lam=np.zeros(len(pairs)), inv_mass=inv_mass, buf=buf)
+                  lam=np.zeros(len(pairs)), inv_mass=inv_mass, buf=buf,
+                  wall_ln=np.zeros((p.n_particles, 4)), wall_lt=np.zeros((p.n_particles, 4)))
     scene._batch = (pb, fields, getbuf, setbuf)
     return scene
 
