@@ -17,6 +17,8 @@ from collections.abc import Sequence
 COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.model",
     "tpnet_ref.weights",
+    "tpnet_ref.sim",
+    "tpnet_ref.data",
 )
 
 

@@ -1,0 +1,110 @@
+"""Stability figures for docs/stability.md (stiff springs, extreme impulses, long runs).
+
+    PYTHONPATH=. python bench/stability.py          # Box2D / naive rows when importable
+
+Energies: E_motion = kinetic (linear + rotational) + gravitational, E_total adds the springs'
+potential energy as ideal springs of stiffness mu (2 pi f)^2. Positions in world units; the free
+area is [1, 44]^2 and Box2D's continuous collision keeps centres at >= 0.145 from a wall.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
+from tpnet_ref.sim import SceneParams, build_scene, spring_pairs  # noqa: E402
+
+PAIRS = spring_pairs()
+
+
+def run(force, angle, x, y, steps, **kw):
+    p = SceneParams(**kw)
+    sc = build_scene(x, y, force, angle, p)
+    g = np.asarray(p.gravity)
+    traj = np.empty((steps, 30, 2))
+    em = np.empty(steps)
+    et = np.empty(steps)
+    for k in range(steps):
+        b = sc.read()
+        traj[k] = b[:30, :2]
+        v = b[:30, 2:4] - p.dt * g
+        em[k] = (0.5 * p.mass * (v ** 2).sum() + 0.5 * p.inertia * (b[:30, 4] ** 2).sum()
+                 - p.mass * (b[:30, :2] @ g).sum())
+        et[k] = sc.energy()
+        if k + 1 < steps:
+            sc.step()
+    return traj, em, et
+
+
+def stretch(traj):
+    L = np.linalg.norm(traj[:, PAIRS[:, 1]] - traj[:, PAIRS[:, 0]], axis=2)
+    return np.abs(L - L[0]).max()
+
+
+def main() -> int:
+    try:
+        from box2d_scene import simulate_box2d
+    except ImportError:
+        simulate_box2d = None
+    try:
+        from naive_pymunk import simulate_naive
+    except ImportError:
+        simulate_naive = None
+    print("## stiff springs: F=1.6, 225 deg, start (30, 30), 600 steps, sleep off")
+    print("| f (Hz) | omega dt | finite | min centre | max centre | max abs(L-L0) | "
+          "Box2D max abs(L-L0) | max E_motion / E0 | max E_total / E0 | naive pymunk | ms |")
+    for f in (1, 2, 5, 20, 100, 1000):
+        t = time.perf_counter()
+        tr, em, et = run(1.6, 225, 30, 30, 600, frequency=f, sleep=False)
+        ms = 1e3 * (time.perf_counter() - t)
+        b2 = f"{stretch(simulate_box2d(1.6, 225, 30, 30, 600, frequency=f)):.3f}" \
+            if simulate_box2d else "n/a"
+        nv = "n/a"
+        if simulate_naive:
+            with np.errstate(all="ignore"):
+                nt = simulate_naive(1.6, 225, 30, 30, 600, frequency=f)
+            ok = np.isfinite(nt).all() and nt.min() > 0 and nt.max() < 45
+            nv = f"max abs(L-L0) {stretch(nt):.3g}" if ok else "blows up / leaves box"
+        print(f"| {f} | {2 * math.pi * f / 45:.2f} | {np.isfinite(tr).all()} | {tr.min():.4f} | "
+              f"{tr.max():.4f} | {stretch(tr):.3f} | {b2} | {em.max() / em[0]:.4f} | "
+              f"{et.max() / et[0]:.4g} | {nv} | {ms:.0f} |")
+    print()
+    print("## impulses: 8 directions, start (41, 41) and (4, 4), 600 steps")
+    print("| force | clamp (Box2D max translation 2/step) | min centre | max centre | "
+          "max speed (units/s) |")
+    for force in (1.6, 4.0, 8.0, 16.0, 160.0):
+        for clamp in (2.0, None):
+            lo, hi, vmax = 99.0, -99.0, 0.0
+            for a in range(0, 360, 45):
+                for x, y in ((41.0, 41.0), (4.0, 4.0)):
+                    tr, _, _ = run(force, a, x, y, 600, max_translation=clamp)
+                    lo, hi = min(lo, tr[1:].min()), max(hi, tr[1:].max())
+                    vmax = max(vmax, 45 * np.linalg.norm(np.diff(tr, axis=0), axis=2).max())
+            print(f"| {force} | {clamp} | {lo:.4f} | {hi:.4f} | {vmax:.1f} |")
+    print()
+    print("## long runs: 10,000 steps, damping ratio 0, sleep off")
+    print("| case | max E_total / E0 | largest one-step rise of E_total | E_total end / E0 | "
+          "min / max centre |")
+    for name, kw, args in (("1 Hz, walls, F=1.6", {}, (1.6, 225, 30, 30)),
+                           ("1 Hz, wall restitution 1", {"wall_restitution": 1.0},
+                            (1.6, 225, 30, 30)),
+                           ("20 Hz, F=16, restitution 1", {"wall_restitution": 1.0,
+                                                           "frequency": 20.0},
+                            (16.0, 225, 30, 30)),
+                           ("1 Hz, no walls, no gravity", {"walls": False,
+                                                           "gravity": (0.0, 0.0)},
+                            (1.6, 45, 22, 22))):
+        tr, em, et = run(*args, 10_000, sleep=False, **kw)
+        e = et if kw.get("frequency", 1.0) <= 1.0 else em
+        tag = "" if e is et else " (E_motion)"
+        print(f"| {name}{tag} | {e.max() / e[0]:.6f} | {np.diff(e).max():.2e} | "
+              f"{e[-1] / e[0]:.4f} | {tr[1:].min():.3f} / {tr[1:].max():.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,112 @@
+"""Dataset generation and reading (tpnet_ref.data) on a tiny grid."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+h5py = pytest.importorskip("h5py")
+
+from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref.cases import TEST_CASES, TRAIN_POSITIONS  # noqa: E402
+from tpnet_ref.model import NORM_HI, NORM_LO  # noqa: E402
+from tpnet_ref.sim import simulate  # noqa: E402
+
+
+def test_constants_match_spec():
+    assert len(TRAIN_POSITIONS) == 75 and len(TEST_CASES) == 60
+    assert D.train_grid().shape == (5 * 19 * 75, 4)
+    g = D.train_grid([1.0, 1.6], [180.0, 270.0], positions=2)
+    assert g.tolist()[:3] == [[1.0, 180.0, *TRAIN_POSITIONS[0]], [1.0, 180.0, *TRAIN_POSITIONS[1]],
+                              [1.0, 270.0, *TRAIN_POSITIONS[0]]]
+    np.testing.assert_allclose(D.denormalize(D.normalize([NORM_LO, NORM_HI])), [NORM_LO, NORM_HI])
+    assert D.normalize(NORM_LO) == 0.0 and D.normalize(NORM_HI) == 1.0
+
+
+def test_sample_windows_kinds_and_counts():
+    contact = np.zeros(150, dtype=bool)
+    contact[40:50] = True
+    contact[100:110] = True
+    w = D.sample_windows(contact, np.random.default_rng(0), m=4)
+    assert w.shape == (20, 2)
+    coll = w[w[:, 1] == D.KIND_COLLISION, 0]
+    norm = w[w[:, 1] == D.KIND_NORMAL, 0]
+    assert len(coll) == 15 and len(norm) == 5
+
+    def holds_onset(s):
+        return ((s <= 40) & (s + 12 > 40)) | ((s <= 100) & (s + 12 > 100))
+    assert holds_onset(coll).all() and not holds_onset(norm).any()
+    # one onset gives only 12 collision starts: the rest are normal windows
+    contact[100:110] = False
+    w = D.sample_windows(contact, np.random.default_rng(0), m=4)
+    assert np.bincount(w[:, 1]).tolist() == [8, 12]
+    # no contact at all: every window is "normal"
+    w = D.sample_windows(np.zeros(150, bool), np.random.default_rng(0), m=4)
+    assert (w[:, 1] == D.KIND_NORMAL).all() and len(w) == 20
+    with pytest.raises(ValueError, match="shorter"):
+        D.sample_windows(np.zeros(5, bool), np.random.default_rng(0), m=4)
+
+
+def test_generate_layout_resume_and_load(tmp_path):
+    path = str(tmp_path / "tiny.h5")
+    grid = D.train_grid([1.3], [200.0, 250.0], positions=1)
+    test = np.asarray(TEST_CASES[:2])
+    c = D.generate(path, grid, test, m=3, steps=121, seed=1, whole=1, progress=False)
+    assert c["train_trajectories"] == 2 and c["test_trajectories"] == 2
+    n_frames = 31
+    with h5py.File(path, "r") as h:
+        assert int(h.attrs["m"]) == 3 and int(h.attrs["frame_every"]) == 4
+        for split, t in (("train", 2), ("test", 2)):
+            g = h[split]
+            assert g["positions"].shape == (t, n_frames, 30, 2)
+            assert g["positions"].dtype == np.float32
+            assert g["done"][...].all()
+            np.testing.assert_allclose(g["normalized"][...],
+                                       D.normalize(g["positions"][...]), atol=1e-6)
+        assert "windows" not in h["test"]
+        win = h["train/windows"][...]
+        # frame j is simulation row 4 j; frame 0 the initial state
+        ref = simulate(*grid[1], steps=121)[::4]
+        np.testing.assert_allclose(h["train/positions"][1], ref, atol=1e-4)
+        np.testing.assert_allclose(h["test/params"][...], test)
+    assert win.shape[1] == 3
+    assert (np.bincount(win[:, 0], minlength=2)[:2] >= 20).all()
+    whole = win[win[:, 2] == D.KIND_WHOLE]
+    assert len(whole) == n_frames - 3 - 8 + 1
+    # resume: nothing re-simulated, same windows
+    c2 = D.generate(path, grid, test, m=3, steps=121, seed=1, whole=1, progress=False)
+    assert c2["train_skipped"] == 2 and c2["test_skipped"] == 2
+    with h5py.File(path, "r") as h:
+        assert np.array_equal(h["train/windows"][...], win)
+    x, y = D.load_windows(path)
+    assert x.shape == (len(win), 3, 30, 2) and y.shape == (len(win), 8, 30, 2)
+    i, s = win[0, 0], win[0, 1]
+    frames, _ = D.load_trajectories(path, "train", normalized=True)
+    np.testing.assert_array_equal(x[0], frames[i, s:s + 3])
+    np.testing.assert_array_equal(y[0], frames[i, s + 3:s + 11])
+    xc, _ = D.load_windows(path, kinds=[D.KIND_COLLISION])
+    assert len(xc) < len(x)
+    # other settings on the same file are refused
+    with pytest.raises(ValueError, match="m="):
+        D.generate(path, grid, test, m=4, steps=121, seed=1, whole=1, progress=False)
+
+
+def test_generate_rejects_bad_settings(tmp_path):
+    grid = D.train_grid([1.3], [200.0], positions=1)
+    with pytest.raises(ValueError, match="steps"):
+        D.generate(str(tmp_path / "a.h5"), grid, steps=20, progress=False)
+    with pytest.raises(ValueError, match="m"):
+        D.generate(str(tmp_path / "b.h5"), grid, m=0, progress=False)
+    with pytest.raises(ValueError, match="positions"):
+        D.train_grid(positions=0)
+
+
+def test_cli_generate(tmp_path):
+    from tpnet_ref.cli import main
+    out = tmp_path / "c.h5"
+    rc = main(["data", "generate", "-o", str(out), "--forces", "1.0", "--angles", "225",
+               "--positions", "2", "--limit", "1", "--steps", "81", "--no-test", "--quiet",
+               "--whole", "0"])
+    assert rc == 0
+    with h5py.File(out, "r") as h:
+        assert h["train/positions"].shape == (1, 21, 30, 2)
+        assert "test" not in h

@@ -1,0 +1,324 @@
+"""Synthetic dataset (SPEC section 5): trajectories of the soft-body scene and training windows.
+
+File layout (HDF5, written by ``tpnet data generate``)::
+
+    /                       attrs: m, n_targets, frame_every, steps, seed, norm_lo, norm_hi,
+                                   scene (JSON of SceneParams), format
+    /train/params           (T, 4) float64   force, angle_deg, x, y per trajectory
+    /train/positions        (T, F, N, 2) float32  world units, model frames (every 4th row)
+    /train/normalized       (T, F, N, 2) float32  (x - NORM_LO) / (NORM_HI - NORM_LO)
+    /train/contact          (T, F) bool      some particle touches a wall at that frame
+    /train/done             (T,) bool        trajectory written (resuming skips these)
+    /train/windows          (W, 3) int64     trajectory, first frame, kind (1 wall collision,
+                                             0 normal interval, 2 whole-trajectory window)
+    /test/...               the 60 held-out cases, same datasets, no windows
+
+Model frame ``j`` is simulation row ``4 j`` (row 0 = initial state), so a trajectory of 600 rows
+has ``F = 150`` frames, and a test window's inputs are frames ``0..m-1`` (rows 0, 4, ...,
+4(m-1)). A training window is ``m`` input frames followed by 8 target frames.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+from .model import NORM_HI, NORM_LO
+from .sim import SceneParams, simulate
+
+FORMAT = "tpnet_ref.data/1"
+FRAME_EVERY = 4
+N_TARGETS = 8
+KIND_NORMAL, KIND_COLLISION, KIND_WHOLE = 0, 1, 2
+
+
+def normalize(x: np.ndarray) -> np.ndarray:
+    """World units -> model coordinates, ``(x - NORM_LO) / (NORM_HI - NORM_LO)``."""
+    return (np.asarray(x) - NORM_LO) / (NORM_HI - NORM_LO)
+
+
+def denormalize(x: np.ndarray) -> np.ndarray:
+    """Model coordinates -> world units."""
+    return np.asarray(x) * (NORM_HI - NORM_LO) + NORM_LO
+
+
+def train_grid(forces: Sequence[float] = TRAIN_FORCES, angles: Sequence[float] = TRAIN_ANGLES_DEG,
+               positions: int | None = None) -> np.ndarray:
+    """``(T, 4)`` (force, angle_deg, x, y) of the training grid, forces outermost, then angles,
+    then positions (the first ``positions`` of the 75; all by default)."""
+    pos = np.asarray(TRAIN_POSITIONS, dtype=float)
+    if positions is not None:
+        if not 1 <= positions <= len(pos):
+            raise ValueError(f"positions: must be in 1..{len(pos)}, got {positions}")
+        pos = pos[:positions]
+    out = [(f, a, x, y) for f in forces for a in angles for x, y in pos]
+    return np.asarray(out, dtype=float).reshape(-1, 4)
+
+
+def wall_contact(frames: np.ndarray, params: SceneParams | None = None,
+                 margin: float = 0.02) -> np.ndarray:
+    """``(F,)`` bool: some particle centre is within ``radius + skin + margin`` of a wall.
+
+    ``frames``: ``(F, N, 2)`` world units."""
+    p = params or SceneParams()
+    reach = p.particle_radius + p.wall_skin + margin
+    lo = frames.min(axis=(1, 2))
+    hi = frames.max(axis=(1, 2))
+    return (lo < p.free_lo + reach) | (hi > p.free_hi - reach)
+
+
+def collision_frames(contact: np.ndarray) -> np.ndarray:
+    """``(F,)`` bool: frames where a wall contact begins (touching now, not at the frame before)."""
+    c = np.asarray(contact, dtype=bool)
+    onset = c.copy()
+    onset[1:] &= ~c[:-1]
+    onset[0] = False   # a body that starts against a wall has not collided yet
+    return onset
+
+
+def sample_windows(contact: np.ndarray, rng: np.random.Generator, m: int,
+                   n_collision: int = 15, n_normal: int = 5,
+                   n_targets: int = N_TARGETS) -> np.ndarray:
+    """``(n_collision + n_normal, 2)`` (first frame, kind) of training windows of one trajectory.
+
+    A window covers frames ``[s, s + m + n_targets)``; it "includes a wall collision" when a
+    contact begins inside it. Starts are drawn without replacement where enough exist; when one
+    kind has too few starts the rest come from the other kind (so every trajectory gives the
+    same number of windows)."""
+    length = m + n_targets
+    n_starts = len(contact) - length + 1
+    if n_starts < 1:
+        raise ValueError(f"trajectory of {len(contact)} frames is shorter than a window "
+                         f"({length} frames)")
+    onset = collision_frames(contact).astype(np.int64)
+    cs = np.concatenate([[0], np.cumsum(onset)])
+    has = (cs[length:length + n_starts] - cs[:n_starts]) > 0
+    coll = np.nonzero(has)[0]
+    norm = np.nonzero(~has)[0]
+    want_c = min(n_collision, len(coll)) if len(norm) else n_collision + n_normal
+    want_n = n_collision + n_normal - want_c
+    pick_c = _draw(rng, coll, want_c)
+    pick_n = _draw(rng, norm, want_n)
+    starts = np.concatenate([pick_c, pick_n])
+    kinds = np.concatenate([np.full(len(pick_c), KIND_COLLISION), np.full(len(pick_n),
+                                                                        KIND_NORMAL)])
+    return np.stack([starts, kinds], axis=1).astype(np.int64)
+
+
+def _draw(rng: np.random.Generator, pool: np.ndarray, k: int) -> np.ndarray:
+    if k <= 0 or len(pool) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.sort(rng.choice(pool, size=k, replace=len(pool) < k))
+
+
+# --------------------------------------------------------------------------- generation
+def _simulate_one(job: tuple[int, tuple[float, float, float, float], int, dict]) -> tuple:
+    """Worker: one trajectory -> (index, frames (F, N, 2) float64)."""
+    idx, (f, a, x, y), steps, scene = job
+    traj = simulate(f, a, x, y, steps, params=SceneParams(**scene))
+    return idx, traj[::FRAME_EVERY]
+
+
+def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, *, m: int = 4,
+             steps: int = 600, seed: int = 0, workers: int = 1, whole: int = 0,
+             params: SceneParams | None = None, progress: bool = True) -> dict:
+    """Simulate ``grid`` (``(T, 4)`` force, angle, x, y) and ``test_cases`` into HDF5 ``path``.
+
+    Resumable: an existing file with the same settings keeps its finished trajectories.
+    Deterministic: the simulation is deterministic and windows are drawn from
+    ``default_rng([seed, trajectory])``. ``whole`` trajectories (chosen with the seed) also
+    give every window start (the paper keeps 240 whole). Returns counts."""
+    import h5py
+
+    if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+        raise ValueError(f"m: must be a positive integer, got {m!r}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps: must be a positive integer, got {steps!r}")
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ValueError(f"workers: must be a positive integer, got {workers!r}")
+    n_frames = (steps - 1) // FRAME_EVERY + 1
+    if n_frames < m + N_TARGETS:
+        raise ValueError(f"steps: {steps} rows give {n_frames} frames, fewer than a window "
+                         f"(m + {N_TARGETS} = {m + N_TARGETS})")
+    p = params or SceneParams()
+    scene = dataclasses.asdict(p)
+    settings = {"format": FORMAT, "m": int(m), "n_targets": N_TARGETS,
+                "frame_every": FRAME_EVERY, "steps": int(steps), "seed": int(seed),
+                "whole": int(whole), "norm_lo": NORM_LO, "norm_hi": NORM_HI,
+                "scene": json.dumps(scene, sort_keys=True)}
+    splits = {"train": np.asarray(grid, dtype=float).reshape(-1, 4)}
+    if test_cases is not None:
+        splits["test"] = np.asarray(test_cases, dtype=float).reshape(-1, 4)
+    n = p.n_particles
+    mode = "a" if os.path.exists(path) else "w"
+    counts = {}
+    with h5py.File(path, mode) as h:
+        for k, v in settings.items():
+            if k in h.attrs and _attr(h.attrs[k]) != v:
+                raise ValueError(f"{path}: was written with {k}={_attr(h.attrs[k])!r}, not "
+                                 f"{v!r}; use another file")
+            h.attrs[k] = v
+        for split, cases in splits.items():
+            g = h.require_group(split)
+            t = len(cases)
+            if "params" in g and not np.array_equal(g["params"][...], cases):
+                raise ValueError(f"{path}: /{split} holds another set of trajectories; "
+                                 "use another file")
+            if "params" not in g:
+                g.create_dataset("params", data=cases)
+                shape = (t, n_frames, n, 2)
+                chunks = (1, n_frames, n, 2)
+                g.create_dataset("positions", shape=shape, dtype="f4", chunks=chunks)
+                g.create_dataset("normalized", shape=shape, dtype="f4", chunks=chunks)
+                g.create_dataset("contact", shape=(t, n_frames), dtype=bool)
+                g.create_dataset("done", shape=(t,), dtype=bool)
+            done = g["done"][...]
+            todo = [i for i in range(t) if not done[i]]
+            counts[f"{split}_skipped"] = t - len(todo)
+            _run(g, cases, todo, steps, scene, workers, p, progress, split)
+            counts[f"{split}_trajectories"] = t
+            if split == "train":
+                counts["train_windows"] = _write_windows(g, m, seed, whole)
+    return counts
+
+
+def _attr(v: Any) -> Any:
+    return v.decode() if isinstance(v, bytes) else (v.item() if hasattr(v, "item") else v)
+
+
+def _run(g: Any, cases: np.ndarray, todo: list[int], steps: int, scene: dict, workers: int,
+         p: SceneParams, progress: bool, split: str) -> None:
+    if not todo:
+        return
+    jobs = [(i, tuple(cases[i]), steps, scene) for i in todo]
+    bar = None
+    if progress:
+        try:
+            from tqdm import tqdm
+            bar = tqdm(total=len(jobs), desc=f"simulate {split}", unit="traj")
+        except ImportError:  # pragma: no cover - tqdm is optional
+            bar = None
+
+    def store(idx: int, frames: np.ndarray) -> None:
+        g["positions"][idx] = frames.astype(np.float32)
+        g["normalized"][idx] = normalize(frames).astype(np.float32)
+        g["contact"][idx] = wall_contact(frames, p)
+        g["done"][idx] = True
+        if bar is not None:
+            bar.update(1)
+
+    if workers == 1:
+        for job in jobs:
+            store(*_simulate_one(job))
+    else:
+        import multiprocessing as mp
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(workers) as pool:
+            for idx, frames in pool.imap_unordered(_simulate_one, jobs, chunksize=4):
+                store(idx, frames)
+                if idx % 64 == 0:
+                    g.file.flush()
+    if bar is not None:
+        bar.close()
+
+
+def _write_windows(g: Any, m: int, seed: int, whole: int) -> int:
+    contact = g["contact"][...]
+    t, n_frames = contact.shape
+    rows = []
+    for i in range(t):
+        w = sample_windows(contact[i], np.random.default_rng([seed, i]), m)
+        rows.append(np.column_stack([np.full(len(w), i), w]))
+    if whole:
+        keep = np.sort(np.random.default_rng([seed, t, 7]).choice(t, size=min(whole, t),
+                                                                   replace=False))
+        starts = np.arange(n_frames - m - N_TARGETS + 1)
+        for i in keep:
+            rows.append(np.column_stack([np.full(len(starts), i), starts,
+                                         np.full(len(starts), KIND_WHOLE)]))
+    win = np.concatenate(rows).astype(np.int64)
+    if "windows" in g:
+        del g["windows"]
+    g.create_dataset("windows", data=win)
+    return len(win)
+
+
+# --------------------------------------------------------------------------- reading
+def load_windows(path: str, split: str = "train", *, normalized: bool = True,
+                 kinds: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Training windows as arrays: inputs ``(W, m, N, 2)`` and targets ``(W, 8, N, 2)``
+    (float32; model coordinates unless ``normalized=False``). ``kinds`` filters by window kind
+    (0 normal, 1 wall collision, 2 whole trajectory)."""
+    import h5py
+
+    with h5py.File(path, "r") as h:
+        m = int(h.attrs["m"])
+        nt = int(h.attrs["n_targets"])
+        g = h[split]
+        if "windows" not in g:
+            raise KeyError(f"{path}: /{split} has no windows")
+        if not g["done"][...].all():
+            raise ValueError(f"{path}: /{split} is incomplete; run generate again to finish it")
+        win = g["windows"][...]
+        if kinds is not None:
+            win = win[np.isin(win[:, 2], np.asarray(kinds))]
+        data = g["normalized" if normalized else "positions"][...]
+    idx = win[:, 1:2] + np.arange(m + nt)[None, :]
+    frames = data[win[:, 0:1], idx]                       # (W, m + nt, N, 2)
+    return frames[:, :m], frames[:, m:]
+
+
+def load_trajectories(path: str, split: str = "test", *,
+                      normalized: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """All frames of a split: ``(T, F, N, 2)`` float32 and their ``(T, 4)`` parameters."""
+    import h5py
+
+    with h5py.File(path, "r") as h:
+        g = h[split]
+        return g["normalized" if normalized else "positions"][...], g["params"][...]
+
+
+# --------------------------------------------------------------------------- CLI
+def add_cli(sub: Any) -> None:
+    p = sub.add_parser("data", help="generate the synthetic dataset (HDF5)")
+    dsub = p.add_subparsers(dest="data_command", metavar="DATA_COMMAND")
+    dsub.required = True
+    q = dsub.add_parser("generate", help="simulate the training grid and the 60 test cases")
+    q.add_argument("-o", "--output", required=True, help="HDF5 file (resumed if it exists)")
+    q.add_argument("--forces", type=float, nargs="+", default=list(TRAIN_FORCES))
+    q.add_argument("--angles", type=float, nargs="+", default=list(TRAIN_ANGLES_DEG),
+                   help="degrees")
+    q.add_argument("--positions", type=int, default=None,
+                   help="use the first N of the 75 start positions")
+    q.add_argument("--limit", type=int, default=None, help="only the first N trajectories")
+    q.add_argument("--m", type=int, default=4, help="input frames per window (3, 4, 5)")
+    q.add_argument("--steps", type=int, default=600, help="simulation rows per trajectory")
+    q.add_argument("--seed", type=int, default=0, help="window sampling seed")
+    q.add_argument("--whole", type=int, default=240,
+                   help="trajectories that give every window (paper: 240)")
+    q.add_argument("--workers", type=int, default=1, help="processes")
+    q.add_argument("--no-test", action="store_true", help="skip the 60 test cases")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.set_defaults(func=_cli_generate)
+
+
+def _cli_generate(args: Any) -> int:
+    grid = train_grid(args.forces, args.angles, args.positions)
+    if args.limit is not None:
+        if args.limit < 1:
+            raise ValueError(f"--limit: must be >= 1, got {args.limit}")
+        grid = grid[: args.limit]
+    counts = generate(args.output, grid, None if args.no_test else np.asarray(TEST_CASES),
+                      m=args.m, steps=args.steps, seed=args.seed, workers=args.workers,
+                      whole=args.whole, progress=not args.quiet)
+    print(f"wrote {args.output}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    return 0
+
+
+__all__ = ["generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
+           "collision_frames", "sample_windows", "normalize", "denormalize"]
