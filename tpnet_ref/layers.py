@@ -133,60 +133,74 @@ def lstm(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndar
     return out
 
 
+#: at most this many rows (batch x steps) use the weight-major product for the LSTM input
+#: projection, which streams a large weight matrix faster than a GEMM with few rows does
+SMALL_ROWS = 32
+
+
 def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
                 bwd: tuple[np.ndarray, np.ndarray, np.ndarray]
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lay out a bidirectional LSTM's Keras weights for :func:`bilstm_fused`.
 
     ``fwd``/``bwd``: (kernel ``(C, 4u)``, recurrent ``(u, 4u)``, bias ``(4u,)``), gates i, f, c, o.
-    Returns kernel ``(C, 8u)`` = [forward | backward], recurrent ``(2, u, 4u)``, bias ``(8u,)``,
-    each direction's gates reordered to i, f, o, c so that the three sigmoid gates are adjacent.
+    Returns the transposed, contiguous kernel ``(8u, C)`` = [forward; backward], recurrent
+    ``(2, 4u, u)`` and bias ``(8u,)``. Each direction's gates are reordered to i, f, o, c so the
+    three sigmoid gates are adjacent, and their rows are scaled by 1/2 (exact in binary floating
+    point) because sigmoid(x) = (1 + tanh(x/2)) / 2. Weight-major layouts make the B = 1 products
+    matrix-vector products; large batches use them transposed at no cost.
     """
     def reorder(a: np.ndarray) -> np.ndarray:
         u = a.shape[-1] // 4
-        return np.concatenate([a[..., :2 * u], a[..., 3 * u:], a[..., 2 * u:3 * u]], axis=-1)
+        out = np.concatenate([a[..., :2 * u], a[..., 3 * u:], a[..., 2 * u:3 * u]], axis=-1)
+        out[..., :3 * u] *= 0.5
+        return out
 
-    kernel = np.ascontiguousarray(np.concatenate([reorder(fwd[0]), reorder(bwd[0])], axis=-1))
-    recurrent = np.ascontiguousarray(np.stack([reorder(fwd[1]), reorder(bwd[1])]))
+    kernel_t = np.ascontiguousarray(np.concatenate([reorder(fwd[0]), reorder(bwd[0])], axis=-1).T)
+    recurrent_t = np.ascontiguousarray(np.stack([reorder(fwd[1]).T, reorder(bwd[1]).T]))
     bias = np.concatenate([reorder(fwd[2]), reorder(bwd[2])])
-    return kernel, recurrent, bias
+    return kernel_t, recurrent_t, bias
 
 
-def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
+def bilstm_fused(x: np.ndarray, kernel_t: np.ndarray, recurrent_t: np.ndarray, bias: np.ndarray,
                  activation: str = "relu", return_sequences: bool = True) -> np.ndarray:
     """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`.
 
-    Same result as two :func:`lstm` calls, computed faster: one GEMM projects every step of both
-    directions, both directions advance together (one batched matmul per step, the step-0
-    recurrent product is skipped because h = 0), and the gates are updated in place.
-    ``x (B, T, C)`` -> ``(B, T, 2u)`` or, with ``return_sequences=False``, ``(B, 2u)``.
+    Same result as two :func:`lstm` calls, computed faster: one product projects every step of
+    both directions, both directions advance together (step ``s`` is forward time ``s`` and
+    backward time ``T-1-s``; one batched product per step, none at step 0 where h = 0), and the
+    gates are updated in place. ``x (B, T, C)`` -> ``(B, T, 2u)`` or, with
+    ``return_sequences=False``, ``(B, 2u)``.
     """
     bsz, steps, _ = x.shape
-    u = recurrent.shape[1]
-    xp = x.reshape(bsz * steps, -1) @ kernel
-    xp += bias
+    u = recurrent_t.shape[2]
+    rows = x.reshape(bsz * steps, -1)
+    if bsz * steps <= SMALL_ROWS:
+        xp = (kernel_t @ rows.T).T
+    else:
+        xp = rows @ kernel_t.T
     xp = xp.reshape(bsz, steps, 2, 4 * u)
+    # (step, direction, B, 4u): forward input at time s, backward input at time T-1-s, + bias
+    pairs = np.stack([xp[:, :, 0], xp[:, ::-1, 1]], axis=0).transpose(2, 0, 1, 3)
+    pairs += bias.reshape(2, 1, 4 * u)
     relu_act = activation == "relu"
     if not relu_act and activation != "tanh":
         _activation(activation)  # raises the error naming the activation
     dt = x.dtype
-    z = np.empty((2, bsz, 4 * u), dtype=dt)
     c = np.zeros((2, bsz, u), dtype=dt)
-    h = np.zeros((2, bsz, u), dtype=dt)
     tmp = np.empty((2, bsz, u), dtype=dt)
-    out = np.empty((bsz, steps, 2, u), dtype=dt) if return_sequences else None
+    hs = np.empty((steps, 2, bsz, u), dtype=dt)     # h after each step
+    rec = recurrent_t.transpose(0, 2, 1)           # (2, u, 4u) view
     half = dt.type(0.5)
     for s in range(steps):
-        tf, tb = s, steps - 1 - s
-        if s == 0:
-            z[0] = xp[:, tf, 0]
-            z[1] = xp[:, tb, 1]
-        else:
-            np.matmul(h, recurrent, out=z)
-            z[0] += xp[:, tf, 0]
-            z[1] += xp[:, tb, 1]
-        gates = z[..., :3 * u]                      # i, f, o: sigmoid(x) = 0.5 tanh(x/2) + 0.5
-        gates *= half
+        z = pairs[s]
+        if s > 0:
+            h = hs[s - 1]
+            if bsz == 1:  # column views of the same memory: a matrix-vector product
+                z += np.matmul(recurrent_t, h.reshape(2, u, 1)).reshape(2, 1, 4 * u)
+            else:
+                z += np.matmul(h, rec)
+        gates = z[..., :3 * u]                      # i, f, o (pre-scaled by 1/2)
         np.tanh(gates, out=gates)
         gates *= half
         gates += half
@@ -198,17 +212,16 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
         c *= z[..., u:2 * u]                        # c = f*c + i*g
         np.multiply(z[..., :u], g, out=tmp)
         c += tmp
-        if relu_act:                                # h = o * act(c)
+        h = hs[s]                                   # h = o * act(c)
+        if relu_act:
             np.maximum(c, 0, out=h)
         else:
             np.tanh(c, out=h)
         h *= z[..., 2 * u:3 * u]
-        if out is not None:
-            out[:, tf, 0] = h[0]
-            out[:, tb, 1] = h[1]
-    if out is not None:
-        return out.reshape(bsz, steps, 2 * u)
-    return np.concatenate([h[0], h[1]], axis=-1)
+    if not return_sequences:
+        return np.concatenate([hs[-1, 0], hs[-1, 1]], axis=-1)
+    # forward output at time t is hs[t, 0]; backward output at time t is hs[T-1-t, 1]
+    return np.concatenate([hs[:, 0], hs[::-1, 1]], axis=-1).transpose(1, 0, 2).copy()
 
 
 def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
