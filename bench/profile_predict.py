@@ -1,0 +1,80 @@
+"""Where the time of one B = 1 prediction goes (float32, released shape, m = 4, N = 30).
+
+    python bench/profile_predict.py      (OPENBLAS_NUM_THREADS=1 for one core)
+
+Times each stage on its own (median of many calls) and prints its share of the sum, next to the
+bytes of weights it streams, so the memory-bound and compute-bound parts can be told apart.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from tpnet_ref import layers as L  # noqa: E402
+from tpnet_ref.model import canonical_order, init_random  # noqa: E402
+
+
+def med(fn, reps: int = 400) -> float:
+    fn()
+    ts = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.parse_args(argv)
+    model = init_random(seed=0, dtype="float32")
+    rng = np.random.default_rng(0)
+    window = rng.uniform(5, 40, (4, 30, 2))
+    counts = np.full(4, 30)
+    pts = model.normalize(window.reshape(-1, 2).astype(np.float32))
+    pts = pts[canonical_order(pts, counts)]
+    g = model.frame_features(pts, counts).reshape(1, 4, -1)
+
+    stages: list[tuple[str, float, float]] = []
+    stages.append(("validate + normalise + canonical sort",
+                   med(lambda: (model._check_window(window, "window"),
+                                canonical_order(model.normalize(window.reshape(-1, 2).astype(np.float32)),
+                                                counts))), 0.0))
+    fb = sum(p.nbytes for k, p in model.params.items() if k.startswith(("mlp", "global")))
+    stages.append(("feature extractor, 4 frames x 30 points", med(lambda: model.frame_features(pts, counts)), fb))
+    h = g
+    last = len(model._lstms) - 1
+    for i, (fused, gamma, beta) in enumerate(model._lstms):
+        kt, rt, b = fused
+        rows = h.reshape(4, -1)
+        stages.append((f"BiLSTM {i + 1}: input projection {kt.shape[1]}->{kt.shape[0]} (4 steps)",
+                       med(lambda: (kt @ rows.T).T), kt.nbytes))
+        full = med(lambda: L.bilstm_fused(h, *fused, return_sequences=i < last))
+        proj = stages[-1][1]
+        stages.append((f"BiLSTM {i + 1}: recurrence, gates (3 products of {rt.shape[1]}x{rt.shape[2]} x2)",
+                       max(full - proj, 0.0), 3 * rt.nbytes))
+        out = L.bilstm_fused(h, *fused, return_sequences=i < last)
+        stages.append((f"LayerNorm {i + 1}", med(lambda: L.layer_norm(out, gamma, beta, 1e-3)), 0.0))
+        h = L.layer_norm(out, gamma, beta, 1e-3)
+    stages.append(("head FC 512->60 + sigmoid",
+                   med(lambda: L.dense(h, model.params["head.w"], model.params["head.b"], "sigmoid")),
+                   model.params["head.w"].nbytes))
+    total = med(lambda: model.predict(window), 400)
+    s = sum(t for _, t, _ in stages)
+    print(f"{'stage':66s} {'us':>8s} {'share':>6s} {'weights MB':>10s} {'GB/s':>6s}")
+    for name, t, nbytes in stages:
+        gbs = f"{nbytes / t / 1e9:6.1f}" if nbytes and t > 0 else ""
+        print(f"{name:66s} {t * 1e6:8.1f} {t / s:6.1%} {nbytes / 1e6:10.2f} {gbs}")
+    print(f"{'sum of stages':66s} {s * 1e6:8.1f}")
+    print(f"{'predict(window), measured whole':66s} {total * 1e6:8.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
