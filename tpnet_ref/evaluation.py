@@ -573,6 +573,7 @@ def render_markdown(rep: Report) -> str:
           "input).", ""]
     L += ["## Rollout error, ordered input (released-code metric, as the paper's table)", "",
           results_tables(rep.curves, "released"), "",
+          *_scale_note(rep.curves),
           "Same, paper metric (squared distances / |P|):", "",
           results_tables(rep.curves, "paper", with_paper=False), ""]
     L += ["## Input orderings", "",
@@ -597,6 +598,30 @@ def render_markdown(rep: Report) -> str:
     if rep.figures:
         L += ["## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in rep.figures] + [""]
     return "\n".join(L)
+
+
+def _scale_note(curves: Sequence[Curve]) -> list[str]:
+    """What the released-metric numbers mean in distances (from the copy-last row)."""
+    c = next((c for c in curves if c.name == "copy last" and c.ordering == "given"
+              and c.err["Ep_released"].shape[1] >= HORIZONS[0]), None)
+    if c is None:
+        return []
+    n = 30
+    scale = NORM_HI - NORM_LO
+    h = HORIZONS[0]
+    e = c.at(h)
+    lines = [f"Scale: the released metric sums the nearest-point distances of both sets "
+             f"(2 × {n} terms, no division), so E_p / {2 * n} is the mean nearest-point distance "
+             f"in normalised units (× {scale:.2f} for world units). Copy last (m={c.m}) @{h}: "
+             f"E_p {e:.3f}, i.e. {e / (2 * n):.3f} = {e / (2 * n) * scale:.1f} world units."]
+    if c.m in PAPER_TABLE:
+        p = PAPER_TABLE[c.m][0]
+        lines[0] += (f" The paper's TP-Net E_p {p} @{h} would be {p / (2 * n):.4f} "
+                     f"= {p / (2 * n) * scale:.3f} world units after {h} recursive predictions, "
+                     f"{e / p:.0f}× below copying the last frame; compare the model rows with "
+                     "care (a per-point mean instead of a sum would divide by "
+                     f"{n} or {2 * n}).")
+    return lines + [""]
 
 
 def _timing_paragraph(rep: Report) -> list[str]:
@@ -718,10 +743,13 @@ def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
         if ms is None or e is None:
             continue
         c = plt.cm.tab10(i % 10)
+        if not e.any():        # the reference itself: no error to draw on a log axis
+            ax.axvline(ms, color=c, ls="--", lw=1, label=f"{r.name} (reference, error 0)")
+            continue
         hs = table_horizons(e.shape[1])
         pts = [(h, float(e[:, h - 1].mean())) for h in hs]
         for h, v in pts:
-            ax.scatter(max(ms, 1e-4), max(v, 1e-6), color=c, s=40,
+            ax.scatter(ms, max(v, 1e-6), color=c, s=40,
                        facecolors="none" if h == hs[0] and len(hs) > 1 else c,
                        label=r.name if h == pts[-1][0] else None)
     ax.set_xscale("log")
@@ -751,7 +779,7 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
             ax = axes[i, j]
             t = truth[i, h - 1]
             sets = [t] + [p[i, h - 1] for p in preds.values()]
-            allp = np.concatenate(sets)
+            allp = np.clip(np.concatenate(sets), -1.0, 46.0)   # far-off predictions: at the edge
             c = 0.5 * (allp.min(0) + allp.max(0))
             r = max(3.0, 0.55 * float((allp.max(0) - allp.min(0)).max()))
             ax.scatter(t[:, 0], t[:, 1], s=8, color="k", label="simulator")
@@ -942,7 +970,7 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
                       seed=args.seed, progress=progress, keep=keep)
     horizon = curves[0].err["Ep_released"].shape[1]
     timing = None
-    t_m = models[0].model.config.m if models else ms[0]
+    t_m = models[0].model.config.m if models else (4 if 4 in ms else ms[0])
     if not args.no_timing:
         print("timing ...", file=log)
         timing = timing_table(frames, cases, models, m=t_m, horizon=min(80, horizon),
