@@ -308,3 +308,24 @@ def test_eval_baselines_only_with_timing(tmp_path):
     assert "### start near other walls" in text
     assert (tmp_path / "eval_error_vs_time.png").is_file()
     assert (tmp_path / "eval_generalisation.png").is_file()
+
+
+def test_eval_from_dataset_file(tmp_path):
+    from tpnet_ref.data import generate, train_grid
+    path = str(tmp_path / "d.h5")
+    generate(path, train_grid(positions=1)[:1], np.asarray(E.TEST_CASES[:2]), steps=49,
+             progress=False)
+    base = dict(weights=[], baselines_only=True, m=[4], cases=None, horizon=3,
+                orderings=["given"], no_timing=True, no_peers=True, repeats=1,
+                generalisation=False, gen_cases=1, workers=1, seed=0, no_plots=True, quiet=True)
+    a = E.run_eval(argparse.Namespace(data=path, out=str(tmp_path / "a"), **base), command="x")
+    b = E.run_eval(argparse.Namespace(data=None, out=str(tmp_path / "b"), **dict(base, cases=2)),
+                   command="x")
+    ta, tb = a.read_text(), b.read_text()
+    assert "test split of" in ta and "2 cases" in ta
+    # the same numbers from the file (float32 positions) as simulated on the fly: E_p equal to
+    # the printed digits (E_s of the baselines is ~0 and only shows the float32 rounding)
+    def ep_cells(text):
+        rows = text.split("## Rollout error")[1].split("Same, paper metric")[0].splitlines()
+        return [r.split("|")[:4] for r in rows if r.startswith("| 4 |")]
+    assert ep_cells(ta) == ep_cells(tb) and len(ep_cells(ta)) == 2

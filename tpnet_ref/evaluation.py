@@ -496,7 +496,7 @@ def results_tables(curves: Sequence[Curve], variant: str = "released",
     header = ["m", "method"] + [f"{k} @{h}" for h in hs for k in ("E_p", "E_s")]
     rows = []
     for m in sorted({c.m for c in curves}):
-        if with_paper and variant == "released" and m in PAPER_TABLE:
+        if with_paper and variant == "released" and m in PAPER_TABLE and set(hs) & set(HORIZONS):
             paper = dict(zip(HORIZONS, np.reshape(PAPER_TABLE[m], (2, 2))))
             rows.append([m, "TP-Net, paper (SPEC §4)"]
                         + [_fmt(paper[h][i]) if h in paper else "–" for h in hs for i in (0, 1)])
@@ -602,8 +602,9 @@ def render_markdown(rep: Report) -> str:
 
 def _scale_note(curves: Sequence[Curve]) -> list[str]:
     """What the released-metric numbers mean in distances (from the copy-last row)."""
-    c = next((c for c in curves if c.name == "copy last" and c.ordering == "given"
-              and c.err["Ep_released"].shape[1] >= HORIZONS[0]), None)
+    cands = [c for c in curves if c.name == "copy last" and c.ordering == "given"
+             and c.err["Ep_released"].shape[1] >= HORIZONS[0]]
+    c = next((c for c in cands if c.m == 4), cands[0] if cands else None)
     if c is None:
         return []
     n = 30
