@@ -633,10 +633,13 @@ def _timing_paragraph(rep: Report) -> list[str]:
              "when the full state (initial velocity, spring constants) is known"]
     if sim and sim.ms_single is not None:
         lines[0] += f" and costs about {sim.ms_single:.2f} ms per frame on this machine"
-    lines[0] += (". Coarser time steps are cheaper but not free of error: Box2D's per-step "
-                 "translation clamp (2 units per step) slows fast bodies more as dt grows, and "
-                 "wall impacts happen at other times, so the error grows with dt. The baselines "
-                 "cost nothing but are only useful for a few frames")
+    lines[0] += (". Coarser time steps are cheaper (not proportionally: each step has a fixed "
+                 "cost) but their error grows quickly with dt, because the discretisation of "
+                 "the springs and of the wall contacts changes when and how the body bounces, "
+                 "and Box2D's per-step translation clamp (2 units per step) caps the speed at "
+                 "2/dt (22.5 units/s at dt x4, where the fastest test bodies start at 22.6; "
+                 "11.25 at dt x8). The baselines cost nothing but are only useful for a few "
+                 "frames")
     if cv:
         lines[0] += (f" (constant velocity reaches E_p {_fmt(cv.err['Ep_released'][:, 39].mean())}"
                      f" at 40 predictions)" if cv.err['Ep_released'].shape[1] >= 40 else "")
@@ -785,8 +788,14 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
             r = max(3.0, 0.55 * float((allp.max(0) - allp.min(0)).max()))
             ax.scatter(t[:, 0], t[:, 1], s=8, color="k", label="simulator")
             for k, (name, p) in enumerate(preds.items()):
-                ax.scatter(p[i, h - 1, :, 0], p[i, h - 1, :, 1], s=8, marker="x",
-                           color=plt.cm.tab10((k + 1) % 10), label=name)
+                q = p[i, h - 1]
+                col = plt.cm.tab10((k + 1) % 10)
+                ax.scatter(q[:, 0], q[:, 1], s=8, marker="x", color=col, label=name)
+                cq = q.mean(0)
+                if (cq < -1.0).any() or (cq > 46.0).any():      # left the box: say where
+                    ax.text(0.03, 0.97 - 0.08 * k, f"{name}: off panel at ({cq[0]:.0f}, "
+                            f"{cq[1]:.0f})", transform=ax.transAxes, fontsize=6, color=col,
+                            va="top")
             for w in (1.0, 44.0):   # walls (inner faces)
                 ax.axvline(w, color="0.4", lw=2)
                 ax.axhline(w, color="0.4", lw=2)
