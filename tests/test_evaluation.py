@@ -238,6 +238,11 @@ def test_write_results_structure(tmp_path):
     for s in ("`tpnet eval --baselines-only`", "No trained weights yet", "## Protocol",
               "## Input orderings", "### force > 1.6", "0.071"):
         assert s in text, s
+    csv = (tmp_path / "out" / "eval_curves.csv").read_text().splitlines()
+    assert csv[0] == "group,method,m,ordering,step,frame,Ep_released,Es_released,Ep_paper,Es_paper"
+    assert len(csv) == 1 + 2 * 2 * 4 * 90                  # (test + 1 group) x 2 names x 4 x 90
+    assert csv[1].startswith("test,copy last,4,given,1,4,")  # step 1 -> frame m
+    assert "eval_curves.csv" in text
     rep.models = ["w.h5"]
     assert "No trained weights yet" not in E.render_markdown(rep)
 

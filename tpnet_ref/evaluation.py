@@ -669,9 +669,25 @@ def write_results(rep: Report, out_dir: str | os.PathLike, *, plots: bool = True
         if rep.generalisation:
             rep.figures.append(str(plot_groups(rep.generalisation,
                                                out / "eval_generalisation.png")))
+    csv = write_curves_csv([*rep.curves, *(c for cs in rep.generalisation.values() for c in cs)],
+                           out / "eval_curves.csv")
     path = out / "results.md"
-    path.write_text(render_markdown(rep))
+    path.write_text(render_markdown(rep) + f"\nPer-step means of every curve: [{csv.name}]"
+                    f"({csv.name}).\n")
     return path
+
+
+def write_curves_csv(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
+    """Mean over cases of every error at every prediction step, one row per (curve, step)."""
+    keys = [f"{k}_{v}" for v in VARIANTS for k in ("Ep", "Es")]
+    lines = ["group,method,m,ordering,step,frame," + ",".join(keys)]
+    for c in curves:
+        means = [c.mean(k) for k in keys]
+        for i in range(len(means[0])):
+            lines.append(f"{c.group},{c.name},{c.m},{c.ordering},{i + 1},{c.m + i},"
+                         + ",".join(f"{mu[i]:.6g}" for mu in means))
+    Path(path).write_text("\n".join(lines) + "\n")
+    return Path(path)
 
 
 # ============================================================================ plots
@@ -951,7 +967,9 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
         raise ValueError("give --weights PATH (repeatable) or --baselines-only")
     if args.cases is not None and args.cases < 1:
         raise ValueError(f"--cases: must be >= 1, got {args.cases}")
-    models = [ModelSpec(f"TP-Net {Path(w).name}", load(w, dtype="float32")) for w in args.weights]
+    names = [Path(w).name for w in args.weights]
+    models = [ModelSpec(f"TP-Net {n if names.count(n) == 1 else w}", load(w, dtype="float32"))
+              for n, w in zip(names, args.weights)]
     ms = args.m or ([s.model.config.m for s in models] or [4])
     if args.data:
         from .data import load_trajectories
