@@ -187,6 +187,10 @@ def test_timing_table_rows(frames3):
             assert t[peer].ms_batch > 0
     md = E.timing_md(rows, 3)
     assert "ms/frame (batch of 3)" in md and "E_p @3" in md
+    rep = E.Report(command="x", n_cases=3, horizon=3, source="s", curves=_fake_curves(H=3),
+                   timing=rows, models=["w.h5"])
+    text = E.render_markdown(rep)
+    assert "## Error against run time" in text and "Fastest here for one rollout: net" in text
 
 
 def test_generalisation_cases_outside_training_ranges():

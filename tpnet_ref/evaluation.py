@@ -645,9 +645,17 @@ def _timing_paragraph(rep: Report) -> list[str]:
                      f" at 40 predictions)" if cv.err['Ep_released'].shape[1] >= 40 else "")
     lines[0] += (". TP-Net needs only m unordered point sets (no velocities, no correspondence, "
                  "no physical parameters), which is what a camera gives; its rows show what that "
-                 "costs per frame and in accuracy. float32 is the fast choice; float64 is for "
-                 "checking; batching windows amortises the per-call overhead.")
-    if not any(r.name.endswith(("float32", "float64")) for r in rep.timing or []):
+                 "costs per frame and in accuracy.")
+    net = [r for r in rep.timing or [] if r.err and r.name.startswith("TP-Net")
+           and r.ms_single is not None]
+    if net:
+        fs = min(net, key=lambda r: r.ms_single)
+        fb = min(net, key=lambda r: r.ms_batch if r.ms_batch is not None else math.inf)
+        lines[0] += (f" Fastest here for one rollout: {fs.name} ({fs.ms_single:.2f} ms/frame); "
+                     f"for many rollouts stepped together: {fb.name} ({fb.ms_batch:.2f} ms/frame "
+                     "per rollout). NumPy float64 is for checking; its errors and float32's "
+                     "should agree to the digits shown.")
+    if not net:
         lines.append("")
         lines.append("(TP-Net rows: pending the shipped weights.)")
     return lines
