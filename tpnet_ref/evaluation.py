@@ -317,6 +317,7 @@ class TimingRow:
     ms_single: float | None      # ms per predicted frame, one rollout alone
     err: dict[str, np.ndarray]   # (C, H) errors against the reference trajectories
     note: str = ""
+    kind: str = "model"          # "model", "baseline" or "simulator"
 
 
 def _best_time(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:
@@ -374,13 +375,14 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
     rows: list[TimingRow] = []
 
     def add(name: str, fn_batch: Callable[[], np.ndarray] | None,
-            fn_single: Callable[[], Any] | None, note: str = "", reps: int = repeats) -> None:
+            fn_single: Callable[[], Any] | None, note: str = "", reps: int = repeats,
+            kind: str = "model") -> None:
         tb, pred = _best_time(fn_batch, reps) if fn_batch else (None, None)
         ts = _best_time(fn_single, reps)[0] if fn_single else None
         rows.append(TimingRow(name,
                               None if tb is None else 1e3 * tb / (C * horizon),
                               None if ts is None else 1e3 * ts / horizon,
-                              errors(targets, pred), note))
+                              errors(targets, pred), note, kind))
 
     todo = []
     for spec in models:
@@ -432,9 +434,10 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
             add(name, lambda: run_o(inputs), lambda: run_o(inputs[:1]),
                 "one-step ONNX graph in a loop: recomputes the m frames' features every step")
     add("copy last input frame", lambda: copy_last(inputs, horizon),
-        lambda: copy_last(inputs[:1], horizon), "baseline")
+        lambda: copy_last(inputs[:1], horizon), "baseline", kind="baseline")
     add("constant velocity", lambda: constant_velocity(inputs, horizon),
-        lambda: constant_velocity(inputs[:1], horizon), "baseline, points matched by order")
+        lambda: constant_velocity(inputs[:1], horizon), "baseline, points matched by order",
+        kind="baseline")
     last_frame = m - 1 + horizon
     from .sim import simulate
     simulate(*cases[0], 9)                                   # compile / load the kernel
@@ -454,7 +457,7 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
             note = f"reference dt = 1/45 s ({steps:g} steps): differs from the targets only " \
                    "if they come from another simulator (--data)"
         add(f"pymunk simulator dt x{k}", pred_s, lambda k=k: run_s(cases[:1], k), note,
-            reps=max(1, min(repeats, 2)))
+            reps=max(1, min(repeats, 2)), kind="simulator")
     return rows
 
 
@@ -553,7 +556,7 @@ def render_markdown(rep: Report) -> str:
     L: list[str] = ["# Evaluation results", "",
                     f"Made by `{rep.command}` ({now}, {rep.elapsed_s:.0f} s; python "
                     f"{platform.python_version()}, numpy {np.__version__}, "
-                    f"{os.cpu_count()} CPU cores, {platform.machine()}).", ""]
+                    f"{os.cpu_count()} CPU cores, {platform.machine()}{_load()}).", ""]
     if not rep.models:
         L += ["**No trained weights yet: the TP-Net rows come when the shipped weights exist** "
               "(run the same command with `--weights` for each m). The numbers below are the "
@@ -598,6 +601,14 @@ def render_markdown(rep: Report) -> str:
     if rep.figures:
         L += ["## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in rep.figures] + [""]
     return "\n".join(L)
+
+
+def _load() -> str:
+    """The machine's load average when the report is written (timings depend on it)."""
+    try:
+        return f", load average {os.getloadavg()[0]:.1f}"
+    except (AttributeError, OSError):
+        return ""
 
 
 def _scale_note(curves: Sequence[Curve]) -> list[str]:
@@ -646,8 +657,7 @@ def _timing_paragraph(rep: Report) -> list[str]:
     lines[0] += (". TP-Net needs only m unordered point sets (no velocities, no correspondence, "
                  "no physical parameters), which is what a camera gives; its rows show what that "
                  "costs per frame and in accuracy.")
-    net = [r for r in rep.timing or [] if r.err and r.name.startswith("TP-Net")
-           and r.ms_single is not None]
+    net = [r for r in rep.timing or [] if r.err and r.kind == "model" and r.ms_single is not None]
     if net:
         fs = min(net, key=lambda r: r.ms_single)
         fb = min(net, key=lambda r: r.ms_batch if r.ms_batch is not None else math.inf)
@@ -693,7 +703,7 @@ def write_curves_csv(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
         means = [c.mean(k) for k in keys]
         for i in range(len(means[0])):
             lines.append(f"{c.group},{c.name},{c.m},{c.ordering},{i + 1},{c.m + i},"
-                         + ",".join(f"{mu[i]:.6g}" for mu in means))
+                         + ",".join(f"{mu[i]:.4g}" for mu in means))
     Path(path).write_text("\n".join(lines) + "\n")
     return Path(path)
 
