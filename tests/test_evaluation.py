@@ -293,6 +293,7 @@ def test_eval_cli_small(weights_file, tmp_path, capsys):
     assert main(args) == 0
     text = (out / "results.md").read_text()
     assert "TP-Net small_m4.h5" in text and "E_p @3" in text and "descending_y" in text
+    assert f"`tpnet eval --weights {weights_file} --cases 2 --horizon 3 --out {out}`" in text
     assert "No trained weights" not in text
     if HAS_MPL:
         assert {p.name for p in out.glob("*.png")} == {"eval_error_vs_frame.png",

@@ -966,11 +966,22 @@ def _cli_demo(args: Any) -> int:
     return 0
 
 
-def _command_line() -> str:
-    argv = [os.path.basename(sys.argv[0])] + sys.argv[1:]
-    if argv[0] in ("__main__.py", "cli.py", "-c", "pytest", "") or not argv[0].startswith("tpnet"):
-        argv[0] = "tpnet"
-    return " ".join(argv)
+def _command_line(args: Any = None) -> str:
+    """The command that made the report: this process's ``tpnet eval ...`` command line, or
+    (when ``main`` was called from Python) the same rebuilt from the parsed arguments."""
+    if sys.argv[1:2] == ["eval"] or args is None:
+        return " ".join(["tpnet"] + sys.argv[1:])
+    parts = ["tpnet eval"] + [f"--weights {w}" for w in args.weights]
+    for flag, value in (("--baselines-only", args.baselines_only), ("--data", args.data),
+                        ("--cases", args.cases), ("--horizon", args.horizon),
+                        ("--generalisation", args.generalisation), ("--out", args.out)):
+        if value is True:
+            parts.append(flag)
+        elif value not in (None, False):
+            parts.append(f"{flag} {value}")
+    if args.m:
+        parts.append("--m " + " ".join(map(str, args.m)))
+    return " ".join(parts)
 
 
 def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
@@ -1039,7 +1050,7 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
                "horizons": sorted({h for h in (1, 20, 40, 80, horizon) if h <= horizon}),
                "case_labels": [f"F={c[0]:g} {c[1]:g}° ({c[2]:g},{c[3]:g})" for c in cases[sel]],
                "m": m0}
-    rep = Report(command=command or _command_line(), n_cases=len(cases), horizon=horizon,
+    rep = Report(command=command or _command_line(args), n_cases=len(cases), horizon=horizon,
                  source=source, curves=curves, timing=timing, timing_m=t_m, generalisation=gen,
                  models=list(args.weights), elapsed_s=time.perf_counter() - t_start)
     path = write_results(rep, args.out, plots=not args.no_plots, gallery=gallery)
