@@ -134,6 +134,24 @@ def _read(ds: Any, what: str) -> np.ndarray:
         raise ValueError(f"{what}: cannot be read, the file is damaged ({exc})") from None
 
 
+def _damaged_file_is_value_error(fn: Any) -> Any:
+    """Decorator: a reader's ``RuntimeError``/``OSError`` from h5py parsing a damaged file (other
+    than a missing file) becomes ``ValueError`` naming the file, so that callers see only the
+    documented exceptions (ValueError, TypeError, KeyError, FileNotFoundError)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(path: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(path, *args, **kwargs)
+        except FileNotFoundError:
+            raise
+        except (RuntimeError, OSError) as exc:
+            raise ValueError(f"{path}: damaged or unreadable file ({type(exc).__name__}: "
+                             f"{str(exc)[:160]})") from None
+    return wrapper
+
+
 def _safe_dataset(group: Any, name: str, where: str):
     """The dataset ``group[name]`` if it is a plain, internal, non-virtual dataset."""
     import h5py
@@ -176,6 +194,7 @@ def _open_h5(path: str | os.PathLike):
         raise ValueError(f"{p}: not a readable HDF5 file ({exc})") from None
 
 
+@_damaged_file_is_value_error
 def load_native(path: str | os.PathLike, dtype: Any = "float32") -> TPNet:
     """Read a native weights file (see the module docstring) into a :class:`TPNet`."""
     where = str(path)
@@ -748,6 +767,7 @@ def _json(text: Any, where: str) -> Any:
                          f"({type(exc).__name__}: {str(exc)[:80]})") from None
 
 
+@_damaged_file_is_value_error
 def import_keras_h5(path: str | os.PathLike, m: int | None = None,
                     layer_norm_eps: float | None = None, lstm_activation: str | None = None,
                     dtype: Any = "float32") -> TPNet:
@@ -987,6 +1007,7 @@ def _keras_to_native(layers: list[_KLayer], ordered: bool, facts: dict[str, Any]
 
 
 # ----------------------------------------------------------------------------------- dispatch
+@_damaged_file_is_value_error
 def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any) -> TPNet:
     """Any supported checkpoint -> :class:`TPNet`: a native file, a Keras HDF5 / ``.keras``
     file (:func:`import_keras_h5`) or a torch state dict (:func:`import_torch`), told apart by
