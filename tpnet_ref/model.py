@@ -450,7 +450,14 @@ def _cli_info(args: Any) -> int:
 def _cli_predict(args: Any) -> int:
     from .weights import load
     model = load(args.weights, dtype=args.dtype)
-    window = np.load(args.window, allow_pickle=False)
+    try:
+        window = np.load(args.window, allow_pickle=False)
+    except (ValueError, EOFError, OSError) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise FileNotFoundError(f"window file not found: {args.window}") from None
+        raise ValueError(f"window file {args.window}: not a numeric .npy array ({exc})") from None
+    if not isinstance(window, np.ndarray):
+        raise ValueError(f"window file {args.window}: holds an archive, not one .npy array")
     out = model.rollout(window, args.steps, normalized=args.normalized)
     if args.output:
         np.save(args.output, out)
