@@ -53,12 +53,17 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--weights", default=None)
     ap.add_argument("--skip-rollout", action="store_true")
+    ap.add_argument("--trained-transforms", action="store_true",
+                    help="random weights with trained (non-identity) transform nets")
     args = ap.parse_args()
     if args.weights:
         from tpnet_ref.weights import load
         m64 = load(args.weights, "float64")
     else:
-        m64 = init_random(seed=args.seed, dtype="float64")
+        from tpnet_ref.model import TPNetConfig
+        cfg = TPNetConfig(input_transform_trained=args.trained_transforms,
+                          feature_transform_trained=args.trained_transforms)
+        m64 = init_random(cfg, seed=args.seed, dtype="float64")
     m32 = m64.astype("float32")
     w0 = window(m64.config.m)
     c = 22.5
@@ -105,23 +110,35 @@ def main() -> None:
         return
     n = args.frames
     print(f"\n2. rollout of {n} frames, float32 vs float64 (same weights, same window)")
-    t0 = time.perf_counter()
-    r32 = m32.rollout(w0, n)
-    t32 = (time.perf_counter() - t0) / n
-    t0 = time.perf_counter()
-    r64 = m64.rollout(w0, n)
-    t64 = (time.perf_counter() - t0) / n
-    diff = np.abs(r32.astype(np.float64) - r64).max(axis=(1, 2))
-    print(f"finite: float32 {bool(np.isfinite(r32).all())}, float64 {bool(np.isfinite(r64).all())}; "
-          f"time per frame: float32 {t32 * 1e3:.2f} ms, float64 {t64 * 1e3:.2f} ms")
     print("| frame | max abs diff (world units) | max abs diff up to here | "
-          "f64 displacement from previous frame |")
-    print("|---|---|---|---|")
-    for k in (10, 100, 1000, 10000):
-        if k <= n:
-            step = np.abs(r64[k - 1] - r64[k - 2]).max() if k >= 2 else float("nan")
-            print(f"| {k} | {diff[k - 1]:.3g} | {diff[:k].max():.3g} | {step:.3g} |")
-
+          "f64 displacement from previous frame | ms/frame f32, f64 |")
+    print("|---|---|---|---|---|", flush=True)
+    # chunked rollout in model coordinates: the same computation as one rollout call (each
+    # chunk restarts from the last m predicted frames, whose features are recomputed exactly)
+    m = m64.config.m
+    w32 = m32.normalize(w0.astype(np.float32))
+    w64 = m64.normalize(w0)
+    done, worst, prev, t32, t64 = 0, 0.0, None, 0.0, 0.0
+    for k in (10, 100, 1000, 10000, 100000):
+        if k > n:
+            break
+        t0 = time.perf_counter()
+        r32 = m32.rollout(w32, k - done, normalized=True)
+        t1 = time.perf_counter()
+        r64 = m64.rollout(w64, k - done, normalized=True)
+        t32 += t1 - t0
+        t64 += time.perf_counter() - t1
+        assert np.isfinite(r32).all() and np.isfinite(r64).all()
+        d = np.abs(m64.denormalize(r32.astype(np.float64)) - m64.denormalize(r64)).max(axis=(1, 2))
+        worst = max(worst, float(d.max()))
+        last64 = m64.denormalize(r64)
+        step = np.abs(last64[-1] - (last64[-2] if len(last64) > 1 else prev)).max()
+        print(f"| {k} | {d[-1]:.3g} | {worst:.3g} | {step:.3g} | "
+              f"{t32 / k * 1e3:.2f}, {t64 / k * 1e3:.2f} |", flush=True)
+        prev = last64[-1]
+        w32 = np.concatenate([w32, r32])[-m:]
+        w64 = np.concatenate([w64, r64])[-m:]
+        done = k
 
 if __name__ == "__main__":
     main()
