@@ -58,12 +58,21 @@ class TPNetConfig:
     norm_hi: float = NORM_HI
 
     def __post_init__(self) -> None:
+        def integral(x: Any, what: str) -> int:
+            if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)):
+                raise TypeError(f"TPNetConfig.{what} must be an integer, got {x!r}")
+            return int(x)
+
         for name in ("m", "n_out", "dim", "global_features"):
-            if int(getattr(self, name)) < 1:
+            if integral(getattr(self, name), name) < 1:
                 raise ValueError(f"TPNetConfig.{name} must be >= 1, got {getattr(self, name)}")
+            object.__setattr__(self, name, int(getattr(self, name)))
         for name in ("input_tnet_mlp", "input_tnet_fc", "mlp1", "feature_tnet_mlp",
                      "feature_tnet_fc", "mlp2", "lstm_units"):
-            v = tuple(int(x) for x in getattr(self, name))
+            raw = getattr(self, name)
+            if isinstance(raw, (str, bytes)) or not hasattr(raw, "__iter__"):
+                raise TypeError(f"TPNetConfig.{name} must be a sequence of widths, got {raw!r}")
+            v = tuple(integral(x, name) for x in raw)
             if not v or min(v) < 1:
                 raise ValueError(f"TPNetConfig.{name} must be non-empty positive widths, got {v}")
             object.__setattr__(self, name, v)
