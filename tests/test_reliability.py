@@ -447,3 +447,21 @@ def test_cli_argparse_errors_exit_2(args, capsys):
         main(args)
     assert e.value.code == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kw", [dict(m=4.5), dict(m=True), dict(m="4"), dict(lstm_units=(8.5,)),
+                                dict(mlp1="64")])
+def test_config_needs_integers(kw):
+    """A float m used to be accepted and stored (then no window could ever fit)."""
+    with pytest.raises(TypeError, match="TPNetConfig"):
+        TPNetConfig(**kw)
+
+
+def test_native_file_with_float_m_refused(tmp_path):
+    import h5py
+    p = tmp_path / "net.h5"
+    init_random(TPNetConfig(**SMALL)).save(p)
+    with h5py.File(p, "r+") as f:
+        f["config"].attrs["m"] = 4.5
+    with pytest.raises(ValueError, match="bad config .*m must be an integer"):
+        tpnet_ref.load(p)
