@@ -3,8 +3,9 @@
 Each sub-command lives in the module that implements it: the module exposes
 ``add_cli(subparsers)`` which registers its parser(s) and sets ``func`` on them. The
 modules are imported only when ``tpnet`` runs, so ``import tpnet_ref`` stays light.
-Errors that a user can fix (``ValueError``, ``TypeError``, ``FileNotFoundError``,
-``KeyError`` from a malformed file) become one line on stderr and exit status 2.
+Errors that a user can fix (``ValueError``, ``TypeError``, ``FileNotFoundError``/``OSError``,
+``KeyError`` from a malformed file, ``NonFiniteResultError`` and other ``ArithmeticError``,
+``MemoryError``) become one line on stderr and exit status 2.
 """
 from __future__ import annotations
 
@@ -40,8 +41,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         rc = args.func(args)
-    except (ValueError, TypeError, FileNotFoundError, KeyError, OSError) as exc:
+    except (ValueError, TypeError, FileNotFoundError, KeyError, OSError, ArithmeticError,
+            MemoryError) as exc:
+        # ArithmeticError: NonFiniteResultError (float32 overflow) and the simulator's
+        # FloatingPointError; MemoryError: a request larger than memory
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        msg = str(msg).strip().replace("\n", " ") or type(exc).__name__
         print(f"tpnet {args.command}: error: {msg}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -29,7 +29,7 @@ import numpy as np
 
 from .cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
 from .model import NORM_HI, NORM_LO
-from .sim import SceneParams, simulate
+from .sim import SceneParams, simulate, validate_params
 
 FORMAT = "tpnet_ref.data/1"
 FRAME_EVERY = 4
@@ -145,19 +145,39 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     if n_frames < m + N_TARGETS:
         raise ValueError(f"steps: {steps} rows give {n_frames} frames, fewer than a window "
                          f"(m + {N_TARGETS} = {m + N_TARGETS})")
-    p = params or SceneParams()
+    for name, v in (("seed", seed), ("whole", whole)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"{name}: must be a non-negative integer, got {v!r}")
+    p = SceneParams() if params is None else params
+    validate_params(p)
     scene = dataclasses.asdict(p)
     settings = {"format": FORMAT, "m": int(m), "n_targets": N_TARGETS,
                 "frame_every": FRAME_EVERY, "steps": int(steps), "seed": int(seed),
                 "whole": int(whole), "norm_lo": NORM_LO, "norm_hi": NORM_HI,
                 "scene": json.dumps(scene, sort_keys=True)}
-    splits = {"train": np.asarray(grid, dtype=float).reshape(-1, 4)}
+    splits = {"train": _cases(grid, "grid")}
     if test_cases is not None:
-        splits["test"] = np.asarray(test_cases, dtype=float).reshape(-1, 4)
+        splits["test"] = _cases(test_cases, "test_cases")
+    reach = p.ring_radius - p.particle_radius
+    lo, hi = p.free_lo + reach, p.free_hi - reach
+    for split, cases in splits.items():  # every case checked before the file is touched
+        name = "grid" if split == "train" else "test_cases"
+        bad = np.flatnonzero(cases[:, 0] < 0)
+        if bad.size:
+            raise ValueError(f"{name}[{bad[0]}]: force must be >= 0, got {cases[bad[0], 0]}")
+        if p.walls:
+            bad = np.flatnonzero(((cases[:, 2:] < lo) | (cases[:, 2:] > hi)).any(axis=1))
+            if bad.size:
+                raise ValueError(f"{name}[{bad[0]}]: start centre {tuple(cases[bad[0], 2:])} puts "
+                                 f"the body outside the box; must be in [{lo:g}, {hi:g}]")
     n = p.n_particles
     mode = "a" if os.path.exists(path) else "w"
     counts = {}
-    with h5py.File(path, mode) as h:
+    try:
+        h5 = h5py.File(path, mode)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot open for writing as HDF5 ({exc})") from None
+    with h5 as h:
         for k, v in settings.items():
             if k in h.attrs and _attr(h.attrs[k]) != v:
                 raise ValueError(f"{path}: was written with {k}={_attr(h.attrs[k])!r}, not "
@@ -185,6 +205,17 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
             if split == "train":
                 counts["train_windows"] = _write_windows(g, m, seed, whole)
     return counts
+
+
+def _cases(a: Any, name: str) -> np.ndarray:
+    """``(T, 4)`` finite float cases (force, angle, x, y)."""
+    from .validation import as_real_array, check_finite
+    arr = as_real_array(a, name)
+    if arr.ndim == 1 and arr.size == 4:
+        arr = arr[None]
+    if arr.ndim != 2 or arr.shape[1] != 4 or arr.shape[0] == 0:
+        raise ValueError(f"{name}: expected shape (T, 4) (force, angle, x, y), got {arr.shape}")
+    return check_finite(arr.astype(float), name)
 
 
 def _attr(v: Any) -> Any:

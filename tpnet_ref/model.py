@@ -58,12 +58,21 @@ class TPNetConfig:
     norm_hi: float = NORM_HI
 
     def __post_init__(self) -> None:
+        def integral(x: Any, what: str) -> int:
+            if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)):
+                raise TypeError(f"TPNetConfig.{what} must be an integer, got {x!r}")
+            return int(x)
+
         for name in ("m", "n_out", "dim", "global_features"):
-            if int(getattr(self, name)) < 1:
+            if integral(getattr(self, name), name) < 1:
                 raise ValueError(f"TPNetConfig.{name} must be >= 1, got {getattr(self, name)}")
+            object.__setattr__(self, name, int(getattr(self, name)))
         for name in ("input_tnet_mlp", "input_tnet_fc", "mlp1", "feature_tnet_mlp",
                      "feature_tnet_fc", "mlp2", "lstm_units"):
-            v = tuple(int(x) for x in getattr(self, name))
+            raw = getattr(self, name)
+            if isinstance(raw, (str, bytes)) or not hasattr(raw, "__iter__"):
+                raise TypeError(f"TPNetConfig.{name} must be a sequence of widths, got {raw!r}")
+            v = tuple(integral(x, name) for x in raw)
             if not v or min(v) < 1:
                 raise ValueError(f"TPNetConfig.{name} must be non-empty positive widths, got {v}")
             object.__setattr__(self, name, v)
@@ -258,16 +267,28 @@ class TPNet:
         eps = self.config.layer_norm_eps
         h = features
         last = len(self._lstms) - 1
+        # LayerNorm squares its centred input: a ReLU LSTM output above sqrt(max)/2 would
+        # overflow the variance to inf and silently turn the layer's output into beta
+        # (finite but wrong), so every LSTM output is checked against that bound.
+        limit = np.sqrt(np.finfo(self.dtype).max) / 4
         with np.errstate(over="ignore", invalid="ignore"):
             for i, (fused, gamma, beta) in enumerate(self._lstms):
                 h = L.bilstm_fused(h, *fused, activation=act, return_sequences=i < last)
+                if act == "relu" and not h.max() < limit:   # also catches NaN
+                    self._overflow(f"BiLSTM {i + 1}")
                 h = L.layer_norm(h, gamma, beta, eps)
             y = L.dense(h, self.params["head.w"], self.params["head.b"], "sigmoid")
         if not np.isfinite(y).all():
-            raise NonFiniteResultError(
-                f"the prediction network overflowed in {self.dtype.name} (the ReLU LSTM's state is "
-                "unbounded); the input is far outside the training range — try dtype='float64'")
+            self._overflow("the output layer")
         return y.reshape(-1, self.config.n_out, self.config.dim)
+
+    def _overflow(self, where: str) -> None:
+        remedy = ("try dtype='float64'" if self.dtype == np.float32
+                  else "rescale the input towards the training range")
+        raise NonFiniteResultError(
+            f"the prediction network overflowed in {self.dtype.name} at {where} (the ReLU "
+            "LSTM's state is unbounded); the input is far outside the training range — "
+            + remedy)
 
     # ------------------------------------------------------------ public API
     def _frames_to_features(self, frames: list[np.ndarray], normalized: bool) -> np.ndarray:
@@ -293,7 +314,13 @@ class TPNet:
             frames = list(window)
         if len(frames) != m:
             raise ValueError(f"{name}: the model takes m={m} frames, got {len(frames)}")
-        return [as_point_set(f, f"{name}[{i}]", dim) for i, f in enumerate(frames)]
+        out = [as_point_set(f, f"{name}[{i}]", dim) for i, f in enumerate(frames)]
+        big = np.finfo(self.dtype).max
+        for i, f in enumerate(out):
+            if f.dtype.itemsize > self.dtype.itemsize and np.abs(f).max() > big:
+                raise ValueError(f"{name}[{i}]: values beyond the {self.dtype.name} range "
+                                 f"(|x| > {big:.3g}); use a float64 model")
+        return out
 
     def predict(self, window: Any, normalized: bool = False) -> np.ndarray:
         """Next point set. ``window``: ``(m, N, dim)`` or m arrays ``(N_i, dim)`` -> ``(n_out, dim)``."""
@@ -333,9 +360,12 @@ class TPNet:
             raise ValueError(f"steps: expected a positive integer, got {steps!r}")
         frames = self._check_window(window, "window")
         m = self.config.m
-        feats = np.empty((m + int(steps), self.config.global_features), dtype=self.dtype)
+        try:
+            feats = np.empty((m + int(steps), self.config.global_features), dtype=self.dtype)
+            out = np.empty((int(steps), self.config.n_out, self.config.dim), dtype=self.dtype)
+        except MemoryError:
+            raise ValueError(f"steps: {steps} steps do not fit in memory") from None
         feats[:m] = self._frames_to_features(frames, normalized)
-        out = np.empty((int(steps), self.config.n_out, self.config.dim), dtype=self.dtype)
         ones = np.array([self.config.n_out])
         for s in range(int(steps)):
             y = self.sequence_head(feats[None, s:s + m])[0]
@@ -429,7 +459,14 @@ def _cli_info(args: Any) -> int:
 def _cli_predict(args: Any) -> int:
     from .weights import load
     model = load(args.weights, dtype=args.dtype)
-    window = np.load(args.window, allow_pickle=False)
+    try:
+        window = np.load(args.window, allow_pickle=False)
+    except (ValueError, EOFError, OSError) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise FileNotFoundError(f"window file not found: {args.window}") from None
+        raise ValueError(f"window file {args.window}: not a numeric .npy array ({exc})") from None
+    if not isinstance(window, np.ndarray):
+        raise ValueError(f"window file {args.window}: holds an archive, not one .npy array")
     out = model.rollout(window, args.steps, normalized=args.normalized)
     if args.output:
         np.save(args.output, out)

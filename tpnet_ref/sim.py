@@ -99,6 +99,11 @@ class SceneParams:
 
 
 _INT_FIELDS = ("n_particles", "spring_reach", "iterations")
+_BOOL_FIELDS = ("walls", "continuous", "sleep")
+#: pymunk stores the iteration count in a C int
+_MAX_ITERATIONS = 1_000_000
+#: coordinates must resolve a particle radius to this many parts (float64 resolution)
+_RESOLUTION = 1000.0
 _POS_FIELDS = ("ring_radius", "particle_radius", "density", "frequency", "dt", "box_size",
                "wall_thickness")
 _NONNEG_FIELDS = ("damping_ratio", "particle_friction", "wall_friction", "particle_restitution",
@@ -117,10 +122,17 @@ def _check_number(value: Any, name: str) -> float:
 
 def validate_params(p: SceneParams) -> None:
     """Raise ``ValueError``/``TypeError`` naming the first parameter the simulator cannot handle."""
+    if not isinstance(p, SceneParams):
+        raise TypeError(f"params: expected a SceneParams, got {type(p).__name__}")
     for name in _INT_FIELDS:
         v = getattr(p, name)
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
             raise TypeError(f"{name}: expected an integer, got {type(v).__name__}")
+    for name in _BOOL_FIELDS:
+        if not isinstance(getattr(p, name), (bool, np.bool_)):
+            raise TypeError(f"{name}: expected a bool, got {type(getattr(p, name)).__name__}")
+    if p.iterations > _MAX_ITERATIONS:
+        raise ValueError(f"iterations: must be <= {_MAX_ITERATIONS}, got {p.iterations}")
     if p.n_particles < 3:
         raise ValueError(f"n_particles: need at least 3, got {p.n_particles}")
     if not 1 <= p.spring_reach <= p.n_particles // 2:
@@ -130,6 +142,12 @@ def validate_params(p: SceneParams) -> None:
     for name in _POS_FIELDS:
         if _check_number(getattr(p, name), name) <= 0:
             raise ValueError(f"{name}: must be > 0, got {getattr(p, name)}")
+    mass = p.mass
+    if not (math.isfinite(mass) and mass > 0 and math.isfinite(1.0 / mass)
+            and 0 < p.inertia < math.inf and math.isfinite(1.0 / p.inertia)):
+        raise ValueError(f"density, particle_radius: {p.density}, {p.particle_radius} give a "
+                         f"particle mass {mass:g} (inertia {p.inertia:g}) that float64 cannot "
+                         "invert")
     for name in _NONNEG_FIELDS:
         if _check_number(getattr(p, name), name) < 0:
             raise ValueError(f"{name}: must be >= 0, got {getattr(p, name)}")
@@ -591,6 +609,13 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     angle_deg = _check_number(angle_deg, "angle_deg")
     if force < 0:
         raise ValueError(f"force: must be >= 0 (use angle_deg for the direction), got {force}")
+    extent = max(abs(x), abs(y), p.box_size if p.walls else 0.0) + p.ring_radius
+    if extent * np.finfo(float).eps * _RESOLUTION > p.particle_radius:
+        raise ValueError(f"x, y, ring_radius, box_size: coordinates up to {extent:g} cannot "
+                         f"resolve particles of radius {p.particle_radius:g} in float64")
+    if not math.isfinite(force / p.mass * max(1.0, p.dt)):
+        raise ValueError(f"force: {force:g} gives a non-finite velocity for particles of mass "
+                         f"{p.mass:g}")
     if p.walls:
         # the paper draws centres from [2.9, 42.1]: particle centres may start up to one
         # particle radius inside a wall (contacts push them out, as in Box2D)
@@ -681,13 +706,20 @@ def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 60
         raise TypeError(f"steps: expected an integer, got {type(steps).__name__}")
     if steps < 1:
         raise ValueError(f"steps: must be >= 1, got {steps}")
-    p = params or SceneParams()
+    if not isinstance(return_energy, (bool, np.bool_)):
+        raise TypeError(f"return_energy: expected a bool, got {type(return_energy).__name__}")
+    p = SceneParams() if params is None else params
+    if not isinstance(p, SceneParams):
+        raise TypeError(f"params: expected a SceneParams, got {type(p).__name__}")
     if kwargs:
         p = _replace(p, kwargs)
     scene = build_scene(x, y, force, angle_deg, p)
     n = p.n_particles
-    out = np.empty((steps, n, 2))
-    en = np.empty(steps) if return_energy else None
+    try:
+        out = np.empty((steps, n, 2))
+        en = np.empty(steps) if return_energy else None
+    except MemoryError:
+        raise ValueError(f"steps: {steps} rows of {n} particles do not fit in memory") from None
     for k in range(steps):
         buf = scene.read()
         out[k] = buf[:n, 0:2]
@@ -712,7 +744,10 @@ def _replace(p: SceneParams, kwargs: dict[str, Any]) -> SceneParams:
     if bad:
         raise TypeError(f"simulate: unknown parameter(s) {', '.join(bad)}")
     if "gravity" in kwargs:
-        kwargs = dict(kwargs, gravity=tuple(kwargs["gravity"]))
+        g = kwargs["gravity"]
+        if not isinstance(g, (tuple, list, np.ndarray)):
+            raise TypeError(f"gravity: expected a pair (gx, gy), got {type(g).__name__}")
+        kwargs = dict(kwargs, gravity=tuple(g))
     return dataclasses.replace(p, **kwargs)
 
 

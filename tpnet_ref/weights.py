@@ -39,6 +39,15 @@ FORMAT_VERSION = 1
 DEFAULT_WEIGHTS = "tpnet-m4.h5"
 #: a config larger than this many parameters is refused as implausible (the paper's is ~8.1M)
 MAX_PARAMS = 200_000_000
+#: one imported tensor larger than this many elements is refused before it is read (the
+#: released network's largest is 1M; a Keras 3 or torch file's declared sizes are checked too)
+MAX_TENSOR = 1 << 25
+#: an HDF5 attribute declaring more elements than this is refused before it is read
+MAX_ATTR_ELEMENTS = 1 << 16
+#: bytes: the largest member of a ``.keras`` archive or torch zip that is decompressed
+MAX_MEMBER_BYTES = 1 << 30
+#: bytes: the largest ``config.json`` of a ``.keras`` archive
+MAX_CONFIG_BYTES = 16 << 20
 
 
 def weights_dir() -> Path:
@@ -94,6 +103,55 @@ def _py(v: Any) -> Any:
     return v
 
 
+def _attr(obj: Any, name: str, where: str, default: Any = None) -> Any:
+    """Attribute ``name`` of an HDF5 object, its declared size checked before it is read."""
+    if name not in obj.attrs:
+        return default
+    shape = obj.attrs.get_id(name).shape
+    n = int(np.prod(shape)) if shape else 1
+    if n > MAX_ATTR_ELEMENTS:
+        raise ValueError(f"{where}: attribute {name!r} of {obj.name} declares {n:,} elements "
+                         f"(limit {MAX_ATTR_ELEMENTS:,}); refused")
+    try:
+        return obj.attrs[name]
+    except (OSError, RuntimeError) as exc:
+        raise ValueError(f"{where}: attribute {name!r} of {obj.name} cannot be read ({exc})") from None
+
+
+def _attrs(obj: Any, where: str) -> dict[str, Any]:
+    """Every attribute of an HDF5 object, each checked by :func:`_attr`."""
+    names = list(obj.attrs.keys())
+    if len(names) > MAX_ATTR_ELEMENTS:
+        raise ValueError(f"{where}: {obj.name} has {len(names):,} attributes; refused")
+    return {k: _attr(obj, k, where) for k in names}
+
+
+def _read(ds: Any, what: str) -> np.ndarray:
+    """The data of a checked dataset; a corrupted file gives ``ValueError`` naming it."""
+    try:
+        return ds[()]
+    except (OSError, RuntimeError) as exc:
+        raise ValueError(f"{what}: cannot be read, the file is damaged ({exc})") from None
+
+
+def _damaged_file_is_value_error(fn: Any) -> Any:
+    """Decorator: a reader's ``RuntimeError``/``OSError`` from h5py parsing a damaged file (other
+    than a missing file) becomes ``ValueError`` naming the file, so that callers see only the
+    documented exceptions (ValueError, TypeError, KeyError, FileNotFoundError)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(path: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(path, *args, **kwargs)
+        except FileNotFoundError:
+            raise
+        except (RuntimeError, OSError) as exc:
+            raise ValueError(f"{path}: damaged or unreadable file ({type(exc).__name__}: "
+                             f"{str(exc)[:160]})") from None
+    return wrapper
+
+
 def _safe_dataset(group: Any, name: str, where: str):
     """The dataset ``group[name]`` if it is a plain, internal, non-virtual dataset."""
     import h5py
@@ -118,7 +176,7 @@ def read_array(group: Any, name: str, shape: tuple[int, ...], where: str) -> np.
         raise ValueError(f"{where}: {name!r} has dtype {ds.dtype}, expected floating point")
     if tuple(ds.shape) != tuple(shape):
         raise ValueError(f"{where}: {name!r} has shape {tuple(ds.shape)}, expected {tuple(shape)}")
-    arr = ds[()]
+    arr = _read(ds, f"{where}: {name!r}")
     if not np.isfinite(arr).all():
         raise ValueError(f"{where}: {name!r} contains NaN or infinite values")
     return arr
@@ -136,23 +194,30 @@ def _open_h5(path: str | os.PathLike):
         raise ValueError(f"{p}: not a readable HDF5 file ({exc})") from None
 
 
+@_damaged_file_is_value_error
 def load_native(path: str | os.PathLike, dtype: Any = "float32") -> TPNet:
     """Read a native weights file (see the module docstring) into a :class:`TPNet`."""
     where = str(path)
     with _open_h5(path) as f:
-        fmt = _py(f.attrs.get("format", ""))
+        fmt = _py(_attr(f, "format", where, ""))
         if fmt != FORMAT:
             raise ValueError(f"{where}: not a tpnet_ref weights file (format attribute {fmt!r}); "
                              "convert framework checkpoints with `tpnet import SRC DST`")
-        version = _py(f.attrs.get("format_version", -1))
+        version = _py(_attr(f, "format_version", where, -1))
         if version != FORMAT_VERSION:
             raise ValueError(f"{where}: unsupported format_version {version!r} "
                              f"(this reader knows {FORMAT_VERSION})")
         if "config" not in f or "params" not in f:
             raise ValueError(f"{where}: missing group 'config' or 'params'")
+        import h5py
+        for name in ("config", "params"):
+            if not isinstance(f.get(name, getlink=True), h5py.HardLink):
+                raise ValueError(f"{where}: {name!r} is a link; links are not accepted")
+            if not isinstance(f[name], h5py.Group):
+                raise ValueError(f"{where}: {name!r} is not a group")
         try:
-            cfg = TPNetConfig.from_dict({k: _py(v) for k, v in f["config"].attrs.items()})
-        except TypeError as exc:
+            cfg = TPNetConfig.from_dict({k: _py(v) for k, v in _attrs(f["config"], where).items()})
+        except (TypeError, OverflowError) as exc:
             raise ValueError(f"{where}: bad config ({exc})") from None
         shapes = param_shapes(cfg)
         total = sum(int(np.prod(s)) for s in shapes.values())
@@ -163,7 +228,7 @@ def load_native(path: str | os.PathLike, dtype: Any = "float32") -> TPNet:
         if extra:
             raise ValueError(f"{where}: unexpected parameter(s) {extra} for this config")
         params = {name: read_array(group, name, shape, where) for name, shape in shapes.items()}
-        meta = {k: _py(v) for k, v in f.attrs.items()
+        meta = {k: _py(v) for k, v in _attrs(f, where).items()
                 if k not in ("format", "format_version", "dtype")}
     meta["path"] = where
     return TPNet(cfg, params, dtype, meta)
@@ -320,6 +385,29 @@ def _infer_torch_config(sd: dict[str, Any], m: int, layer_norm_eps: float,
     return TPNetConfig(m=m, layer_norm_eps=layer_norm_eps, lstm_activation=lstm_activation, **kw)
 
 
+def _check_torch_archive(p: Path) -> None:
+    """A torch file must be the zip format of ``torch.save`` (torch >= 1.6) whose members are
+    of sane declared sizes; checked before ``torch.load`` allocates anything."""
+    import zipfile
+
+    if not zipfile.is_zipfile(p):
+        raise ValueError(f"{p}: not a weights-only torch checkpoint: not a torch.save zip "
+                         "archive (the legacy pre-1.6 format and plain pickles are not read)")
+    try:
+        with zipfile.ZipFile(p) as z:
+            infos = z.infolist()
+    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+        raise ValueError(f"{p}: damaged torch archive ({exc})") from None
+    total = sum(i.file_size for i in infos)
+    if len(infos) > 100_000 or total > MAX_MEMBER_BYTES:
+        raise ValueError(f"{p}: torch archive declares {len(infos):,} members / {total:,} bytes; "
+                         "refused before reading")
+    big = [i.filename for i in infos if i.file_size > MAX_MEMBER_BYTES]
+    if big:
+        raise ValueError(f"{p}: torch archive member(s) {big[:3]} declare more than "
+                         f"{MAX_MEMBER_BYTES:,} bytes; refused before reading")
+
+
 def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
                  lstm_activation: str = "relu", dtype: Any = "float32") -> TPNet:
     """A :class:`TPNet` from the project's PyTorch model (:mod:`tpnet_ref.torch_model`).
@@ -338,6 +426,7 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
         where = str(source)
         if not Path(source).is_file():
             raise FileNotFoundError(f"torch checkpoint not found: {source}")
+        _check_torch_archive(Path(source))
         try:
             obj = torch.load(source, map_location="cpu", weights_only=True)
         except Exception as exc:  # UnpicklingError, RuntimeError, ... from a refused payload
@@ -402,9 +491,10 @@ class _KLayer:
         ds = self.vars[var]
         if ds.dtype.kind != "f":
             raise ValueError(f"{where}: {self.name}/{var} has dtype {ds.dtype}, expected float")
-        if int(np.prod(ds.shape)) > MAX_PARAMS:
-            raise ValueError(f"{where}: {self.name}/{var} is implausibly large {ds.shape}")
-        arr = np.asarray(ds[()], dtype=np.float64)
+        if int(np.prod(ds.shape, dtype=np.float64)) > MAX_TENSOR:
+            raise ValueError(f"{where}: {self.name}/{var} is implausibly large {ds.shape} "
+                             f"(limit {MAX_TENSOR:,} elements); refused before reading")
+        arr = np.asarray(_read(ds, f"{where}: {self.name}/{var}"), dtype=np.float64)
         if not np.isfinite(arr).all():
             raise ValueError(f"{where}: {self.name}/{var} contains NaN or infinite values")
         return arr
@@ -450,9 +540,9 @@ def _named_layout(root: Any, where: str) -> list[_KLayer]:
     Layers are returned in the file's weight order (the model's forward/creation order)."""
     layers: dict[str, _KLayer] = {}
     n = 0
-    for lname in [_py_str(x) for x in root.attrs["layer_names"]]:
+    for lname in [_py_str(x) for x in _attr(root, "layer_names", where)]:
         g = _safe_child(root, lname, where)
-        for wname in [_py_str(x) for x in g.attrs.get("weight_names", [])]:
+        for wname in [_py_str(x) for x in _attr(g, "weight_names", where, [])]:
             ds = _safe_child(g, wname, where)
             parts = wname[:-2].split("/") if wname.endswith(":0") else wname.split("/")
             var = parts[-1]
@@ -615,7 +705,6 @@ def _fold_bn(w: np.ndarray, b: np.ndarray, bn: _KLayer, eps: float,
 def _open_keras(path: str | os.PathLike):
     """-> (h5 file, config JSON or None, layout name). ``.keras`` zips are read in memory."""
     import io
-    import json
     import zipfile
 
     import h5py
@@ -624,24 +713,61 @@ def _open_keras(path: str | os.PathLike):
     if not p.is_file():
         raise FileNotFoundError(f"Keras checkpoint not found: {p}")
     if zipfile.is_zipfile(p):
-        with zipfile.ZipFile(p) as z:
-            names = set(z.namelist())
-            if "model.weights.h5" not in names:
-                raise ValueError(f"{p}: a zip without model.weights.h5 is not a .keras file "
-                                 f"(members: {sorted(names)[:6]})")
-            info = z.getinfo("model.weights.h5")
-            if info.file_size > 8 * MAX_PARAMS:
-                raise ValueError(f"{p}: model.weights.h5 is implausibly large")
-            cfg = json.loads(z.read("config.json")) if "config.json" in names else None
-            data = z.read("model.weights.h5")
-        return h5py.File(io.BytesIO(data), "r"), cfg, "Keras 3 .keras archive"
+        try:
+            with zipfile.ZipFile(p) as z:
+                names = set(z.namelist())
+                if "model.weights.h5" not in names:
+                    raise ValueError(f"{p}: a zip without model.weights.h5 is not a .keras file "
+                                     f"(members: {sorted(names)[:6]})")
+                info = z.getinfo("model.weights.h5")
+                if info.file_size > MAX_MEMBER_BYTES:
+                    raise ValueError(f"{p}: model.weights.h5 declares {info.file_size:,} bytes "
+                                     f"(limit {MAX_MEMBER_BYTES:,}); refused before reading")
+                cfg = None
+                if "config.json" in names:
+                    if z.getinfo("config.json").file_size > MAX_CONFIG_BYTES:
+                        raise ValueError(f"{p}: config.json declares "
+                                         f"{z.getinfo('config.json').file_size:,} bytes "
+                                         f"(limit {MAX_CONFIG_BYTES:,}); refused before reading")
+                    cfg = _json(z.read("config.json"), f"{p}: config.json")
+                data = z.read("model.weights.h5")
+        except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError,
+                RuntimeError, OSError) as exc:
+            # zlib.error is an Exception subclass that zipfile lets through
+            raise ValueError(f"{p}: damaged or unsupported .keras archive ({exc})") from None
+        except Exception as exc:
+            if type(exc).__name__ != "error":  # zlib.error
+                raise
+            raise ValueError(f"{p}: damaged .keras archive ({exc})") from None
+        try:
+            return h5py.File(io.BytesIO(data), "r"), cfg, "Keras 3 .keras archive"
+        except OSError as exc:
+            raise ValueError(f"{p}: model.weights.h5 in the archive is not readable HDF5 "
+                             f"({exc})") from None
     f = _open_h5(p)
     cfg = None
-    if "model_config" in f.attrs:
-        cfg = json.loads(_py_str(f.attrs["model_config"]))
+    try:
+        cfg = _json(_attr(f, "model_config", str(p)), str(p))
+    except BaseException:
+        f.close()
+        raise
     return f, cfg, None
 
 
+def _json(text: Any, where: str) -> Any:
+    """Parse a model config; malformed or absurdly nested JSON gives ``ValueError``."""
+    import json
+
+    if text is None:
+        return None
+    try:
+        return json.loads(_py_str(text) if isinstance(text, bytes) else str(text))
+    except (ValueError, RecursionError) as exc:
+        raise ValueError(f"{where}: model config is not valid JSON "
+                         f"({type(exc).__name__}: {str(exc)[:80]})") from None
+
+
+@_damaged_file_is_value_error
 def import_keras_h5(path: str | os.PathLike, m: int | None = None,
                     layer_norm_eps: float | None = None, lstm_activation: str | None = None,
                     dtype: Any = "float32") -> TPNet:
@@ -672,10 +798,13 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
         root = f["model_weights"] if "model_weights" in f else f
         if "layer_names" in root.attrs:
             layers = _named_layout(root, where)
-            ver = _py_str(f.attrs.get("keras_version", root.attrs.get("keras_version", "?")))
+            ver = _py_str(_attr(f, "keras_version", where,
+                                _attr(root, "keras_version", where, "?")))
             fw = "TF-Keras 2" if ver.startswith("2") else f"Keras {ver}"
-            colon = any(_py_str(n).endswith(":0") for ln in _py_list(root.attrs["layer_names"])
-                        for n in _py_list(_safe_child(root, ln, where).attrs.get("weight_names", [])))
+            colon = any(_py_str(n).endswith(":0")
+                        for ln in _py_list(_attr(root, "layer_names", where))
+                        for n in _py_list(_attr(_safe_child(root, ln, where), "weight_names",
+                                                where, [])))
             layout = layout or (f"{fw} HDF5 " + ("whole model (model_weights/)" if "model_weights"
                                                   in f else "save_weights")
                                 + f", names {'with' if colon else 'without'} ':0'")
@@ -691,7 +820,11 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
         unknown = [ln.name for ln in layers if ln.kind not in _KERAS_TYPES]
         if unknown:
             raise ValueError(f"{where}: unexpected layer(s) with weights {unknown}")
-        model, report = _keras_to_native(layers, ordered, _config_facts(cfg_json or {}),
+        try:
+            facts = _config_facts(cfg_json or {})
+        except RecursionError:
+            raise ValueError(f"{where}: model config is nested too deeply") from None
+        model, report = _keras_to_native(layers, ordered, facts,
                                          m, layer_norm_eps, lstm_activation, where, dtype)
     report = f"{layout}; " + report
     model.meta.update({"source": where, "source_format": layout, "import_report": report})
@@ -874,6 +1007,7 @@ def _keras_to_native(layers: list[_KLayer], ordered: bool, facts: dict[str, Any]
 
 
 # ----------------------------------------------------------------------------------- dispatch
+@_damaged_file_is_value_error
 def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any) -> TPNet:
     """Any supported checkpoint -> :class:`TPNet`: a native file, a Keras HDF5 / ``.keras``
     file (:func:`import_keras_h5`) or a torch state dict (:func:`import_torch`), told apart by
@@ -887,15 +1021,18 @@ def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any
         head = fh.read(8)
     if head == b"\x89HDF\r\n\x1a\n":
         with _open_h5(p) as f:
-            native = _py(f.attrs.get("format", "")) == FORMAT
+            native = _py(_attr(f, "format", str(p), "")) == FORMAT
         if native:
             model = load_native(p, dtype)
             model.meta["import_report"] = "native tpnet_ref weights file"
             return model
         return import_keras_h5(p, dtype=dtype, **kw)
     if zipfile.is_zipfile(p):
-        with zipfile.ZipFile(p) as z:
-            is_keras = "model.weights.h5" in z.namelist()
+        try:
+            with zipfile.ZipFile(p) as z:
+                is_keras = "model.weights.h5" in z.namelist()
+        except (zipfile.BadZipFile, EOFError, OSError) as exc:
+            raise ValueError(f"{p}: damaged zip archive ({exc})") from None
         if is_keras:
             return import_keras_h5(p, dtype=dtype, **kw)
     torch_kw = {k: v for k, v in kw.items() if v is not None}
