@@ -7,17 +7,18 @@ and "inputs are frames 0, 4, ..., 4(m-1)" means rows 0, 4, ..., 4(m-1) of this a
 
 Division of labour per step (see docs/simulator.md for why each piece is there):
 
-* pymunk (Chipmunk2D) integrates positions, applies gravity and solves the contacts (particle vs
-  wall, particle vs particle except spring-connected pairs) with 10 iterations, Box2D's contact
-  slop (0.005) and Box2D's friction/restitution mixing rules.
-* the springs are Box2D soft distance joints, solved here (Numba kernel) exactly as Box2D 2.3 does:
-  implicit soft constraint (gamma/bias from frequency and damping ratio), warm-started
-  sequential impulses, ``iterations`` passes. This is unconditionally stable for any stiffness and
-  loses energy even with damping ratio 0, as Box2D does.
-* Box2D's velocity clamps (max translation 2 and max rotation pi/2 per step) and its continuous
-  collision against static bodies (time of impact: a particle stops at core distance
-  ``radius + skin - 3 slop`` = 0.145 from a wall instead of tunnelling) are reproduced
-  analytically for the four axis-aligned walls, so no particle can leave the box at any speed.
+* pymunk (Chipmunk2D) holds the 30 particle bodies, integrates their positions, applies gravity
+  and solves the particle-particle contacts (except spring-connected pairs) with Box2D's contact
+  slop (0.005) and mixing rules.
+* a Numba kernel does what Box2D's island solver does with the springs and the walls, in
+  Box2D's order: soft distance joints (implicit soft constraint, gamma/bias from frequency and
+  damping ratio; stable at any stiffness, loses energy even with damping ratio 0, as Box2D
+  does) and the wall contacts (friction then normal, restitution above 1 unit/s), warm-started,
+  ``iterations`` passes; then Box2D's velocity clamps (translation 2 and rotation pi/2 per
+  step), the walls' continuous collision (a particle stops at core distance
+  ``radius + skin - 3 slop`` = 0.145 from a wall instead of tunnelling), and the walls'
+  position correction. The four walls are axis-aligned half-planes in the kernel, not pymunk
+  shapes, so no particle can leave the box at any speed.
 * Box2D's island sleeping (all bodies slower than 0.01 units/s and 2 deg/s for 0.5 s) freezes the
   body, as it does in Box2D.
 """
@@ -62,7 +63,7 @@ class SceneParams:
     dt: float = 1.0 / 45.0
     iterations: int = 10                 # velocity iterations (contacts in pymunk, springs here)
     box_size: float = 45.0               # outer size of the square; free area [t, size - t]^2
-    wall_thickness: float = 1.0
+    wall_thickness: float = 1.0         # sets the free area; walls are half-planes
     walls: bool = True
     wall_skin: float = B2_POLYGON_RADIUS
     contact_slop: float = B2_LINEAR_SLOP
@@ -611,8 +612,8 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     # The walls are not pymunk shapes: they are four axis-aligned half-planes handled in the
     # kernel (contacts solved with the springs, time of impact, position correction). pymunk
     # handles the particle-particle contacts. Box2D mixes friction by geometric mean and
-    # restitution by max; pymunk multiplies: sqrt(mu) per shape gives mu for a pair, and a
-    # pre_solve handler sets the restitution when it is neither 0 nor 1.
+    # restitution by max; pymunk multiplies: sqrt(mu) and sqrt(e) per shape give mu and e for
+    # a pair, and a pre_solve handler adds Box2D's restitution threshold when e > 0.
     e_p = p.particle_restitution
     start = ring_positions(x, y, p.n_particles, p.ring_radius)
     v0 = force / p.mass * np.array([math.cos(math.radians(angle_deg)),
