@@ -208,12 +208,14 @@ def _kernels() -> Any:
     def advance(pos, vel, ang, out_pos, ia, ib, rest, lam, inv_mass, h, omega, zeta, iters,
                 slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch, radius,
                 mass, inertia, mu, e_wall, v_thresh, wl_n, wl_t):  # pragma: no cover
-        """Springs (Box2D soft distance joints) + clamps + wall time of impact, in place.
+        """One Box2D island step for the springs and walls, in place.
 
-        pos (N, 2) positions now; vel (N, 2), ang (N,) velocities after pymunk's contact solve,
-        updated to the velocities of the step; out_pos (N, 2) receives the positions at the end
-        of the step. lam (S,) accumulated spring impulses (warm start), updated.
-        Returns the largest squared linear speed and squared angular speed (for sleeping).
+        Springs (soft distance joints) and wall contacts solved together, velocity clamps,
+        walls' time of impact, walls' position correction. pos (N, 2) positions now; vel (N, 2),
+        ang (N,) velocities after gravity and pymunk's particle-pair contacts, updated to the
+        velocities of the step; out_pos (N, 2) receives the positions at the end of the step.
+        lam (S,), wl_n / wl_t (N, 4): accumulated spring and wall impulses (warm starting),
+        updated. Returns the largest squared linear and angular speeds (for sleeping).
         """
         n = pos.shape[0]
         s = ia.shape[0]
