@@ -110,3 +110,17 @@ def test_cli_generate(tmp_path):
     with h5py.File(out, "r") as h:
         assert h["train/positions"].shape == (1, 21, 30, 2)
         assert "test" not in h
+
+
+def test_contact_onset_per_wall():
+    from tpnet_ref.sim import simulate
+    frames = simulate(1.6, 250.0, 30.0, 30.0)[::4]
+    c = D.wall_contact(frames)
+    assert c.shape == (150, 4) and c.any()
+    onset = D.collision_frames(c)
+    assert onset.shape == (150,) and onset.sum() >= 1
+    # sliding along one wall into another: the second wall's contact is a new collision
+    c2 = np.zeros((10, 4), bool)
+    c2[2:, 0] = True
+    c2[6:, 2] = True
+    assert np.nonzero(D.collision_frames(c2))[0].tolist() == [2, 6]

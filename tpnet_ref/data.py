@@ -7,7 +7,7 @@ File layout (HDF5, written by ``tpnet data generate``)::
     /train/params           (T, 4) float64   force, angle_deg, x, y per trajectory
     /train/positions        (T, F, N, 2) float32  world units, model frames (every 4th row)
     /train/normalized       (T, F, N, 2) float32  (x - NORM_LO) / (NORM_HI - NORM_LO)
-    /train/contact          (T, F) bool      some particle touches a wall at that frame
+    /train/contact          (T, F, 4) bool   some particle touches the left/right/bottom/top wall
     /train/done             (T,) bool        trajectory written (resuming skips these)
     /train/windows          (W, 3) int64     trajectory, first frame, kind (1 wall collision,
                                              0 normal interval, 2 whole-trajectory window)
@@ -31,7 +31,7 @@ from .cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
 from .model import NORM_HI, NORM_LO
 from .sim import SceneParams, simulate
 
-FORMAT = "tpnet_ref.data/1"
+FORMAT = "tpnet_ref.data/2"
 FRAME_EVERY = 4
 N_TARGETS = 8
 KIND_NORMAL, KIND_COLLISION, KIND_WHOLE = 0, 1, 2
@@ -62,29 +62,33 @@ def train_grid(forces: Sequence[float] = TRAIN_FORCES, angles: Sequence[float] =
 
 def wall_contact(frames: np.ndarray, params: SceneParams | None = None,
                  margin: float = 0.02) -> np.ndarray:
-    """``(F,)`` bool: some particle centre is within ``radius + skin + margin`` of a wall.
-
-    ``frames``: ``(F, N, 2)`` world units."""
+    """``(F, 4)`` bool: some particle centre is within ``radius + skin + margin`` of the left,
+    right, bottom, top wall. ``frames``: ``(F, N, 2)`` world units."""
     p = params or SceneParams()
     reach = p.particle_radius + p.wall_skin + margin
-    lo = frames.min(axis=(1, 2))
-    hi = frames.max(axis=(1, 2))
-    return (lo < p.free_lo + reach) | (hi > p.free_hi - reach)
+    lo = frames.min(axis=1)          # (F, 2)
+    hi = frames.max(axis=1)
+    return np.stack([lo[:, 0] < p.free_lo + reach, hi[:, 0] > p.free_hi - reach,
+                     lo[:, 1] < p.free_lo + reach, hi[:, 1] > p.free_hi - reach], axis=1)
 
 
 def collision_frames(contact: np.ndarray) -> np.ndarray:
-    """``(F,)`` bool: frames where a wall contact begins (touching now, not at the frame before)."""
+    """``(F,)`` bool: frames where a wall contact begins (some wall touched now and not at the
+    frame before). ``contact``: ``(F,)`` or ``(F, walls)`` bool."""
     c = np.asarray(contact, dtype=bool)
+    if c.ndim == 1:
+        c = c[:, None]
     onset = c.copy()
     onset[1:] &= ~c[:-1]
     onset[0] = False   # a body that starts against a wall has not collided yet
-    return onset
+    return onset.any(axis=1)
 
 
 def sample_windows(contact: np.ndarray, rng: np.random.Generator, m: int,
                    n_collision: int = 15, n_normal: int = 5,
                    n_targets: int = N_TARGETS) -> np.ndarray:
-    """``(n_collision + n_normal, 2)`` (first frame, kind) of training windows of one trajectory.
+    """``(n_collision + n_normal, 2)`` (first frame, kind) of training windows of one trajectory,
+    from its ``(F,)`` or ``(F, 4)`` wall contacts.
 
     A window covers frames ``[s, s + m + n_targets)``; it "includes a wall collision" when a
     contact begins inside it. Starts are drawn without replacement where enough exist; when one
@@ -175,7 +179,7 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
                 chunks = (1, n_frames, n, 2)
                 g.create_dataset("positions", shape=shape, dtype="f4", chunks=chunks)
                 g.create_dataset("normalized", shape=shape, dtype="f4", chunks=chunks)
-                g.create_dataset("contact", shape=(t, n_frames), dtype=bool)
+                g.create_dataset("contact", shape=(t, n_frames, 4), dtype=bool)
                 g.create_dataset("done", shape=(t,), dtype=bool)
             done = g["done"][...]
             todo = [i for i in range(t) if not done[i]]
@@ -229,7 +233,7 @@ def _run(g: Any, cases: np.ndarray, todo: list[int], steps: int, scene: dict, wo
 
 def _write_windows(g: Any, m: int, seed: int, whole: int) -> int:
     contact = g["contact"][...]
-    t, n_frames = contact.shape
+    t, n_frames = contact.shape[:2]
     rows = []
     for i in range(t):
         w = sample_windows(contact[i], np.random.default_rng([seed, i]), m)
