@@ -246,3 +246,11 @@ def test_restitution_settings_stay_sane():
     assert e[-1] < 0.5 * e[0]
     plain = simulate(1.6, 250.0, 30.0, 30.0, steps=600)
     assert np.abs(plain - traj).max() > 0.1
+
+
+def test_start_against_the_wall_row0_untouched():
+    # the test set has a start at y = 42.0: the top particle starts at 44.0, on the wall face
+    traj = simulate(1.0, 205.0, 34.6, 42.0, steps=5)
+    np.testing.assert_allclose(traj[0], sim.ring_positions(34.6, 42.0), atol=1e-12)
+    assert inside_box(traj)
+    assert traj[1:, :, 1].max() <= 44.0 - 0.145

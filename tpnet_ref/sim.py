@@ -468,6 +468,7 @@ class Scene:
     wall_lt: np.ndarray          # (N, 4) top) and friction impulses, for warm starting
     sleep_time: float = 0.0
     asleep: bool = False
+    stepped: bool = False        # row 0 (the initial state) is returned as built
     _batch: Any = field(default=None, repr=False)
 
     @property
@@ -501,7 +502,7 @@ class Scene:
         b = self.buf
         b[...] = np.frombuffer(getbuf.float_buf()).reshape(b.shape)
         p = self.params
-        if p.walls and p.continuous:
+        if p.walls and p.continuous and self.stepped:
             n = self.n
             pos = b[:n, 0:2]
             lo = p.free_lo + p.toi_distance
@@ -573,6 +574,7 @@ class Scene:
         pb, fields, _, setbuf = self._batch
         pb.set_space_bodies(self.space, fields, setbuf)
         self.space.step(p.dt)
+        self.stepped = True
         if self.asleep:  # Box2D zeroes the velocities of a sleeping island
             self.read()
             b[:n, 2:5] = 0.0
