@@ -5,8 +5,9 @@
 Prints, at steps 40/160/320/600 (row index = step; row 599 for "600"), the mean and max
 distance between the two bodies' centroids and the mean shape error (paper's Chamfer position
 error, squared distances averaged over points, after centring each set on its centroid), in
-world units. Extra ``key=value`` arguments are passed to ``tpnet_ref.sim.simulate``, and to the Box2D
-scene too where it has a parameter of that name (e.g. ``wall_restitution=1``, ``frequency=2``).
+world units, and both errors in the released-code metric on normalised coordinates. Extra
+``key=value`` arguments are passed to ``tpnet_ref.sim.simulate``, and to the Box2D scene too
+where it has a parameter of that name (e.g. ``wall_restitution=1``, ``frequency=2``).
 """
 from __future__ import annotations
 

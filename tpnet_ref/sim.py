@@ -1,4 +1,4 @@
-"""The paper's soft-body scene (SPEC section 5) in pymunk, made to behave like the Box2D 2.3 original.
+"""The paper's soft-body scene (SPEC section 5) in pymunk, made to behave like Box2D 2.3.
 
 ``simulate(force, angle_deg, x, y)`` returns the ``(steps, 30, 2)`` particle centres in world
 units. Row 0 is the initial state (the undeformed ring, before any step); row ``k`` is the state
