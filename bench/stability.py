@@ -24,16 +24,13 @@ PAIRS = spring_pairs()
 def run(force, angle, x, y, steps, **kw):
     p = SceneParams(**kw)
     sc = build_scene(x, y, force, angle, p)
-    g = np.asarray(p.gravity)
     traj = np.empty((steps, 30, 2))
     em = np.empty(steps)
     et = np.empty(steps)
     for k in range(steps):
         b = sc.read()
         traj[k] = b[:30, :2]
-        v = b[:30, 2:4] - p.dt * g
-        em[k] = (0.5 * p.mass * (v ** 2).sum() + 0.5 * p.inertia * (b[:30, 4] ** 2).sum()
-                 - p.mass * (b[:30, :2] @ g).sum())
+        em[k] = sc.energy(springs=False)
         et[k] = sc.energy()
         if k + 1 < steps:
             sc.step()

@@ -98,6 +98,20 @@ class SceneParams:
         return max(self.contact_slop,
                    self.particle_radius + self.wall_skin - 3.0 * self.contact_slop)
 
+    @property
+    def toi_stop(self) -> float:
+        """Centre-to-wall distance where a time-of-impact event leaves a particle: Box2D's TOI
+        position solve (baumgarte 0.75, done once the separation was >= -1.5 slop) from
+        ``toi_distance``; 0.154375 with the default values."""
+        touch = self.particle_radius + self.wall_skin
+        sep = self.toi_distance - touch
+        for _ in range(20):
+            before = sep
+            sep -= min(max(0.75 * (sep + self.contact_slop), -0.2), 0.0)
+            if before >= -1.5 * self.contact_slop:
+                break
+        return touch + sep
+
 
 _INT_FIELDS = ("n_particles", "spring_reach", "iterations")
 _POS_FIELDS = ("ring_radius", "particle_radius", "density", "frequency", "dt", "box_size",
@@ -207,7 +221,7 @@ def _kernels() -> Any:
     @njit(cache=True, fastmath=False)
     def advance(pos, vel, ang, out_pos, ia, ib, rest, lam, inv_mass, h, omega, zeta, iters,
                 slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch, radius,
-                mass, inertia, mu, e_wall, v_thresh, wl_n, wl_t):  # pragma: no cover
+                toi_stop, mass, inertia, mu, e_wall, v_thresh, wl_n, wl_t):  # pragma: no cover
         """One Box2D island step for the springs and walls, in place.
 
         Springs (soft distance joints) and wall contacts solved together, velocity clamps,
@@ -380,20 +394,8 @@ def _kernels() -> Any:
                     px += best * rem * h * vel[i, 0]
                     py += best * rem * h * vel[i, 1]
                     rem *= 1.0 - best
-                    # Box2D's TOI position solve (b2ContactSolver::SolveTOIPositionConstraints:
-                    # baumgarte 0.75, stop once the separation was >= -1.5 slop): from the
-                    # time-of-impact distance to separation -0.005625 with the default values
-                    sep = (lo - face_lo) - touch
-                    for _it in range(20):
-                        corr = 0.75 * (sep + slop)
-                        if corr < -0.2:
-                            corr = -0.2
-                        before = sep
-                        if corr < 0.0:
-                            sep -= corr
-                        if before >= -1.5 * slop:
-                            break
-                    dist = touch + sep
+                    # Box2D's TOI position solve leaves the particle at toi_stop from the face
+                    dist = toi_stop
                     # contact at the impact: normal n (into the free area), tangent t = (n.y, -n.x)
                     nx = sgn if axis == 0 else 0.0
                     ny = sgn if axis == 1 else 0.0
@@ -475,19 +477,6 @@ class Scene:
     def n(self) -> int:
         return self.params.n_particles
 
-    @property
-    def toi_stop(self) -> float:
-        """Centre-to-face distance where a time-of-impact event leaves a particle (Box2D's TOI
-        position solve from ``toi_distance``: 0.154375 with the default values)."""
-        p = self.params
-        touch = p.particle_radius + p.wall_skin
-        sep = p.toi_distance - touch
-        for _ in range(20):
-            before = sep
-            sep -= min(max(0.75 * (sep + p.contact_slop), -0.2), 0.0)
-            if before >= -1.5 * p.contact_slop:
-                break
-        return touch + sep
 
     def read(self) -> np.ndarray:
         """Pull positions/velocities of all bodies into ``buf`` (one pymunk batch call).
@@ -508,7 +497,7 @@ class Scene:
             lo = p.free_lo + p.toi_distance
             hi = p.free_hi - p.toi_distance
             if pos.min() < lo or pos.max() > hi:
-                stop = self.toi_stop
+                stop = p.toi_stop
                 vel = b[:n, 2:4]
                 low = pos < lo
                 high = pos > hi
@@ -523,10 +512,10 @@ class Scene:
         """``(N, 2)`` current particle centres (a copy)."""
         return self.read()[: self.n, 0:2].copy()
 
-    def energy(self) -> float:
+    def energy(self, springs: bool = True) -> float:
         """Mechanical energy now (from ``buf``; call ``read`` first): linear and rotational
-        kinetic, gravitational and spring potential energy (springs as ideal springs of
-        stiffness ``mu (2 pi f)^2``)."""
+        kinetic and gravitational energy, plus (``springs``) the springs' potential energy as
+        ideal springs of stiffness ``mu (2 pi f)^2``."""
         p = self.params
         n = self.n
         b = self.buf
@@ -534,6 +523,8 @@ class Scene:
         v = b[:n, 2:4] - p.dt * np.asarray(p.gravity, dtype=float)
         ke = 0.5 * p.mass * float((v ** 2).sum()) + 0.5 * p.inertia * float((b[:n, 4] ** 2).sum())
         pe = -p.mass * float((b[:n, 0:2] @ np.asarray(p.gravity, dtype=float)).sum())
+        if not springs:
+            return ke + pe
         d = b[self.pairs[:, 1], 0:2] - b[self.pairs[:, 0], 0:2]
         stretch = np.sqrt((d ** 2).sum(1)) - self.rest
         return ke + pe + 0.5 * spring_energy_k(p) * float((stretch ** 2).sum())
@@ -555,7 +546,7 @@ class Scene:
             p.contact_slop, p.max_translation or 0.0, p.max_rotation or 0.0,
             p.walls, p.walls and p.continuous, p.free_lo + p.toi_distance,
             p.free_hi - p.toi_distance, p.free_lo, p.free_hi, p.particle_radius + p.wall_skin,
-            p.particle_radius, p.mass, p.inertia,
+            p.particle_radius, p.toi_stop, p.mass, p.inertia,
             math.sqrt(p.particle_friction * p.wall_friction),
             max(p.particle_restitution, p.wall_restitution), p.restitution_threshold,
             self.wall_ln, self.wall_lt)
