@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 h5py = pytest.importorskip("h5py")
 
@@ -124,3 +126,23 @@ def test_contact_onset_per_wall():
     c2[2:, 0] = True
     c2[6:, 2] = True
     assert np.nonzero(D.collision_frames(c2))[0].tolist() == [2, 6]
+
+
+@settings(max_examples=40, deadline=None)
+@given(contact=st.lists(st.booleans(), min_size=12, max_size=160), m=st.integers(3, 5),
+       seed=st.integers(0, 2 ** 16))
+def test_sample_windows_properties(contact, m, seed):
+    c = np.asarray(contact)
+    if len(c) < m + 8:
+        with pytest.raises(ValueError):
+            D.sample_windows(c, np.random.default_rng(seed), m=m)
+        return
+    w = D.sample_windows(c, np.random.default_rng(seed), m=m)
+    assert w.shape == (20, 2)
+    assert (w[:, 0] >= 0).all() and (w[:, 0] + m + 8 <= len(c)).all()
+    onset = D.collision_frames(c)
+    for s, kind in w:
+        has = onset[s:s + m + 8].any()
+        assert has == (kind == D.KIND_COLLISION)
+    again = D.sample_windows(c, np.random.default_rng(seed), m=m)
+    assert np.array_equal(w, again)
