@@ -219,9 +219,9 @@ def _kernels() -> Any:
     from numba import njit
 
     @njit(cache=True, fastmath=False)
-    def advance(pos, vel, ang, out_pos, ia, ib, rest, lam, inv_mass, h, omega, zeta, iters,
-                slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch, radius,
-                toi_stop, mass, inertia, mu, e_wall, v_thresh, wl_n, wl_t):  # pragma: no cover
+    def advance(pos, vel, ang, out_pos, lam, wl_n, wl_t, ia, ib, rest, inv_mass, h, omega,
+                zeta, iters, slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch,
+                radius, toi_stop, mass, inertia, mu, e_wall, v_thresh):  # pragma: no cover
         """One Box2D island step for the springs and walls, in place.
 
         Springs (soft distance joints) and wall contacts solved together, velocity clamps,
@@ -472,11 +472,24 @@ class Scene:
     asleep: bool = False
     stepped: bool = False        # row 0 (the initial state) is returned as built
     _batch: Any = field(default=None, repr=False)
+    _const: tuple = field(default=(), repr=False)
 
     @property
     def n(self) -> int:
         return self.params.n_particles
 
+    def __post_init__(self) -> None:
+        # the kernel's constant arguments, computed once
+        p = self.params
+        self._const = (
+            np.ascontiguousarray(self.pairs[:, 0]), np.ascontiguousarray(self.pairs[:, 1]),
+            self.rest, self.inv_mass, p.dt, 2.0 * math.pi * p.frequency, p.damping_ratio,
+            p.iterations, p.contact_slop, p.max_translation or 0.0, p.max_rotation or 0.0,
+            p.walls, p.walls and p.continuous, p.free_lo + p.toi_distance,
+            p.free_hi - p.toi_distance, p.free_lo, p.free_hi, p.particle_radius + p.wall_skin,
+            p.particle_radius, p.toi_stop, p.mass, p.inertia,
+            math.sqrt(p.particle_friction * p.wall_friction),
+            max(p.particle_restitution, p.wall_restitution), p.restitution_threshold)
 
     def read(self) -> np.ndarray:
         """Pull positions/velocities of all bodies into ``buf`` (one pymunk batch call).
@@ -540,16 +553,8 @@ class Scene:
         vel = np.ascontiguousarray(b[:n, 2:4])
         ang = np.ascontiguousarray(b[:n, 4])
         out = np.empty_like(pos)
-        vmax2, wmax2 = _kernels()(
-            pos, vel, ang, out, self.pairs[:, 0], self.pairs[:, 1], self.rest, self.lam,
-            self.inv_mass, p.dt, 2.0 * math.pi * p.frequency, p.damping_ratio, p.iterations,
-            p.contact_slop, p.max_translation or 0.0, p.max_rotation or 0.0,
-            p.walls, p.walls and p.continuous, p.free_lo + p.toi_distance,
-            p.free_hi - p.toi_distance, p.free_lo, p.free_hi, p.particle_radius + p.wall_skin,
-            p.particle_radius, p.toi_stop, p.mass, p.inertia,
-            math.sqrt(p.particle_friction * p.wall_friction),
-            max(p.particle_restitution, p.wall_restitution), p.restitution_threshold,
-            self.wall_ln, self.wall_lt)
+        vmax2, wmax2 = _kernels()(pos, vel, ang, out, self.lam, self.wall_ln, self.wall_lt,
+                                  *self._const)
         if p.sleep:
             if (vmax2 > B2_LINEAR_SLEEP_TOLERANCE ** 2
                     or wmax2 > B2_ANGULAR_SLEEP_TOLERANCE ** 2):
