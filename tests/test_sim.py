@@ -159,6 +159,7 @@ def test_random_valid_inputs_stay_finite_and_in_box(force, angle, x, y, freq):
 @pytest.mark.parametrize("kwargs, match", [
     (dict(force=float("nan")), "force"),
     (dict(force=-1.0), "force"),
+    (dict(force=1e300), "force"),
     (dict(angle_deg=float("inf")), "angle_deg"),
     (dict(x=float("nan")), "x"),
     (dict(x=2.0), "x"),

@@ -592,6 +592,9 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     angle_deg = _check_number(angle_deg, "angle_deg")
     if force < 0:
         raise ValueError(f"force: must be >= 0 (use angle_deg for the direction), got {force}")
+    if force / p.mass * p.dt > 1e6:
+        raise ValueError(f"force: {force} moves a particle more than 1e6 per step; "
+                         "beyond what the simulator resolves")
     if p.walls:
         # the paper draws centres from [2.9, 42.1]: particle centres may start up to one
         # particle radius inside a wall (contacts push them out, as in Box2D)
