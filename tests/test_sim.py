@@ -179,6 +179,8 @@ def test_random_valid_inputs_stay_finite_and_in_box(force, angle, x, y, freq):
     (dict(particle_friction=-1.0), "particle_friction"),
     (dict(box_size=6.0), "box_size"),
     (dict(gravity=(0.0, float("nan"))), "gravity"),
+    (dict(gravity=(0.0, -1e300)), "gravity"),
+    (dict(density=1e-300), "density"),
     (dict(iterations=0), "iterations"),
     (dict(max_translation=-1.0), "max_translation"),
 ])

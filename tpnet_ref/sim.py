@@ -161,7 +161,11 @@ def validate_params(p: SceneParams) -> None:
     if not isinstance(g, (tuple, list, np.ndarray)) or len(g) != 2:
         raise ValueError(f"gravity: expected a pair (gx, gy), got {g!r}")
     for k, gi in enumerate(g):
-        _check_number(gi, f"gravity[{k}]")
+        if abs(_check_number(gi, f"gravity[{k}]")) * p.dt ** 2 > 1e6:
+            raise ValueError(f"gravity[{k}]: {gi} moves a particle more than 1e6 per step")
+    if not 1e-12 <= p.mass <= 1e12:
+        raise ValueError(f"density: gives a particle mass of {p.mass:g}; it must be within "
+                         "1e-12..1e12")
     if p.walls and p.box_size <= 2 * p.wall_thickness + 2 * (p.ring_radius + p.particle_radius):
         raise ValueError(f"box_size: {p.box_size} leaves no room for the body "
                          f"(wall_thickness {p.wall_thickness}, ring_radius {p.ring_radius})")
