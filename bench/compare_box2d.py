@@ -2,7 +2,7 @@
 
     PYTHONPATH=. /work/venv-sim/bin/python bench/compare_box2d.py [--cases N] [key=value ...]
 
-Prints, at steps 40/160/320/600 (row index = step; row 599 for "600"), the mean and max
+Prints, after 40/160/320/600 steps (rows 39/159/319/599), the mean and max
 distance between the two bodies' centroids and the mean shape error (paper's Chamfer position
 error, squared distances averaged over points, after centring each set on its centroid), in
 world units, and both errors in the released-code metric on normalised coordinates. Extra
@@ -81,7 +81,7 @@ def main() -> int:
     import inspect
     shared = set(inspect.signature(simulate_box2d).parameters)
     b2kw = {k: v for k, v in kw.items() if k in shared}   # same setting in both engines
-    rows = [min(s, 599) for s in STEPS]
+    rows = [s - 1 for s in STEPS]          # row k: after k + 1 steps
     cen = np.zeros((len(cases), 600))
     shp = np.zeros((len(cases), len(rows)))
     rel = np.zeros((len(cases), len(rows), 2))

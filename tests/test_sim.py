@@ -60,13 +60,16 @@ def test_spring_pairs_small_ring():
 
 
 # ----------------------------------------------------------------- rows and determinism
-def test_row0_is_initial_state_and_row1_is_one_step():
+def test_rows_are_states_after_each_step():
     traj = simulate(1.3, 225.0, 22.0, 22.0, steps=3)
     assert traj.shape == (3, 30, 2)
-    np.testing.assert_allclose(traj[0], sim.ring_positions(22.0, 22.0), atol=1e-12)
+    ring = sim.ring_positions(22.0, 22.0)
     v0 = 1.3 / P.mass * np.array([math.cos(math.radians(225)), math.sin(math.radians(225))])
     v1 = v0 + P.dt * np.array(P.gravity)      # springs at rest: no force on the first step
-    np.testing.assert_allclose(traj[1], traj[0] + P.dt * v1, atol=1e-9)
+    np.testing.assert_allclose(traj[0], ring + P.dt * v1, atol=1e-9)
+    full = simulate(1.3, 225.0, 22.0, 22.0, steps=4, include_initial=True)
+    np.testing.assert_allclose(full[0], ring, atol=1e-12)
+    np.testing.assert_array_equal(full[1:], traj)
 
 
 def test_deterministic():
@@ -251,7 +254,7 @@ def test_restitution_settings_stay_sane():
 
 def test_start_against_the_wall_row0_untouched():
     # the test set has a start at y = 42.0: the top particle starts at 44.0, on the wall face
-    traj = simulate(1.0, 205.0, 34.6, 42.0, steps=5)
+    traj = simulate(1.0, 205.0, 34.6, 42.0, steps=5, include_initial=True)
     np.testing.assert_allclose(traj[0], sim.ring_positions(34.6, 42.0), atol=1e-12)
     assert inside_box(traj)
     assert traj[1:, :, 1].max() <= 44.0 - 0.145

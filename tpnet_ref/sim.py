@@ -1,9 +1,10 @@
 """The paper's soft-body scene (SPEC section 5) in pymunk, made to behave like Box2D 2.3.
 
 ``simulate(force, angle_deg, x, y)`` returns the ``(steps, 30, 2)`` particle centres in world
-units. Row 0 is the initial state (the undeformed ring, before any step); row ``k`` is the state
-after ``k`` steps of ``dt``. A model frame is every 4th row, so model frame ``j`` is row ``4 j``
-and "inputs are frames 0, 4, ..., 4(m-1)" means rows 0, 4, ..., 4(m-1) of this array.
+units. Row ``k`` is the state after ``k + 1`` steps of ``dt`` (a Box2D script that steps, then
+records), so 600 rows are 600 steps; ``include_initial=True`` puts the initial state (the
+undeformed ring) first instead. A model frame is every 4th row: model frame ``j`` is row
+``4 j``, and "inputs are frames 0, 4, ..., 4(m-1)" means rows 0, 4, ..., 4(m-1).
 
 Division of labour per step (see docs/simulator.md for why each piece is there):
 
@@ -474,7 +475,7 @@ class Scene:
     wall_lt: np.ndarray          # (N, 4) top) and friction impulses, for warm starting
     sleep_time: float = 0.0
     asleep: bool = False
-    stepped: bool = False        # row 0 (the initial state) is returned as built
+    stepped: bool = False        # the initial state is returned as built
     _batch: Any = field(default=None, repr=False)
     _const: tuple = field(default=(), repr=False)
 
@@ -675,13 +676,16 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
 
 
 def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 600, *,
-             params: SceneParams | None = None, return_energy: bool = False,
+             params: SceneParams | None = None, include_initial: bool = False,
+             return_energy: bool = False,
              **kwargs: Any) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Particle centres ``(steps, n_particles, 2)`` (float64, world units) of one trajectory.
 
     ``force``: impulse magnitude per particle; ``angle_deg``: its direction (0 = +x, 90 = +y);
-    ``(x, y)``: start centre of the ring. Row 0 is the initial state, row k the state after k
-    steps of ``dt``. Any ``SceneParams`` field can be given as a keyword (e.g. ``frequency=4``,
+    ``(x, y)``: start centre of the ring. Row ``k`` is the state after ``k + 1`` steps of ``dt``
+    (row 0: after the first step), the paper's convention (docs/simulator.md); with
+    ``include_initial`` row 0 is the initial state and row ``k`` the state after ``k`` steps.
+    Any ``SceneParams`` field can be given as a keyword (e.g. ``frequency=4``,
     ``walls=False``); unknown keywords raise ``TypeError``. With ``return_energy`` also the
     ``(steps,)`` mechanical energy per row (``Scene.energy``).
     """
@@ -696,18 +700,19 @@ def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 60
     n = p.n_particles
     out = np.empty((steps, n, 2))
     en = np.empty(steps) if return_energy else None
+    buf = scene.read()
     for k in range(steps):
-        buf = scene.read()
+        if k or not include_initial:
+            if scene.asleep:        # nothing moves any more: repeat the last row
+                out[k:] = out[k - 1]
+                if en is not None:
+                    en[k:] = en[k - 1]
+                break
+            scene.step()
+            buf = scene.read()
         out[k] = buf[:n, 0:2]
         if en is not None:
             en[k] = scene.energy()
-        if scene.asleep:
-            out[k + 1:] = out[k]
-            if en is not None:
-                en[k + 1:] = en[k]
-            break
-        if k + 1 < steps:
-            scene.step()
     if not np.isfinite(out).all():  # pragma: no cover - guarded by validation and the solver
         raise FloatingPointError("simulate: non-finite positions; parameters beyond the solver")
     return (out, en) if en is not None else out
@@ -741,7 +746,7 @@ def add_cli(sub: Any) -> None:
         q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees")
         q.add_argument("--x", type=float, default=30.0, help="start centre x (30)")
         q.add_argument("--y", type=float, default=35.0, help="start centre y (35)")
-        q.add_argument("--steps", type=int, default=600, help="rows incl. the initial state")
+        q.add_argument("--steps", type=int, default=600, help="simulation steps (600)")
         q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
         q.add_argument("--damping-ratio", type=float, default=0.0)
         q.add_argument("--wall-restitution", type=float, default=0.0)
@@ -755,10 +760,10 @@ def add_cli(sub: Any) -> None:
             q.set_defaults(func=_cli_run)
 
 
-def _cli_traj(args: Any) -> np.ndarray:
+def _cli_traj(args: Any, include_initial: bool = False) -> np.ndarray:
     return simulate(args.force, args.angle, args.x, args.y, args.steps,
-                    frequency=args.frequency, damping_ratio=args.damping_ratio,
-                    wall_restitution=args.wall_restitution)
+                    include_initial=include_initial, frequency=args.frequency,
+                    damping_ratio=args.damping_ratio, wall_restitution=args.wall_restitution)
 
 
 def _cli_run(args: Any) -> int:
@@ -771,7 +776,7 @@ def _cli_run(args: Any) -> int:
 def _cli_show(args: Any) -> int:
     if args.every < 1:
         raise ValueError(f"--every: must be >= 1, got {args.every}")
-    traj = _cli_traj(args)
+    traj = _cli_traj(args, include_initial=True)
     show(traj, args.output, every=args.every,
          title=f"F={args.force:g} angle={args.angle:g} start=({args.x:g}, {args.y:g})")
     print(f"wrote {args.output}")
