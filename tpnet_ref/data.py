@@ -13,9 +13,10 @@ File layout (HDF5, written by ``tpnet data generate``)::
                                              0 normal interval, 2 whole-trajectory window)
     /test/...               the 60 held-out cases, same datasets, no windows
 
-Model frame ``j`` is simulation row ``4 j`` (row 0 = initial state), so a trajectory of 600 rows
-has ``F = 150`` frames, and a test window's inputs are frames ``0..m-1`` (rows 0, 4, ...,
-4(m-1)). A training window is ``m`` input frames followed by 8 target frames.
+Model frame ``j`` is simulation row ``4 j``, the state after ``4 j + 1`` steps (``simulate``'s
+convention, which is the paper's: see docs/simulator.md), so a 600-step trajectory has
+``F = 150`` frames, and a test window's inputs are frames ``0..m-1`` (rows 0, 4, ..., 4(m-1)).
+A training window is ``m`` input frames followed by 8 target frames.
 """
 from __future__ import annotations
 
@@ -301,7 +302,7 @@ def add_cli(sub: Any) -> None:
                    help="use the first N of the 75 start positions")
     q.add_argument("--limit", type=int, default=None, help="only the first N trajectories")
     q.add_argument("--m", type=int, default=4, help="input frames per window (3, 4, 5)")
-    q.add_argument("--steps", type=int, default=600, help="simulation rows per trajectory")
+    q.add_argument("--steps", type=int, default=600, help="simulation steps per trajectory")
     q.add_argument("--seed", type=int, default=0, help="window sampling seed")
     q.add_argument("--whole", type=int, default=240,
                    help="trajectories that give every window (paper: 240)")
