@@ -30,8 +30,9 @@ def main() -> int:
     drop = (0.0, 270.0, 22.0, 3.3)
     b = simulate_box2d(*drop, 1500, include_initial=True)
     s = simulate(*drop, 1500, include_initial=True)
+    diff = np.abs(b[-1] - s[-1]).max()
     print(f"dropped from rest: asleep after {last_moving_step(s)} steps "
-          f"(Box2D {last_moving_step(b)}); final positions differ by {np.abs(b[-1] - s[-1]).max():.2g}")
+          f"(Box2D {last_moving_step(b)}); final positions differ by {diff:.2g}")
     b0 = b1 = s1 = 0.0
     for a in (180.0, 225.0, 270.0):
         for f in (1.0, 1.6):
