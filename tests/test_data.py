@@ -104,7 +104,7 @@ def test_generate_rejects_bad_settings(tmp_path):
 
 def test_cli_generate(tmp_path):
     from tpnet_ref.cli import main
-    out = tmp_path / "c.h5"
+    out = tmp_path / "new_dir" / "c.h5"
     rc = main(["data", "generate", "-o", str(out), "--forces", "1.0", "--angles", "225",
                "--positions", "2", "--limit", "1", "--steps", "81", "--no-test", "--quiet",
                "--whole", "0"])

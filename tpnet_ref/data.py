@@ -161,6 +161,8 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
         splits["test"] = np.asarray(test_cases, dtype=float).reshape(-1, 4)
     n = p.n_particles
     mode = "a" if os.path.exists(path) else "w"
+    if mode == "w" and os.path.dirname(path):
+        os.makedirs(os.path.dirname(path), exist_ok=True)
     counts = {}
     with h5py.File(path, mode) as h:
         for k, v in settings.items():
