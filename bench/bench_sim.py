@@ -41,7 +41,8 @@ def main() -> int:
         ours += timeit(simulate, 1)
         ref += timeit(simulate_box2d, 1)
     for name, t in (("tpnet_ref.sim", ours), ("Box2D 2.3.10", ref)):
-        print(f"{name:14s} best {1e3 * min(t):7.1f} ms  median {1e3 * statistics.median(t):7.1f} ms")
+        print(f"{name:14s} best {1e3 * min(t):7.1f} ms  "
+              f"median {1e3 * statistics.median(t):7.1f} ms")
     print(f"ratio Box2D/ours: best {min(ref) / min(ours):.2f}x, "
           f"median {statistics.median(ref) / statistics.median(ours):.2f}x")
     return 0

@@ -9,7 +9,8 @@ between every pair within index reach 12 (``frequencyHz``, ``dampingRatio``; ``c
 False), an impulse ``F (cos a, sin a)`` on every particle at t = 0, ``world.Step(dt, 10, 10)``.
 Everything else is Box2D's default (warm starting, continuous collision, sleeping allowed).
 
-Row 0 of the result is the initial state, row k the state after k steps (as in ``tpnet_ref.sim``).
+Row k of the result is the state after k + 1 steps, or after k steps with ``include_initial``
+(row 0 then the initial state), as in ``tpnet_ref.sim``.
 """
 from __future__ import annotations
 
@@ -26,7 +27,8 @@ def simulate_box2d(force: float, angle_deg: float, x: float, y: float, steps: in
                    particle_restitution: float = 0.0, wall_restitution: float = 0.0,
                    dt: float = 1.0 / 45.0, velocity_iterations: int = 10,
                    position_iterations: int = 10, box_size: float = 45.0,
-                   wall_thickness: float = 1.0, walls: bool = True) -> np.ndarray:
+                   wall_thickness: float = 1.0, walls: bool = True,
+                   include_initial: bool = False) -> np.ndarray:
     """Positions ``(steps, n_particles, 2)`` in world units of the Box2D scene."""
     import Box2D as B
 
@@ -64,7 +66,7 @@ def simulate_box2d(force: float, angle_deg: float, x: float, y: float, steps: in
         body.ApplyLinearImpulse((ix, iy), body.worldCenter, True)
     out = np.empty((steps, n_particles, 2))
     for k in range(steps):
-        if k:
+        if k or not include_initial:
             world.Step(dt, velocity_iterations, position_iterations)
         out[k] = [tuple(b.position) for b in bodies]
     return out

@@ -2,10 +2,12 @@
 
     PYTHONPATH=. /work/venv-sim/bin/python bench/compare_box2d.py [--cases N] [key=value ...]
 
-Prints, at steps 40/160/320/600 (row index = step; row 599 for "600"), the mean and max
+Prints, after 40/160/320/600 steps (rows 39/159/319/599), the mean and max
 distance between the two bodies' centroids and the mean shape error (paper's Chamfer position
 error, squared distances averaged over points, after centring each set on its centroid), in
-world units. Extra ``key=value`` arguments are passed to ``tpnet_ref.sim.simulate``.
+world units, and both errors in the released-code metric on normalised coordinates. Extra
+``key=value`` arguments are passed to ``tpnet_ref.sim.simulate``, and to the Box2D scene too
+where it has a parameter of that name (e.g. ``wall_restitution=1``, ``frequency=2``).
 """
 from __future__ import annotations
 
@@ -76,14 +78,17 @@ def main() -> int:
     args = ap.parse_args()
     kw = parse_kw(args.kw)
     cases = load_cases()[: args.cases]
-    rows = [min(s, 599) for s in STEPS]
+    import inspect
+    shared = set(inspect.signature(simulate_box2d).parameters)
+    b2kw = {k: v for k, v in kw.items() if k in shared}   # same setting in both engines
+    rows = [s - 1 for s in STEPS]          # row k: after k + 1 steps
     cen = np.zeros((len(cases), 600))
     shp = np.zeros((len(cases), len(rows)))
     rel = np.zeros((len(cases), len(rows), 2))
     t_pm = t_b2 = 0.0
     for c, (f, a, x, y) in enumerate(cases):
         t0 = time.perf_counter()
-        b = simulate_box2d(f, a, x, y, 600)
+        b = simulate_box2d(f, a, x, y, 600, **b2kw)
         t1 = time.perf_counter()
         if args.model == "sim":
             p = simulate(f, a, x, y, 600, **kw)

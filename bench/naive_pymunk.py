@@ -44,8 +44,7 @@ def simulate_naive(force: float, angle_deg: float, x: float, y: float, steps: in
         b.apply_impulse_at_local_point((force * math.cos(math.radians(angle_deg)),
                                         force * math.sin(math.radians(angle_deg))))
     out = np.empty((steps, 30, 2))
-    for t in range(steps):
-        if t:
-            space.step(dt)
+    for t in range(steps):      # row t: after t + 1 steps, as tpnet_ref.sim
+        space.step(dt)
         out[t] = [tuple(b.position) for b in bodies]
     return out

@@ -24,16 +24,13 @@ PAIRS = spring_pairs()
 def run(force, angle, x, y, steps, **kw):
     p = SceneParams(**kw)
     sc = build_scene(x, y, force, angle, p)
-    g = np.asarray(p.gravity)
     traj = np.empty((steps, 30, 2))
     em = np.empty(steps)
     et = np.empty(steps)
     for k in range(steps):
         b = sc.read()
         traj[k] = b[:30, :2]
-        v = b[:30, 2:4] - p.dt * g
-        em[k] = (0.5 * p.mass * (v ** 2).sum() + 0.5 * p.inertia * (b[:30, 4] ** 2).sum()
-                 - p.mass * (b[:30, :2] @ g).sum())
+        em[k] = sc.energy(springs=False)
         et[k] = sc.energy()
         if k + 1 < steps:
             sc.step()
@@ -85,6 +82,13 @@ def main() -> int:
                     lo, hi = min(lo, tr[1:].min()), max(hi, tr[1:].max())
                     vmax = max(vmax, 45 * np.linalg.norm(np.diff(tr, axis=0), axis=2).max())
             print(f"| {force} | {clamp} | {lo:.4f} | {hi:.4f} | {vmax:.1f} |")
+    lo, hi = 99.0, -99.0
+    for a in range(0, 360, 45):
+        for x, y in ((41.0, 41.0), (4.0, 4.0)):
+            tr, _, _ = run(16.0, a, x, y, 300, max_translation=None, continuous=False)
+            lo, hi = min(lo, tr[1:].min()), max(hi, tr[1:].max())
+    print(f"\nwithout continuous collision (continuous=False), force 16, no clamp: "
+          f"min / max centre {lo:.2f} / {hi:.2f}")
     print()
     print("## long runs: 10,000 steps, damping ratio 0, sleep off")
     print("| case | max E_total / E0 | largest one-step rise of E_total | E_total end / E0 | "

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 h5py = pytest.importorskip("h5py")
 
@@ -102,7 +104,7 @@ def test_generate_rejects_bad_settings(tmp_path):
 
 def test_cli_generate(tmp_path):
     from tpnet_ref.cli import main
-    out = tmp_path / "c.h5"
+    out = tmp_path / "new_dir" / "c.h5"
     rc = main(["data", "generate", "-o", str(out), "--forces", "1.0", "--angles", "225",
                "--positions", "2", "--limit", "1", "--steps", "81", "--no-test", "--quiet",
                "--whole", "0"])
@@ -110,3 +112,37 @@ def test_cli_generate(tmp_path):
     with h5py.File(out, "r") as h:
         assert h["train/positions"].shape == (1, 21, 30, 2)
         assert "test" not in h
+
+
+def test_contact_onset_per_wall():
+    from tpnet_ref.sim import simulate
+    frames = simulate(1.6, 250.0, 30.0, 30.0)[::4]
+    c = D.wall_contact(frames)
+    assert c.shape == (150, 4) and c.any()
+    onset = D.collision_frames(c)
+    assert onset.shape == (150,) and onset.sum() >= 1
+    # sliding along one wall into another: the second wall's contact is a new collision
+    c2 = np.zeros((10, 4), bool)
+    c2[2:, 0] = True
+    c2[6:, 2] = True
+    assert np.nonzero(D.collision_frames(c2))[0].tolist() == [2, 6]
+
+
+@settings(max_examples=40, deadline=None)
+@given(contact=st.lists(st.booleans(), min_size=12, max_size=160), m=st.integers(3, 5),
+       seed=st.integers(0, 2 ** 16))
+def test_sample_windows_properties(contact, m, seed):
+    c = np.asarray(contact)
+    if len(c) < m + 8:
+        with pytest.raises(ValueError):
+            D.sample_windows(c, np.random.default_rng(seed), m=m)
+        return
+    w = D.sample_windows(c, np.random.default_rng(seed), m=m)
+    assert w.shape == (20, 2)
+    assert (w[:, 0] >= 0).all() and (w[:, 0] + m + 8 <= len(c)).all()
+    onset = D.collision_frames(c)
+    for s, kind in w:
+        has = onset[s:s + m + 8].any()
+        assert has == (kind == D.KIND_COLLISION)
+    again = D.sample_windows(c, np.random.default_rng(seed), m=m)
+    assert np.array_equal(w, again)

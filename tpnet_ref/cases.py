@@ -6,7 +6,10 @@ package needs no data files. Units: force per particle, angle in degrees, centre
 from __future__ import annotations
 
 TRAIN_FORCES: tuple[float, ...] = (1.0, 1.15, 1.3, 1.45, 1.6)
-TRAIN_ANGLES_DEG: tuple[float, ...] = (180.0, 185.0, 190.0, 195.0, 200.0, 205.0, 210.0, 215.0, 220.0, 225.0, 230.0, 235.0, 240.0, 245.0, 250.0, 255.0, 260.0, 265.0, 270.0)
+TRAIN_ANGLES_DEG: tuple[float, ...] = (
+    180.0, 185.0, 190.0, 195.0, 200.0, 205.0, 210.0, 215.0, 220.0, 225.0,
+    230.0, 235.0, 240.0, 245.0, 250.0, 255.0, 260.0, 265.0, 270.0,
+)
 
 #: 75 start centres (x, y)
 TRAIN_POSITIONS: tuple[tuple[float, float], ...] = (

@@ -7,15 +7,16 @@ File layout (HDF5, written by ``tpnet data generate``)::
     /train/params           (T, 4) float64   force, angle_deg, x, y per trajectory
     /train/positions        (T, F, N, 2) float32  world units, model frames (every 4th row)
     /train/normalized       (T, F, N, 2) float32  (x - NORM_LO) / (NORM_HI - NORM_LO)
-    /train/contact          (T, F) bool      some particle touches a wall at that frame
+    /train/contact          (T, F, 4) bool   some particle touches the left/right/bottom/top wall
     /train/done             (T,) bool        trajectory written (resuming skips these)
     /train/windows          (W, 3) int64     trajectory, first frame, kind (1 wall collision,
                                              0 normal interval, 2 whole-trajectory window)
     /test/...               the 60 held-out cases, same datasets, no windows
 
-Model frame ``j`` is simulation row ``4 j`` (row 0 = initial state), so a trajectory of 600 rows
-has ``F = 150`` frames, and a test window's inputs are frames ``0..m-1`` (rows 0, 4, ...,
-4(m-1)). A training window is ``m`` input frames followed by 8 target frames.
+Model frame ``j`` is simulation row ``4 j``, the state after ``4 j + 1`` steps (``simulate``'s
+convention, which is the paper's: see docs/simulator.md), so a 600-step trajectory has
+``F = 150`` frames, and a test window's inputs are frames ``0..m-1`` (rows 0, 4, ..., 4(m-1)).
+A training window is ``m`` input frames followed by 8 target frames.
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from .cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
 from .model import NORM_HI, NORM_LO
 from .sim import SceneParams, simulate, validate_params
 
-FORMAT = "tpnet_ref.data/1"
+FORMAT = "tpnet_ref.data/2"
 FRAME_EVERY = 4
 N_TARGETS = 8
 KIND_NORMAL, KIND_COLLISION, KIND_WHOLE = 0, 1, 2
@@ -62,29 +63,33 @@ def train_grid(forces: Sequence[float] = TRAIN_FORCES, angles: Sequence[float] =
 
 def wall_contact(frames: np.ndarray, params: SceneParams | None = None,
                  margin: float = 0.02) -> np.ndarray:
-    """``(F,)`` bool: some particle centre is within ``radius + skin + margin`` of a wall.
-
-    ``frames``: ``(F, N, 2)`` world units."""
+    """``(F, 4)`` bool: some particle centre is within ``radius + skin + margin`` of the left,
+    right, bottom, top wall. ``frames``: ``(F, N, 2)`` world units."""
     p = params or SceneParams()
     reach = p.particle_radius + p.wall_skin + margin
-    lo = frames.min(axis=(1, 2))
-    hi = frames.max(axis=(1, 2))
-    return (lo < p.free_lo + reach) | (hi > p.free_hi - reach)
+    lo = frames.min(axis=1)          # (F, 2)
+    hi = frames.max(axis=1)
+    return np.stack([lo[:, 0] < p.free_lo + reach, hi[:, 0] > p.free_hi - reach,
+                     lo[:, 1] < p.free_lo + reach, hi[:, 1] > p.free_hi - reach], axis=1)
 
 
 def collision_frames(contact: np.ndarray) -> np.ndarray:
-    """``(F,)`` bool: frames where a wall contact begins (touching now, not at the frame before)."""
+    """``(F,)`` bool: frames where a wall contact begins (some wall touched now and not at the
+    frame before). ``contact``: ``(F,)`` or ``(F, walls)`` bool."""
     c = np.asarray(contact, dtype=bool)
+    if c.ndim == 1:
+        c = c[:, None]
     onset = c.copy()
     onset[1:] &= ~c[:-1]
     onset[0] = False   # a body that starts against a wall has not collided yet
-    return onset
+    return onset.any(axis=1)
 
 
 def sample_windows(contact: np.ndarray, rng: np.random.Generator, m: int,
                    n_collision: int = 15, n_normal: int = 5,
                    n_targets: int = N_TARGETS) -> np.ndarray:
-    """``(n_collision + n_normal, 2)`` (first frame, kind) of training windows of one trajectory.
+    """``(n_collision + n_normal, 2)`` (first frame, kind) of training windows of one trajectory,
+    from its ``(F,)`` or ``(F, 4)`` wall contacts.
 
     A window covers frames ``[s, s + m + n_targets)``; it "includes a wall collision" when a
     contact begins inside it. Starts are drawn without replacement where enough exist; when one
@@ -172,6 +177,8 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
                                  f"the body outside the box; must be in [{lo:g}, {hi:g}]")
     n = p.n_particles
     mode = "a" if os.path.exists(path) else "w"
+    if mode == "w" and os.path.dirname(path):
+        os.makedirs(os.path.dirname(path), exist_ok=True)
     counts = {}
     try:
         h5 = h5py.File(path, mode)
@@ -195,7 +202,7 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
                 chunks = (1, n_frames, n, 2)
                 g.create_dataset("positions", shape=shape, dtype="f4", chunks=chunks)
                 g.create_dataset("normalized", shape=shape, dtype="f4", chunks=chunks)
-                g.create_dataset("contact", shape=(t, n_frames), dtype=bool)
+                g.create_dataset("contact", shape=(t, n_frames, 4), dtype=bool)
                 g.create_dataset("done", shape=(t,), dtype=bool)
             done = g["done"][...]
             todo = [i for i in range(t) if not done[i]]
@@ -260,7 +267,7 @@ def _run(g: Any, cases: np.ndarray, todo: list[int], steps: int, scene: dict, wo
 
 def _write_windows(g: Any, m: int, seed: int, whole: int) -> int:
     contact = g["contact"][...]
-    t, n_frames = contact.shape
+    t, n_frames = contact.shape[:2]
     rows = []
     for i in range(t):
         w = sample_windows(contact[i], np.random.default_rng([seed, i]), m)
@@ -328,7 +335,7 @@ def add_cli(sub: Any) -> None:
                    help="use the first N of the 75 start positions")
     q.add_argument("--limit", type=int, default=None, help="only the first N trajectories")
     q.add_argument("--m", type=int, default=4, help="input frames per window (3, 4, 5)")
-    q.add_argument("--steps", type=int, default=600, help="simulation rows per trajectory")
+    q.add_argument("--steps", type=int, default=600, help="simulation steps per trajectory")
     q.add_argument("--seed", type=int, default=0, help="window sampling seed")
     q.add_argument("--whole", type=int, default=240,
                    help="trajectories that give every window (paper: 240)")

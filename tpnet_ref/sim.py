@@ -1,23 +1,25 @@
-"""The paper's soft-body scene (SPEC section 5) in pymunk, made to behave like the Box2D 2.3 original.
+"""The paper's soft-body scene (SPEC section 5) in pymunk, made to behave like Box2D 2.3.
 
 ``simulate(force, angle_deg, x, y)`` returns the ``(steps, 30, 2)`` particle centres in world
-units. Row 0 is the initial state (the undeformed ring, before any step); row ``k`` is the state
-after ``k`` steps of ``dt``. A model frame is every 4th row, so model frame ``j`` is row ``4 j``
-and "inputs are frames 0, 4, ..., 4(m-1)" means rows 0, 4, ..., 4(m-1) of this array.
+units. Row ``k`` is the state after ``k + 1`` steps of ``dt`` (a Box2D script that steps, then
+records), so 600 rows are 600 steps; ``include_initial=True`` puts the initial state (the
+undeformed ring) first instead. A model frame is every 4th row: model frame ``j`` is row
+``4 j``, and "inputs are frames 0, 4, ..., 4(m-1)" means rows 0, 4, ..., 4(m-1).
 
 Division of labour per step (see docs/simulator.md for why each piece is there):
 
-* pymunk (Chipmunk2D) integrates positions, applies gravity and solves the contacts (particle vs
-  wall, particle vs particle except spring-connected pairs) with 10 iterations, Box2D's contact
-  slop (0.005) and Box2D's friction/restitution mixing rules.
-* the springs are Box2D soft distance joints, solved here (Numba kernel) exactly as Box2D 2.3 does:
-  implicit soft constraint (gamma/bias from frequency and damping ratio), warm-started
-  sequential impulses, ``iterations`` passes. This is unconditionally stable for any stiffness and
-  loses energy even with damping ratio 0, as Box2D does.
-* Box2D's velocity clamps (max translation 2 and max rotation pi/2 per step) and its continuous
-  collision against static bodies (time of impact: a particle stops at core distance
-  ``radius + skin - 3 slop`` = 0.145 from a wall instead of tunnelling) are reproduced
-  analytically for the four axis-aligned walls, so no particle can leave the box at any speed.
+* pymunk (Chipmunk2D) holds the 30 particle bodies, integrates their positions, applies gravity
+  and solves the particle-particle contacts (except spring-connected pairs) with Box2D's contact
+  slop (0.005) and mixing rules.
+* a Numba kernel does what Box2D's island solver does with the springs and the walls, in
+  Box2D's order: soft distance joints (implicit soft constraint, gamma/bias from frequency and
+  damping ratio; stable at any stiffness, loses energy even with damping ratio 0, as Box2D
+  does) and the wall contacts (friction then normal, restitution above 1 unit/s), warm-started,
+  ``iterations`` passes; then Box2D's velocity clamps (translation 2 and rotation pi/2 per
+  step), the walls' continuous collision (a particle stops at core distance
+  ``radius + skin - 3 slop`` = 0.145 from a wall instead of tunnelling), and the walls'
+  position correction. The four walls are axis-aligned half-planes in the kernel, not pymunk
+  shapes, so no particle can leave the box at any speed.
 * Box2D's island sleeping (all bodies slower than 0.01 units/s and 2 deg/s for 0.5 s) freezes the
   body, as it does in Box2D.
 """
@@ -62,7 +64,7 @@ class SceneParams:
     dt: float = 1.0 / 45.0
     iterations: int = 10                 # velocity iterations (contacts in pymunk, springs here)
     box_size: float = 45.0               # outer size of the square; free area [t, size - t]^2
-    wall_thickness: float = 1.0
+    wall_thickness: float = 1.0         # sets the free area; walls are half-planes
     walls: bool = True
     wall_skin: float = B2_POLYGON_RADIUS
     contact_slop: float = B2_LINEAR_SLOP
@@ -96,6 +98,20 @@ class SceneParams:
         """Centre-to-wall distance at which Box2D's continuous collision stops a particle."""
         return max(self.contact_slop,
                    self.particle_radius + self.wall_skin - 3.0 * self.contact_slop)
+
+    @property
+    def toi_stop(self) -> float:
+        """Centre-to-wall distance where a time-of-impact event leaves a particle: Box2D's TOI
+        position solve (baumgarte 0.75, done once the separation was >= -1.5 slop) from
+        ``toi_distance``; 0.154375 with the default values."""
+        touch = self.particle_radius + self.wall_skin
+        sep = self.toi_distance - touch
+        for _ in range(20):
+            before = sep
+            sep -= min(max(0.75 * (sep + self.contact_slop), -0.2), 0.0)
+            if before >= -1.5 * self.contact_slop:
+                break
+        return touch + sep
 
 
 _INT_FIELDS = ("n_particles", "spring_reach", "iterations")
@@ -164,7 +180,11 @@ def validate_params(p: SceneParams) -> None:
     if not isinstance(g, (tuple, list, np.ndarray)) or len(g) != 2:
         raise ValueError(f"gravity: expected a pair (gx, gy), got {g!r}")
     for k, gi in enumerate(g):
-        _check_number(gi, f"gravity[{k}]")
+        if abs(_check_number(gi, f"gravity[{k}]")) * p.dt ** 2 > 1e6:
+            raise ValueError(f"gravity[{k}]: {gi} moves a particle more than 1e6 per step")
+    if not 1e-12 <= p.mass <= 1e12:
+        raise ValueError(f"density: gives a particle mass of {p.mass:g}; it must be within "
+                         "1e-12..1e12")
     if p.walls and p.box_size <= 2 * p.wall_thickness + 2 * (p.ring_radius + p.particle_radius):
         raise ValueError(f"box_size: {p.box_size} leaves no room for the body "
                          f"(wall_thickness {p.wall_thickness}, ring_radius {p.ring_radius})")
@@ -222,15 +242,17 @@ def _kernels() -> Any:
     from numba import njit
 
     @njit(cache=True, fastmath=False)
-    def advance(pos, vel, ang, out_pos, ia, ib, rest, lam, inv_mass, h, omega, zeta, iters,
-                slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch, radius,
-                mass, inertia, mu, e_wall, v_thresh, wl_n, wl_t):  # pragma: no cover
-        """Springs (Box2D soft distance joints) + clamps + wall time of impact, in place.
+    def advance(pos, vel, ang, out_pos, lam, wl_n, wl_t, ia, ib, rest, inv_mass, h, omega,
+                zeta, iters, slop, max_tr, max_rot, walls, toi, lo, hi, face_lo, face_hi, touch,
+                radius, toi_stop, mass, inertia, mu, e_wall, v_thresh):  # pragma: no cover
+        """One Box2D island step for the springs and walls, in place.
 
-        pos (N, 2) positions now; vel (N, 2), ang (N,) velocities after pymunk's contact solve,
-        updated to the velocities of the step; out_pos (N, 2) receives the positions at the end
-        of the step. lam (S,) accumulated spring impulses (warm start), updated.
-        Returns the largest squared linear speed and squared angular speed (for sleeping).
+        Springs (soft distance joints) and wall contacts solved together, velocity clamps,
+        walls' time of impact, walls' position correction. pos (N, 2) positions now; vel (N, 2),
+        ang (N,) velocities after gravity and pymunk's particle-pair contacts, updated to the
+        velocities of the step; out_pos (N, 2) receives the positions at the end of the step.
+        lam (S,), wl_n / wl_t (N, 4): accumulated spring and wall impulses (warm starting),
+        updated. Returns the largest squared linear and angular speeds (for sleeping).
         """
         n = pos.shape[0]
         s = ia.shape[0]
@@ -395,20 +417,8 @@ def _kernels() -> Any:
                     px += best * rem * h * vel[i, 0]
                     py += best * rem * h * vel[i, 1]
                     rem *= 1.0 - best
-                    # Box2D's TOI position solve (b2ContactSolver::SolveTOIPositionConstraints:
-                    # baumgarte 0.75, stop once the separation was >= -1.5 slop): from the
-                    # time-of-impact distance to separation -0.005625 with the default values
-                    sep = (lo - face_lo) - touch
-                    for _it in range(20):
-                        corr = 0.75 * (sep + slop)
-                        if corr < -0.2:
-                            corr = -0.2
-                        before = sep
-                        if corr < 0.0:
-                            sep -= corr
-                        if before >= -1.5 * slop:
-                            break
-                    dist = touch + sep
+                    # Box2D's TOI position solve leaves the particle at toi_stop from the face
+                    dist = toi_stop
                     # contact at the impact: normal n (into the free area), tangent t = (n.y, -n.x)
                     nx = sgn if axis == 0 else 0.0
                     ny = sgn if axis == 1 else 0.0
@@ -483,25 +493,26 @@ class Scene:
     wall_lt: np.ndarray          # (N, 4) top) and friction impulses, for warm starting
     sleep_time: float = 0.0
     asleep: bool = False
+    stepped: bool = False        # the initial state is returned as built
     _batch: Any = field(default=None, repr=False)
+    _const: tuple = field(default=(), repr=False)
 
     @property
     def n(self) -> int:
         return self.params.n_particles
 
-    @property
-    def toi_stop(self) -> float:
-        """Centre-to-face distance where a time-of-impact event leaves a particle (Box2D's TOI
-        position solve from ``toi_distance``: 0.154375 with the default values)."""
+    def __post_init__(self) -> None:
+        # the kernel's constant arguments, computed once
         p = self.params
-        touch = p.particle_radius + p.wall_skin
-        sep = p.toi_distance - touch
-        for _ in range(20):
-            before = sep
-            sep -= min(max(0.75 * (sep + p.contact_slop), -0.2), 0.0)
-            if before >= -1.5 * p.contact_slop:
-                break
-        return touch + sep
+        self._const = (
+            np.ascontiguousarray(self.pairs[:, 0]), np.ascontiguousarray(self.pairs[:, 1]),
+            self.rest, self.inv_mass, p.dt, 2.0 * math.pi * p.frequency, p.damping_ratio,
+            p.iterations, p.contact_slop, p.max_translation or 0.0, p.max_rotation or 0.0,
+            p.walls, p.walls and p.continuous, p.free_lo + p.toi_distance,
+            p.free_hi - p.toi_distance, p.free_lo, p.free_hi, p.particle_radius + p.wall_skin,
+            p.particle_radius, p.toi_stop, p.mass, p.inertia,
+            math.sqrt(p.particle_friction * p.wall_friction),
+            max(p.particle_restitution, p.wall_restitution), p.restitution_threshold)
 
     def read(self) -> np.ndarray:
         """Pull positions/velocities of all bodies into ``buf`` (one pymunk batch call).
@@ -516,13 +527,13 @@ class Scene:
         b = self.buf
         b[...] = np.frombuffer(getbuf.float_buf()).reshape(b.shape)
         p = self.params
-        if p.walls and p.continuous:
+        if p.walls and p.continuous and self.stepped:
             n = self.n
             pos = b[:n, 0:2]
             lo = p.free_lo + p.toi_distance
             hi = p.free_hi - p.toi_distance
             if pos.min() < lo or pos.max() > hi:
-                stop = self.toi_stop
+                stop = p.toi_stop
                 vel = b[:n, 2:4]
                 low = pos < lo
                 high = pos > hi
@@ -537,10 +548,10 @@ class Scene:
         """``(N, 2)`` current particle centres (a copy)."""
         return self.read()[: self.n, 0:2].copy()
 
-    def energy(self) -> float:
+    def energy(self, springs: bool = True) -> float:
         """Mechanical energy now (from ``buf``; call ``read`` first): linear and rotational
-        kinetic, gravitational and spring potential energy (springs as ideal springs of
-        stiffness ``mu (2 pi f)^2``)."""
+        kinetic and gravitational energy, plus (``springs``) the springs' potential energy as
+        ideal springs of stiffness ``mu (2 pi f)^2``."""
         p = self.params
         n = self.n
         b = self.buf
@@ -548,6 +559,8 @@ class Scene:
         v = b[:n, 2:4] - p.dt * np.asarray(p.gravity, dtype=float)
         ke = 0.5 * p.mass * float((v ** 2).sum()) + 0.5 * p.inertia * float((b[:n, 4] ** 2).sum())
         pe = -p.mass * float((b[:n, 0:2] @ np.asarray(p.gravity, dtype=float)).sum())
+        if not springs:
+            return ke + pe
         d = b[self.pairs[:, 1], 0:2] - b[self.pairs[:, 0], 0:2]
         stretch = np.sqrt((d ** 2).sum(1)) - self.rest
         return ke + pe + 0.5 * spring_energy_k(p) * float((stretch ** 2).sum())
@@ -563,16 +576,8 @@ class Scene:
         vel = np.ascontiguousarray(b[:n, 2:4])
         ang = np.ascontiguousarray(b[:n, 4])
         out = np.empty_like(pos)
-        vmax2, wmax2 = _kernels()(
-            pos, vel, ang, out, self.pairs[:, 0], self.pairs[:, 1], self.rest, self.lam,
-            self.inv_mass, p.dt, 2.0 * math.pi * p.frequency, p.damping_ratio, p.iterations,
-            p.contact_slop, p.max_translation or 0.0, p.max_rotation or 0.0,
-            p.walls, p.walls and p.continuous, p.free_lo + p.toi_distance,
-            p.free_hi - p.toi_distance, p.free_lo, p.free_hi, p.particle_radius + p.wall_skin,
-            p.particle_radius, p.mass, p.inertia,
-            math.sqrt(p.particle_friction * p.wall_friction),
-            max(p.particle_restitution, p.wall_restitution), p.restitution_threshold,
-            self.wall_ln, self.wall_lt)
+        vmax2, wmax2 = _kernels()(pos, vel, ang, out, self.lam, self.wall_ln, self.wall_lt,
+                                  *self._const)
         if p.sleep:
             if (vmax2 > B2_LINEAR_SLEEP_TOLERANCE ** 2
                     or wmax2 > B2_ANGULAR_SLEEP_TOLERANCE ** 2):
@@ -588,6 +593,7 @@ class Scene:
         pb, fields, _, setbuf = self._batch
         pb.set_space_bodies(self.space, fields, setbuf)
         self.space.step(p.dt)
+        self.stepped = True
         if self.asleep:  # Box2D zeroes the velocities of a sleeping island
             self.read()
             b[:n, 2:5] = 0.0
@@ -616,6 +622,9 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     if not math.isfinite(force / p.mass * max(1.0, p.dt)):
         raise ValueError(f"force: {force:g} gives a non-finite velocity for particles of mass "
                          f"{p.mass:g}")
+    if force / p.mass * p.dt > 1e6:
+        raise ValueError(f"force: {force} moves a particle more than 1e6 per step; "
+                         "beyond what the simulator resolves")
     if p.walls:
         # the paper draws centres from [2.9, 42.1]: particle centres may start up to one
         # particle radius inside a wall (contacts push them out, as in Box2D)
@@ -636,8 +645,8 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     # The walls are not pymunk shapes: they are four axis-aligned half-planes handled in the
     # kernel (contacts solved with the springs, time of impact, position correction). pymunk
     # handles the particle-particle contacts. Box2D mixes friction by geometric mean and
-    # restitution by max; pymunk multiplies: sqrt(mu) per shape gives mu for a pair, and a
-    # pre_solve handler sets the restitution when it is neither 0 nor 1.
+    # restitution by max; pymunk multiplies: sqrt(mu) and sqrt(e) per shape give mu and e for
+    # a pair, and a pre_solve handler adds Box2D's restitution threshold when e > 0.
     e_p = p.particle_restitution
     start = ring_positions(x, y, p.n_particles, p.ring_radius)
     v0 = force / p.mass * np.array([math.cos(math.radians(angle_deg)),
@@ -692,13 +701,16 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
 
 
 def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 600, *,
-             params: SceneParams | None = None, return_energy: bool = False,
+             params: SceneParams | None = None, include_initial: bool = False,
+             return_energy: bool = False,
              **kwargs: Any) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Particle centres ``(steps, n_particles, 2)`` (float64, world units) of one trajectory.
 
     ``force``: impulse magnitude per particle; ``angle_deg``: its direction (0 = +x, 90 = +y);
-    ``(x, y)``: start centre of the ring. Row 0 is the initial state, row k the state after k
-    steps of ``dt``. Any ``SceneParams`` field can be given as a keyword (e.g. ``frequency=4``,
+    ``(x, y)``: start centre of the ring. Row ``k`` is the state after ``k + 1`` steps of ``dt``
+    (row 0: after the first step), the paper's convention (docs/simulator.md); with
+    ``include_initial`` row 0 is the initial state and row ``k`` the state after ``k`` steps.
+    Any ``SceneParams`` field can be given as a keyword (e.g. ``frequency=4``,
     ``walls=False``); unknown keywords raise ``TypeError``. With ``return_energy`` also the
     ``(steps,)`` mechanical energy per row (``Scene.energy``).
     """
@@ -720,18 +732,19 @@ def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 60
         en = np.empty(steps) if return_energy else None
     except MemoryError:
         raise ValueError(f"steps: {steps} rows of {n} particles do not fit in memory") from None
+    buf = scene.read()
     for k in range(steps):
-        buf = scene.read()
+        if k or not include_initial:
+            if scene.asleep:        # nothing moves any more: repeat the last row
+                out[k:] = out[k - 1]
+                if en is not None:
+                    en[k:] = en[k - 1]
+                break
+            scene.step()
+            buf = scene.read()
         out[k] = buf[:n, 0:2]
         if en is not None:
             en[k] = scene.energy()
-        if scene.asleep:
-            out[k + 1:] = out[k]
-            if en is not None:
-                en[k + 1:] = en[k]
-            break
-        if k + 1 < steps:
-            scene.step()
     if not np.isfinite(out).all():  # pragma: no cover - guarded by validation and the solver
         raise FloatingPointError("simulate: non-finite positions; parameters beyond the solver")
     return (out, en) if en is not None else out
@@ -768,7 +781,7 @@ def add_cli(sub: Any) -> None:
         q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees")
         q.add_argument("--x", type=float, default=30.0, help="start centre x (30)")
         q.add_argument("--y", type=float, default=35.0, help="start centre y (35)")
-        q.add_argument("--steps", type=int, default=600, help="rows incl. the initial state")
+        q.add_argument("--steps", type=int, default=600, help="simulation steps (600)")
         q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
         q.add_argument("--damping-ratio", type=float, default=0.0)
         q.add_argument("--wall-restitution", type=float, default=0.0)
@@ -782,10 +795,10 @@ def add_cli(sub: Any) -> None:
             q.set_defaults(func=_cli_run)
 
 
-def _cli_traj(args: Any) -> np.ndarray:
+def _cli_traj(args: Any, include_initial: bool = False) -> np.ndarray:
     return simulate(args.force, args.angle, args.x, args.y, args.steps,
-                    frequency=args.frequency, damping_ratio=args.damping_ratio,
-                    wall_restitution=args.wall_restitution)
+                    include_initial=include_initial, frequency=args.frequency,
+                    damping_ratio=args.damping_ratio, wall_restitution=args.wall_restitution)
 
 
 def _cli_run(args: Any) -> int:
@@ -798,7 +811,7 @@ def _cli_run(args: Any) -> int:
 def _cli_show(args: Any) -> int:
     if args.every < 1:
         raise ValueError(f"--every: must be >= 1, got {args.every}")
-    traj = _cli_traj(args)
+    traj = _cli_traj(args, include_initial=True)
     show(traj, args.output, every=args.every,
          title=f"F={args.force:g} angle={args.angle:g} start=({args.x:g}, {args.y:g})")
     print(f"wrote {args.output}")
