@@ -2,6 +2,7 @@
 
     python bench/bench_inference.py            # full run (about 2 minutes on 2 cores)
     python bench/bench_inference.py --quick    # fewer repetitions
+    python bench/bench_inference.py --threads 1   # every peer on one core (BLAS, torch, ORT)
 
 Every peer runs the same weights (a random network of the released shape, m = 4, N = 30,
 identity transform nets, as every checkpoint of the released code has): tpnet_ref float32 and
@@ -22,7 +23,22 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
+
+def _pin_threads() -> int | None:
+    """``--threads K``: re-run this script with every thread pool limited to K (the BLAS reads
+    its variable when NumPy is first imported, so it must be set before that)."""
+    if "--threads" not in sys.argv:
+        return None
+    k = sys.argv[sys.argv.index("--threads") + 1]
+    if os.environ.get("OPENBLAS_NUM_THREADS") != k:
+        env = dict(os.environ, OPENBLAS_NUM_THREADS=k, OMP_NUM_THREADS=k, MKL_NUM_THREADS=k)
+        os.execve(sys.executable, [sys.executable] + sys.argv, env)
+    return int(k)
+
+
+THREADS = _pin_threads()
+
+import numpy as np  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -72,7 +88,7 @@ def torch_peer(model):
     except ImportError as exc:
         return None, f"skipped ({exc})"
     net = TorchTPNet.from_numpy(model).eval()
-    torch.set_num_threads(os.cpu_count() or 1)
+    torch.set_num_threads(THREADS or os.cpu_count() or 1)
 
     def run(x: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
@@ -87,7 +103,7 @@ def onnx_peer(model):
         from onnx_peer import onnx_session
     except ImportError as exc:
         return None, f"skipped ({exc})"
-    sess = onnx_session(model)
+    sess = onnx_session(model, threads=THREADS)
     return (lambda x: sess.run(None, {"window": x})[0]), f"onnxruntime {ort.__version__}"
 
 
@@ -125,10 +141,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions")
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="limit every peer to this many threads (default: each library's own)")
     args = ap.parse_args(argv)
     t_min = 0.5 if args.quick else 2.0
 
-    print(f"machine: {machine()}")
+    print(f"machine: {machine()}; threads per peer: {THREADS or 'library default'}")
     cfg = TPNetConfig()
     m32 = init_random(cfg, seed=0, dtype="float32")
     m64 = m32.astype("float64")

@@ -51,14 +51,14 @@ def main(argv: list[str] | None = None) -> int:
     h = g
     last = len(model._lstms) - 1
     for i, (fused, gamma, beta) in enumerate(model._lstms):
-        kt, rt, b = fused
+        k, r, b = fused
         rows = h.reshape(4, -1)
-        stages.append((f"BiLSTM {i + 1}: input projection {kt.shape[1]}->{kt.shape[0]} (4 steps)",
-                       med(lambda: (kt @ rows.T).T), kt.nbytes))
+        stages.append((f"BiLSTM {i + 1}: input projection {k.shape[0]}->{k.shape[1]} (4 steps)",
+                       med(lambda: rows @ k), k.nbytes))
         full = med(lambda: L.bilstm_fused(h, *fused, return_sequences=i < last))
         proj = stages[-1][1]
-        stages.append((f"BiLSTM {i + 1}: recurrence, gates (3 products of {rt.shape[1]}x{rt.shape[2]} x2)",
-                       max(full - proj, 0.0), 3 * rt.nbytes))
+        stages.append((f"BiLSTM {i + 1}: recurrence, gates (3 products of {r.shape[1]}x{r.shape[2]} x2)",
+                       max(full - proj, 0.0), 3 * r.nbytes))
         out = L.bilstm_fused(h, *fused, return_sequences=i < last)
         stages.append((f"LayerNorm {i + 1}", med(lambda: L.layer_norm(out, gamma, beta, 1e-3)), 0.0))
         h = L.layer_norm(out, gamma, beta, 1e-3)

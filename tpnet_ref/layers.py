@@ -133,53 +133,42 @@ def lstm(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndar
     return out
 
 
-#: at most this many rows (batch x steps) use the weight-major product for the LSTM input
-#: projection, which streams a large weight matrix faster than a GEMM with few rows does
-SMALL_ROWS = 32
-
-
 def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
                 bwd: tuple[np.ndarray, np.ndarray, np.ndarray]
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lay out a bidirectional LSTM's Keras weights for :func:`bilstm_fused`.
 
     ``fwd``/``bwd``: (kernel ``(C, 4u)``, recurrent ``(u, 4u)``, bias ``(4u,)``), gates i, f, c, o.
-    Returns the transposed, contiguous kernel ``(8u, C)`` = [forward; backward], recurrent
-    ``(2, 4u, u)`` and bias ``(8u,)``. Each direction's gates are reordered to i, f, o, c so the
-    three sigmoid gates are adjacent, and their rows are scaled by 1/2 (exact in binary floating
-    point) because sigmoid(x) = (1 + tanh(x/2)) / 2. Weight-major layouts make the B = 1 products
-    matrix-vector products; large batches use them transposed at no cost.
+    Returns the contiguous kernel ``(C, 8u)`` = [forward | backward], recurrent ``(2, u, 4u)``
+    and bias ``(8u,)``. Each direction's gates are reordered to i, f, o, c so the three sigmoid
+    gates are adjacent, and their columns are negated (exact) so that the step loop gets ``-x``
+    and computes sigmoid(x) = 1 / (1 + exp(-x)) in three in-place passes.
     """
     def reorder(a: np.ndarray) -> np.ndarray:
         u = a.shape[-1] // 4
         out = np.concatenate([a[..., :2 * u], a[..., 3 * u:], a[..., 2 * u:3 * u]], axis=-1)
-        out[..., :3 * u] *= 0.5
+        out[..., :3 * u] *= -1.0
         return out
 
-    kernel_t = np.ascontiguousarray(np.concatenate([reorder(fwd[0]), reorder(bwd[0])], axis=-1).T)
-    recurrent_t = np.ascontiguousarray(np.stack([reorder(fwd[1]).T, reorder(bwd[1]).T]))
+    kernel = np.ascontiguousarray(np.concatenate([reorder(fwd[0]), reorder(bwd[0])], axis=-1))
+    recurrent = np.ascontiguousarray(np.stack([reorder(fwd[1]), reorder(bwd[1])]))
     bias = np.concatenate([reorder(fwd[2]), reorder(bwd[2])])
-    return kernel_t, recurrent_t, bias
+    return kernel, recurrent, bias
 
 
-def bilstm_fused(x: np.ndarray, kernel_t: np.ndarray, recurrent_t: np.ndarray, bias: np.ndarray,
+def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
                  activation: str = "relu", return_sequences: bool = True) -> np.ndarray:
     """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`.
 
     Same result as two :func:`lstm` calls, computed faster: one product projects every step of
     both directions, both directions advance together (step ``s`` is forward time ``s`` and
-    backward time ``T-1-s``; one batched product per step, none at step 0 where h = 0), and the
-    gates are updated in place. ``x (B, T, C)`` -> ``(B, T, 2u)`` or, with
+    backward time ``T-1-s``; one batched product per step into a preallocated buffer, none at
+    step 0 where h = 0), and the gates are updated in place. ``x (B, T, C)`` -> ``(B, T, 2u)`` or, with
     ``return_sequences=False``, ``(B, 2u)``.
     """
     bsz, steps, _ = x.shape
-    u = recurrent_t.shape[2]
-    rows = x.reshape(bsz * steps, -1)
-    if bsz * steps <= SMALL_ROWS:
-        xp = (kernel_t @ rows.T).T
-    else:
-        xp = rows @ kernel_t.T
-    xp = xp.reshape(bsz, steps, 2, 4 * u)
+    u = recurrent.shape[1]
+    xp = (x.reshape(bsz * steps, -1) @ kernel).reshape(bsz, steps, 2, 4 * u)
     # (step, direction, B, 4u): forward input at time s, backward input at time T-1-s, + bias
     pairs = np.stack([xp[:, :, 0], xp[:, ::-1, 1]], axis=0).transpose(2, 0, 1, 3)
     pairs += bias.reshape(2, 1, 4 * u)
@@ -190,34 +179,32 @@ def bilstm_fused(x: np.ndarray, kernel_t: np.ndarray, recurrent_t: np.ndarray, b
     c = np.zeros((2, bsz, u), dtype=dt)
     tmp = np.empty((2, bsz, u), dtype=dt)
     hs = np.empty((steps, 2, bsz, u), dtype=dt)     # h after each step
-    rec = recurrent_t.transpose(0, 2, 1)           # (2, u, 4u) view
-    half = dt.type(0.5)
-    for s in range(steps):
-        z = pairs[s]
-        if s > 0:
-            h = hs[s - 1]
-            if bsz == 1:  # column views of the same memory: a matrix-vector product
-                z += np.matmul(recurrent_t, h.reshape(2, u, 1)).reshape(2, 1, 4 * u)
+    prod = np.empty((2, bsz, 4 * u), dtype=dt)
+    one = dt.type(1.0)
+    with np.errstate(over="ignore"):
+        for s in range(steps):
+            z = pairs[s]
+            if s > 0:
+                np.matmul(hs[s - 1], recurrent, out=prod)
+                z += prod
+            gates = z[..., :3 * u]                  # -x for i, f, o (negated weights)
+            np.exp(gates, out=gates)                # may overflow to inf: 1/(1+inf) = 0
+            gates += one
+            np.divide(one, gates, out=gates)
+            g = z[..., 3 * u:]                      # cell candidate
+            if relu_act:
+                np.maximum(g, 0, out=g)
             else:
-                z += np.matmul(h, rec)
-        gates = z[..., :3 * u]                      # i, f, o (pre-scaled by 1/2)
-        np.tanh(gates, out=gates)
-        gates *= half
-        gates += half
-        g = z[..., 3 * u:]                          # cell candidate
-        if relu_act:
-            np.maximum(g, 0, out=g)
-        else:
-            np.tanh(g, out=g)
-        c *= z[..., u:2 * u]                        # c = f*c + i*g
-        np.multiply(z[..., :u], g, out=tmp)
-        c += tmp
-        h = hs[s]                                   # h = o * act(c)
-        if relu_act:
-            np.maximum(c, 0, out=h)
-        else:
-            np.tanh(c, out=h)
-        h *= z[..., 2 * u:3 * u]
+                np.tanh(g, out=g)
+            c *= z[..., u:2 * u]                    # c = f*c + i*g
+            np.multiply(z[..., :u], g, out=tmp)
+            c += tmp
+            h = hs[s]                               # h = o * act(c)
+            if relu_act:
+                np.maximum(c, 0, out=h)
+            else:
+                np.tanh(c, out=h)
+            h *= z[..., 2 * u:3 * u]
     if not return_sequences:
         return np.concatenate([hs[-1, 0], hs[-1, 1]], axis=-1)
     # forward output at time t is hs[t, 0]; backward output at time t is hs[T-1-t, 1]
