@@ -73,6 +73,29 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:66s} {t * 1e6:8.1f} {t / s:6.1%} {nbytes / 1e6:10.2f} {gbs}")
     print(f"{'sum of stages':66s} {s * 1e6:8.1f}")
     print(f"{'predict(window), measured whole':66s} {total * 1e6:8.1f}")
+
+    # B = 256: the split between the two halves, and the share of matrix products in the head
+    big = rng.uniform(5, 40, (256, 4, 30, 2))
+    bp = model.normalize(big.reshape(-1, 2).astype(np.float32))
+    bc = np.full(1024, 30)
+    bp = bp[canonical_order(bp, bc)]
+    gb = model.frame_features(bp, bc).reshape(256, 4, -1)
+    t_sort = med(lambda: canonical_order(bp, bc), 10)
+    t_feat = med(lambda: model.frame_features(bp, bc), 10)
+    t_head = med(lambda: model.sequence_head(gb), 10)
+    flops = 0.0
+    t_mm = 0.0
+    h = gb
+    for i, (fused, gamma, beta) in enumerate(model._lstms):
+        k, r, b = fused
+        rows = h.reshape(-1, k.shape[0])
+        hb = np.random.default_rng(i).standard_normal((2, 256, r.shape[1])).astype(np.float32)
+        t_mm += med(lambda: rows @ k, 10) + 3 * med(lambda: np.matmul(hb, r), 10)
+        flops += 2 * rows.shape[0] * k.shape[0] * k.shape[1] + 3 * 2 * 2 * 256 * r.shape[1] * r.shape[2]
+        h = L.layer_norm(L.bilstm_fused(h, *fused, return_sequences=i < last), gamma, beta, 1e-3)
+    print(f"\nB = 256 (1024 frames): canonical sort {t_sort * 1e3:.1f} ms, feature extractor "
+          f"{t_feat * 1e3:.1f} ms, prediction network {t_head * 1e3:.1f} ms, of which matrix "
+          f"products {t_mm * 1e3:.1f} ms ({flops / 1e9:.1f} GFLOP at {flops / t_mm / 1e9:.0f} GFLOP/s)")
     return 0
 
 
