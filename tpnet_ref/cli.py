@@ -19,6 +19,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.weights",
     "tpnet_ref.sim",
     "tpnet_ref.data",
+    "tpnet_ref.train",
 )
 
 
