@@ -133,3 +133,24 @@ def test_baselines_and_cli(dataset, tmp_path, capsys):
     args = cli.build_parser().parse_args(["train", "bench", "--size", "tiny", "--rollouts", "1"])
     assert args.func is T._cli_bench and args.batch == 128
     assert cli.main(["train", "export", str(tmp_path / "missing"), out]) == 2
+
+
+def test_sigterm_stops_with_a_checkpoint(dataset, tmp_path):
+    """SIGTERM (what `timeout` sends) ends the run after the current step, resumable."""
+    import os
+    import signal
+    import threading
+
+    r = _recipe(epochs=10_000)
+    before = signal.getsignal(signal.SIGTERM)
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGTERM))
+    timer.start()
+    try:
+        st = T.train(dataset, tmp_path / "run", r, threads=1, progress=False)
+    finally:
+        timer.cancel()
+    assert st["stopped"] == "interrupted" and 0 < st["step"] < st["total_steps"]
+    assert signal.getsignal(signal.SIGTERM) is before       # handlers restored
+    st2 = T.train(dataset, tmp_path / "run", resume=True, threads=1, progress=False,
+                  max_steps=st["step"] + 2)
+    assert st2["step"] == st["step"] + 2 and st2["stopped"] == "max_steps"

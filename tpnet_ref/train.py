@@ -317,7 +317,8 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
           export_path: str | os.PathLike | None = None) -> dict:
     """Train (or, with ``resume``, continue) the run in ``run_dir``; returns the final state.
 
-    ``max_steps`` (a global step count) and ``max_minutes`` stop early with a checkpoint, so a
+    ``max_steps`` (a global step count), ``max_minutes`` and SIGINT/SIGTERM (after the current
+    step) stop early with a checkpoint, so a
     long run can be done in pieces; ``epochs`` on resume extends or shortens the run (the cosine
     schedule follows the new length from there). A checkpoint is written every
     ``checkpoint_minutes``, at every epoch end and when stopping."""
@@ -391,77 +392,85 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     if progress:
         print(data.describe(), file=sys.stderr)
     net.train()
+    stop_signal: list[int] = []
+    restore = _install_stop_handlers(stop_signal)
     perm_epoch, perm = -1, None
     consecutive_bad = 0
     reason = "done"
-    while state["step"] < stop_step:
-        step = state["step"]
-        epoch, b = divmod(step, spe)
-        if epoch != perm_epoch:
-            perm = np.random.default_rng([r.seed, epoch]).permutation(n_train)
-            perm_epoch = epoch
-        idx = perm[b * r.batch:(b + 1) * r.batch]
-        x, y = data.gather(data.train_win[np.sort(idx)])
-        x = torch.from_numpy(x)
-        if r.noise > 0:
-            g = torch.Generator().manual_seed(r.seed * 1_000_003 + step)
-            x = x + r.noise * torch.randn(x.shape, generator=g, dtype=x.dtype)
-        x, y = x.to(dev), torch.from_numpy(y).to(dev)
-        n_steps = r.steps_at(step / spe)
-        lr = r.lr_at(step, total)
-        for grp in opt.param_groups:
-            grp["lr"] = lr
-        opt.zero_grad(set_to_none=True)
-        loss = loss_fn(net, x, y, n_steps, r.first_weight)
-        lv = float(loss.detach())
-        if not math.isfinite(lv):
-            state["nonfinite_skipped"] += 1
-            consecutive_bad += 1
-            if consecutive_bad >= 10:
-                checkpoint()
-                raise FloatingPointError(f"loss not finite for 10 steps in a row at step {step}")
-        else:
-            consecutive_bad = 0
-            loss.backward()
-            if r.clip > 0:
-                torch.nn.utils.clip_grad_norm_(net.parameters(), r.clip)
-            opt.step()
-            state["epoch_loss_sum"] += lv
-            state["epoch_loss_n"] += 1
-        state["step"] = step + 1
-        state["windows_seen"] += len(idx)
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{lv:.4g}", k=n_steps, lr=f"{lr:.2g}")
-        if log_every and state["step"] % log_every == 0:
-            _log(run_dir, {"kind": "train", "step": state["step"], "epoch": state["step"] / spe,
-                           "loss": lv, "rollout": n_steps, "lr": lr,
-                           "windows_seen": state["windows_seen"],
-                           "wall_s": wall0 + time.perf_counter() - t_start})
-        epoch_end = state["step"] % spe == 0
-        if epoch_end or (val_every and state["step"] % val_every == 0):
-            # validate and log at every epoch end (and every val_every steps); checkpoint
-            ev = evaluate(net, data, data.val_win, r, dev)
-            n = max(1, state["epoch_loss_n"])
-            rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / spe,
-                   "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
-                   "windows_seen": state["windows_seen"],
-                   "wall_s": wall0 + time.perf_counter() - t_start, **ev}
-            _log(run_dir, rec)
-            state["last_val"] = ev
-            if epoch_end:
-                state["epoch_loss_sum"], state["epoch_loss_n"] = 0.0, 0
+    try:
+        while state["step"] < stop_step:
+            step = state["step"]
+            epoch, b = divmod(step, spe)
+            if epoch != perm_epoch:
+                perm = np.random.default_rng([r.seed, epoch]).permutation(n_train)
+                perm_epoch = epoch
+            idx = perm[b * r.batch:(b + 1) * r.batch]
+            x, y = data.gather(data.train_win[np.sort(idx)])
+            x = torch.from_numpy(x)
+            if r.noise > 0:
+                g = torch.Generator().manual_seed(r.seed * 1_000_003 + step)
+                x = x + r.noise * torch.randn(x.shape, generator=g, dtype=x.dtype)
+            x, y = x.to(dev), torch.from_numpy(y).to(dev)
+            n_steps = r.steps_at(step / spe)
+            lr = r.lr_at(step, total)
+            for grp in opt.param_groups:
+                grp["lr"] = lr
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn(net, x, y, n_steps, r.first_weight)
+            lv = float(loss.detach())
+            if not math.isfinite(lv):
+                state["nonfinite_skipped"] += 1
+                consecutive_bad += 1
+                if consecutive_bad >= 10:
+                    checkpoint()
+                    raise FloatingPointError(f"loss not finite for 10 steps in a row at step {step}")
+            else:
+                consecutive_bad = 0
+                loss.backward()
+                if r.clip > 0:
+                    torch.nn.utils.clip_grad_norm_(net.parameters(), r.clip)
+                opt.step()
+                state["epoch_loss_sum"] += lv
+                state["epoch_loss_n"] += 1
+            state["step"] = step + 1
+            state["windows_seen"] += len(idx)
             if bar is not None:
-                bar.write(f"epoch {rec['epoch']:.2f}: train {rec['train_loss']:.4g} "
-                          + " ".join(f"{k} {v:.4g}" for k, v in ev.items()))
-            checkpoint()
-        elif time.perf_counter() - last_ckpt > 60.0 * checkpoint_minutes:
-            checkpoint()
-        if deadline is not None and time.perf_counter() > deadline:
-            reason = "max_minutes"
-            break
-    else:
-        reason = "done" if state["step"] >= total else "max_steps"
+                bar.update(1)
+                bar.set_postfix(loss=f"{lv:.4g}", k=n_steps, lr=f"{lr:.2g}")
+            if log_every and state["step"] % log_every == 0:
+                _log(run_dir, {"kind": "train", "step": state["step"], "epoch": state["step"] / spe,
+                               "loss": lv, "rollout": n_steps, "lr": lr,
+                               "windows_seen": state["windows_seen"],
+                               "wall_s": wall0 + time.perf_counter() - t_start})
+            epoch_end = state["step"] % spe == 0
+            if epoch_end or (val_every and state["step"] % val_every == 0):
+                # validate and log at every epoch end (and every val_every steps); checkpoint
+                ev = evaluate(net, data, data.val_win, r, dev)
+                n = max(1, state["epoch_loss_n"])
+                rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / spe,
+                       "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
+                       "windows_seen": state["windows_seen"],
+                       "wall_s": wall0 + time.perf_counter() - t_start, **ev}
+                _log(run_dir, rec)
+                state["last_val"] = ev
+                if epoch_end:
+                    state["epoch_loss_sum"], state["epoch_loss_n"] = 0.0, 0
+                if bar is not None:
+                    bar.write(f"epoch {rec['epoch']:.2f}: train {rec['train_loss']:.4g} "
+                              + " ".join(f"{k} {v:.4g}" for k, v in ev.items()))
+                checkpoint()
+            elif time.perf_counter() - last_ckpt > 60.0 * checkpoint_minutes:
+                checkpoint()
+            if deadline is not None and time.perf_counter() > deadline:
+                reason = "max_minutes"
+                break
+            if stop_signal:
+                reason = "interrupted"
+                break
+        else:
+            reason = "done" if state["step"] >= total else "max_steps"
+    finally:
+        restore()
     if bar is not None:
         bar.close()
     state["stopped"] = reason
@@ -469,6 +478,32 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     if export_path is not None and state["step"] >= total:
         export(run_dir, export_path)
     return state
+
+
+def _install_stop_handlers(flag: list[int]):
+    """SIGINT / SIGTERM set ``flag``; the loop stops after the current step with a checkpoint
+    (a second signal acts as usual). Only in the main thread; returns a function that restores
+    the previous handlers."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    old = {}
+
+    def handler(signum: int, frame: Any) -> None:
+        flag.append(signum)
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        old[sig] = signal.getsignal(sig)
+        signal.signal(sig, handler)
+
+    def restore() -> None:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    return restore
 
 
 # ------------------------------------------------------------------------------------- export
