@@ -283,7 +283,6 @@ def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_S
     """Two model-free references on ``wins`` (default: the validation windows), scored like
     :func:`evaluate`: ``copy_last`` (the last input frame, repeated) and ``const_velocity``
     (points matched by index, the last two frames' displacement continued)."""
-    from .metrics import chamfer_loss  # noqa: F401  (numba; imported for its kernels' warm-up)
     wins = data.val_win if wins is None else wins
     x, y = data.gather(wins)
     y = y[:, :steps].astype(np.float64)
