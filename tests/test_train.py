@@ -39,7 +39,7 @@ def _params(run_dir):
 
 def test_loss_decreases_on_fixed_batch(dataset, tmp_path):
     r = _recipe(epochs=4, schedule="constant")
-    data = T.WindowData(dataset, r.val_fraction, r.seed)
+    data = T.WindowData(dataset, r.val_fraction, r.split_seed)
     x, y = (torch.from_numpy(a) for a in data.gather(data.train_win[:32]))
     torch.manual_seed(r.seed)
     net = TorchTPNet(r.tpnet_config)            # what train() starts from (same seed)
@@ -87,7 +87,7 @@ def test_export_roundtrip(dataset, tmp_path):
     model = load_native(out)
     net = TorchTPNet(model.config)
     net.load_state_dict(T.load_checkpoint(tmp_path / "run")[0]["model"])
-    data = T.WindowData(dataset, r.val_fraction, r.seed)
+    data = T.WindowData(dataset, r.val_fraction, r.split_seed)
     x, _ = data.gather(data.val_win[:8])
     with torch.no_grad():
         yt = net(torch.from_numpy(x)).numpy()

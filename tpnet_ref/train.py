@@ -69,6 +69,7 @@ class Recipe:
     pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
     val_fraction: float = 0.05
+    split_seed: int = 0                 # which trajectories are validation (independent of seed)
     seed: int = 0
     config: dict = field(default_factory=lambda: TPNetConfig().to_dict())
 
@@ -344,7 +345,7 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
         state = {"step": 0, "windows_seen": 0, "wall_s": 0.0, "nonfinite_skipped": 0,
                  "epoch_loss_sum": 0.0, "epoch_loss_n": 0}
     cfg = r.tpnet_config
-    data = WindowData(data_path, r.val_fraction, r.seed, limit_windows)
+    data = WindowData(data_path, r.val_fraction, r.split_seed, limit_windows)
     if data.m != cfg.m:
         raise ValueError(f"dataset has m={data.m}, the recipe's network m={cfg.m}")
     if len(data.train_win) == 0:
@@ -617,7 +618,9 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
     q.add_argument("--val-fraction", type=float, default=d.val_fraction,
                    help="fraction of training-grid trajectories held out for validation")
-    q.add_argument("--seed", type=int, default=d.seed)
+    q.add_argument("--split-seed", type=int, default=d.split_seed,
+                   help="seed of the validation split (kept apart from --seed)")
+    q.add_argument("--seed", type=int, default=d.seed, help="initialisation, order and noise")
     q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     q.add_argument("--max-steps", type=int, default=None, help="stop (with a checkpoint) at this step")
@@ -651,7 +654,7 @@ def add_cli(sub: Any) -> None:
                                           "validation windows")
     c.add_argument("data")
     c.add_argument("--val-fraction", type=float, default=d.val_fraction)
-    c.add_argument("--seed", type=int, default=d.seed)
+    c.add_argument("--split-seed", type=int, default=d.split_seed)
     c.set_defaults(func=_cli_baselines)
 
 
@@ -667,7 +670,8 @@ def _cli_run(args: Any) -> int:
                         eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,
                         warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
                         pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
-                        val_fraction=args.val_fraction, seed=args.seed, config=cfg.to_dict())
+                        val_fraction=args.val_fraction, split_seed=args.split_seed,
+                        seed=args.seed, config=cfg.to_dict())
     st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,
                device=args.device, threads=args.threads, max_steps=args.max_steps,
                max_minutes=args.max_minutes, checkpoint_minutes=args.checkpoint_minutes,
@@ -696,7 +700,7 @@ def _cli_bench(args: Any) -> int:
 
 
 def _cli_baselines(args: Any) -> int:
-    data = WindowData(args.data, args.val_fraction, args.seed)
+    data = WindowData(args.data, args.val_fraction, args.split_seed)
     print(data.describe())
     for name, ev in baselines(data).items():
         print(f"  {name:15s} " + " ".join(f"{k} {v:.4f}" for k, v in ev.items()))
