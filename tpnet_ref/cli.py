@@ -21,6 +21,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.sim",
     "tpnet_ref.data",
     "tpnet_ref.evaluation",
+    "tpnet_ref.train",
 )
 
 

@@ -203,10 +203,11 @@ class TorchTPNet(nn.Module):
         b, m, n, d = windows.shape
         feats = list(self.frame_features(windows.reshape(b * m, n, d)).view(b, m, -1).unbind(1))
         outs = []
-        for _ in range(int(steps)):
+        for s in range(int(steps)):
             y = self.sequence_head(torch.stack(feats[-m:], dim=1))
             outs.append(y)
-            feats.append(self.frame_features(y))
+            if s + 1 < steps:  # the last prediction's features would never be used
+                feats.append(self.frame_features(y))
         return torch.stack(outs, dim=1)
 
     def recursive_loss(self, windows: torch.Tensor, targets: torch.Tensor,

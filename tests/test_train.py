@@ -1,0 +1,156 @@
+"""Training (tpnet_ref.train): loss goes down, resume == uninterrupted run, export, CLI."""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from tpnet_ref import cli  # noqa: E402
+from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref import train as T  # noqa: E402
+from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.weights import load_native  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """6 short trajectories (120 rows = 30 frames), 20 windows each, no test cases."""
+    path = tmp_path_factory.mktemp("data") / "tiny.h5"
+    grid = D.train_grid([1.3], [200.0, 245.0], positions=3)
+    D.generate(str(path), grid, None, m=4, steps=120, seed=0, progress=False)
+    return str(path)
+
+
+def _recipe(**kw):
+    base = dict(recipe="paper", epochs=2, batch=16, lr=3e-3, warmup_steps=2, clip=10.0,
+                val_fraction=0.2, seed=3, config=T.size_config("tiny").to_dict())
+    return T.Recipe(**{**base, **kw})
+
+
+def _params(run_dir):
+    payload, _ = T.load_checkpoint(run_dir)
+    return {k: v for k, v in payload["model"].items() if k != "_extra_state"}
+
+
+def test_loss_decreases_on_fixed_batch(dataset, tmp_path):
+    r = _recipe(epochs=4, schedule="constant")
+    data = T.WindowData(dataset, r.val_fraction, r.split_seed)
+    x, y = (torch.from_numpy(a) for a in data.gather(data.train_win[:32]))
+    torch.manual_seed(r.seed)
+    net = TorchTPNet(r.tpnet_config)            # what train() starts from (same seed)
+    with torch.no_grad():
+        before = float(T.loss_fn(net, x, y, 8, 9.0))
+    st = T.train(dataset, tmp_path / "run", r, threads=1, progress=False)
+    assert st["stopped"] == "done" and st["step"] == st["total_steps"] == 4 * st["steps_per_epoch"]
+    net.load_state_dict(T.load_checkpoint(tmp_path / "run")[0]["model"])
+    with torch.no_grad():
+        after = float(T.loss_fn(net, x, y, 8, 9.0))
+    assert after < 0.9 * before, (before, after)
+    log = [json.loads(s) for s in (tmp_path / "run" / T.LOG_NAME).read_text().splitlines()]
+    val = [rec for rec in log if rec["kind"] == "val"]
+    assert val[0]["step"] == 0 and len(val) == 5
+    assert val[-1]["val_loss"] < val[0]["val_loss"]
+
+
+def test_resume_gives_the_uninterrupted_run(dataset, tmp_path):
+    """Stop mid-epoch, resume in a fresh call: parameters bit-identical to one straight run
+    (curriculum rollout lengths, cosine schedule and input noise all exercised)."""
+    r = _recipe(recipe="curriculum", epochs=3, pretrain_epochs=0.5, ramp_epochs=1.5,
+                noise=0.01, schedule="cosine")
+    a = T.train(dataset, tmp_path / "a", r, threads=1, progress=False)
+    b1 = T.train(dataset, tmp_path / "b", r, threads=1, progress=False, max_steps=7)
+    assert b1["stopped"] == "max_steps" and b1["step"] == 7
+    with pytest.raises(ValueError, match="already holds a run"):
+        T.train(dataset, tmp_path / "b", r, threads=1, progress=False)
+    b2 = T.train(dataset, tmp_path / "b", resume=True, threads=1, progress=False)
+    assert b2["step"] == a["step"] and b2["windows_seen"] == a["windows_seen"]
+    pa, pb = _params(tmp_path / "a"), _params(tmp_path / "b")
+    assert pa.keys() == pb.keys()
+    for k in pa:
+        assert torch.equal(pa[k], pb[k]), k
+    oa = T.load_checkpoint(tmp_path / "a")[0]["optimizer"]["state"]
+    ob = T.load_checkpoint(tmp_path / "b")[0]["optimizer"]["state"]
+    for k in oa:
+        assert torch.equal(oa[k]["exp_avg_sq"], ob[k]["exp_avg_sq"])
+
+
+def test_export_roundtrip(dataset, tmp_path):
+    r = _recipe(epochs=1)
+    T.train(dataset, tmp_path / "run", r, threads=1, progress=False)
+    out = tmp_path / "w.h5"
+    T.export(tmp_path / "run", out)
+    model = load_native(out)
+    net = TorchTPNet(model.config)
+    net.load_state_dict(T.load_checkpoint(tmp_path / "run")[0]["model"])
+    data = T.WindowData(dataset, r.val_fraction, r.split_seed)
+    x, _ = data.gather(data.val_win[:8])
+    with torch.no_grad():
+        yt = net(torch.from_numpy(x)).numpy()
+        rt = net.rollout(torch.from_numpy(x[:1]), 8).numpy()[0]
+    assert np.abs(model.predict_batch(x, normalized=True) - yt).max() <= 1e-5
+    assert np.abs(model.rollout(x[0], 8, normalized=True) - rt).max() <= 1e-5
+    with h5py.File(out, "r") as f:
+        a = f.attrs
+        assert json.loads(a["recipe"])["recipe"] == "paper"
+        assert int(a["windows_seen"]) == int(a["training_steps"]) * 16 > 0
+        assert float(a["epochs"]) == 1.0 and "cpu" in str(a["hardware"])
+        assert float(a["export_max_abs_diff"]) <= 1e-5
+
+
+def test_recipe_schedules():
+    r = T.Recipe(recipe="curriculum", pretrain_epochs=2, ramp_epochs=4, warmup_steps=10,
+                 lr=1e-3, lr_min=1e-5)
+    ks = [r.steps_at(e / 4) for e in range(0, 32)]
+    assert ks[:8] == [1] * 8 and ks[-1] == 8 and ks == sorted(ks) and set(ks) == set(range(1, 9))
+    assert T.Recipe(recipe="paper").steps_at(0.0) == 8
+    assert r.lr_at(0, 1000) == pytest.approx(1e-4)
+    assert r.lr_at(10, 1000) == pytest.approx(1e-3, rel=1e-3)
+    assert r.lr_at(999, 1000) == pytest.approx(1e-5)
+    with pytest.raises(ValueError):
+        T.Recipe(recipe="nope")
+    assert T.Recipe.from_dict(json.loads(json.dumps(dataclasses.asdict(r)))) == r
+
+
+def test_baselines_and_cli(dataset, tmp_path, capsys):
+    data = T.WindowData(dataset, 0.2, 0)
+    b = T.baselines(data)
+    assert set(b) == {"copy_last", "const_velocity"}
+    assert all(np.isfinite(v["val_loss"]) and v["val_loss"] > 0 for v in b.values())
+    run = str(tmp_path / "run")
+    out = str(tmp_path / "w.h5")
+    assert cli.main(["train", "run", dataset, "-o", run, "--size", "tiny", "--epochs", "1",
+                     "--batch", "32", "--threads", "1", "--quiet", "--export", out]) == 0
+    assert load_native(out).config == T.size_config("tiny")
+    assert cli.main(["train", "run", dataset, "-o", run, "--resume", "--epochs", "2",
+                     "--quiet"]) == 0
+    assert cli.main(["train", "export", run, str(tmp_path / "w2.h5")]) == 0
+    assert "(done)" in capsys.readouterr().out
+    args = cli.build_parser().parse_args(["train", "bench", "--size", "tiny", "--rollouts", "1"])
+    assert args.func is T._cli_bench and args.batch == 128
+    assert cli.main(["train", "export", str(tmp_path / "missing"), out]) == 2
+
+
+def test_sigterm_stops_with_a_checkpoint(dataset, tmp_path):
+    """SIGTERM (what `timeout` sends) ends the run after the current step, resumable."""
+    import os
+    import signal
+    import threading
+
+    r = _recipe(epochs=10_000)
+    before = signal.getsignal(signal.SIGTERM)
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGTERM))
+    timer.start()
+    try:
+        st = T.train(dataset, tmp_path / "run", r, threads=1, progress=False)
+    finally:
+        timer.cancel()
+    assert st["stopped"] == "interrupted" and 0 < st["step"] < st["total_steps"]
+    assert signal.getsignal(signal.SIGTERM) is before       # handlers restored
+    st2 = T.train(dataset, tmp_path / "run", resume=True, threads=1, progress=False,
+                  max_steps=st["step"] + 2)
+    assert st2["step"] == st["step"] + 2 and st2["stopped"] == "max_steps"

@@ -1,0 +1,711 @@
+"""Training TP-Net in PyTorch (optional ``train`` extra) and export to the native weights file.
+
+``tpnet train run DATA.h5 -o RUN_DIR ...`` trains :class:`~tpnet_ref.torch_model.TorchTPNet` on
+the windows of a ``tpnet data generate`` file; ``tpnet train export RUN_DIR|CKPT OUT.h5`` writes
+the native HDF5 weights through :func:`tpnet_ref.weights.import_torch` with provenance.
+``tpnet train bench`` measures throughput. Everything about the recipe is in ``docs/training.md``.
+
+Recipes (``--recipe``):
+
+* ``paper``: every step is the published loss, ``9·CD(P_{t+1}) + Σ_{i=2..8} CD(P_{t+i})`` over 8
+  recursive predictions (released-code Chamfer: Euclidean, not squared, both directions summed).
+* ``curriculum`` (default): ``--pretrain-epochs`` of the 1-step loss (teacher forced, the first
+  term alone), then the recursive loss with the rollout length growing linearly from 1 to 8 over
+  ``--ramp-epochs``, then the published 8-step loss. Same weights 9, 1, 1, ...
+
+Both: Adam with the released code's constants (lr 1e-3, beta_1 0.99, beta_2 0.999, eps 1e-7),
+optional linear warm-up and cosine decay, gradient-norm clipping, optional Gaussian noise on the
+input coordinates (never on the targets). Validation is a held-out set of whole training-grid
+*trajectories* (``--val-fraction``), always scored with the published 8-step loss and the 1-step
+Chamfer distance; the 60 test cases are never read.
+
+Determinism: the epoch's window order comes from ``default_rng([seed, epoch])`` and the noise of
+step ``s`` from a torch generator seeded with ``(seed, s)``, so a run resumed from a checkpoint
+(model + Adam state + position, see :func:`save_checkpoint`) computes exactly what the
+uninterrupted run computes (on the same device and thread count).
+
+torch is imported inside the functions only; ``import tpnet_ref.train`` is cheap.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import sys
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .model import TPNetConfig
+
+CKPT_NAME = "checkpoint.pt"
+SIDECAR_NAME = "checkpoint.json"
+LOG_NAME = "log.jsonl"
+N_STEPS_MAX = 8
+
+
+@dataclass
+class Recipe:
+    """Everything that decides what a run computes (stored with every checkpoint)."""
+
+    recipe: str = "curriculum"          # "paper" or "curriculum"
+    epochs: int = 100
+    batch: int = 128
+    lr: float = 1e-3
+    beta1: float = 0.99
+    beta2: float = 0.999
+    eps: float = 1e-7
+    schedule: str = "cosine"            # "constant" or "cosine" (to lr_min at the last step)
+    lr_min: float = 1e-5
+    warmup_steps: int = 200
+    clip: float = 10.0                  # max gradient norm; 0 = no clipping
+    noise: float = 0.0                  # std of Gaussian input noise, normalised units
+    first_weight: float = 9.0
+    rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published)
+    pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
+    ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
+    val_fraction: float = 0.05
+    split_seed: int = 0                 # which trajectories are validation (independent of seed)
+    seed: int = 0
+    config: dict = field(default_factory=lambda: TPNetConfig().to_dict())
+
+    def __post_init__(self) -> None:
+        if self.recipe not in ("paper", "curriculum"):
+            raise ValueError(f"recipe must be 'paper' or 'curriculum', got {self.recipe!r}")
+        if self.schedule not in ("constant", "cosine"):
+            raise ValueError(f"schedule must be 'constant' or 'cosine', got {self.schedule!r}")
+        if self.epochs < 1 or self.batch < 1:
+            raise ValueError("epochs and batch must be >= 1")
+        if not 1 <= self.rollout <= N_STEPS_MAX:
+            raise ValueError(f"rollout must be in 1..{N_STEPS_MAX}, got {self.rollout}")
+        if not 0 <= self.val_fraction < 1:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        if self.noise < 0 or self.clip < 0:
+            raise ValueError("noise and clip must be >= 0")
+        if isinstance(self.config, TPNetConfig):
+            self.config = self.config.to_dict()
+        self.config = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.config.items()}
+
+    @property
+    def tpnet_config(self) -> TPNetConfig:
+        return TPNetConfig.from_dict(dict(self.config))
+
+    def steps_at(self, epoch_pos: float) -> int:
+        """Rollout length of the loss at fractional epoch ``epoch_pos``."""
+        if self.recipe == "paper":
+            return self.rollout
+        if epoch_pos < self.pretrain_epochs:
+            return 1
+        if self.ramp_epochs <= 0:
+            return self.rollout
+        t = (epoch_pos - self.pretrain_epochs) / self.ramp_epochs
+        return int(min(self.rollout, 1 + math.floor(t * self.rollout)))
+
+    def lr_at(self, step: int, total: int) -> float:
+        warm = min(1.0, (step + 1) / self.warmup_steps) if self.warmup_steps > 0 else 1.0
+        if self.schedule == "constant":
+            return self.lr * warm
+        frac = min(1.0, step / max(1, total - 1))
+        return warm * (self.lr_min + 0.5 * (self.lr - self.lr_min) * (1 + math.cos(math.pi * frac)))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Recipe":
+        names = {f.name for f in fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"unknown recipe fields: {sorted(unknown)}")
+        return cls(**d)
+
+
+# ------------------------------------------------------------------------------------- data
+class WindowData:
+    """The windows of a ``tpnet data generate`` file, gathered on demand from the trajectories
+    (no copy of each window is held): ``batch(idx)`` -> inputs ``(B, m, N, 2)`` and targets
+    ``(B, 8, N, 2)``, float32, normalised. Train/validation split by trajectory."""
+
+    def __init__(self, path: str | os.PathLike, val_fraction: float, seed: int,
+                 limit_windows: int | None = None) -> None:
+        import h5py
+
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"dataset not found: {path}")
+        with h5py.File(path, "r") as h:
+            self.m = int(h.attrs["m"])
+            self.n_targets = int(h.attrs["n_targets"])
+            g = h["train"]
+            if "windows" not in g:
+                raise KeyError(f"{path}: /train has no windows")
+            if not g["done"][...].all():
+                raise ValueError(f"{path}: /train is incomplete; run generate again to finish it")
+            self.frames = g["normalized"][...]
+            win = g["windows"][...]
+        self.path = str(path)
+        n_traj = self.frames.shape[0]
+        n_val = int(round(val_fraction * n_traj))
+        if val_fraction > 0:
+            n_val = max(1, n_val)
+        if n_val >= n_traj and val_fraction > 0:
+            raise ValueError(f"{path}: {n_traj} trajectories are too few for a validation split")
+        perm = np.random.default_rng([seed, 12345]).permutation(n_traj)
+        self.val_traj = np.sort(perm[:n_val])
+        is_val = np.isin(win[:, 0], self.val_traj)
+        self.train_win = win[~is_val]
+        self.val_win = win[is_val]
+        if limit_windows is not None:
+            self.train_win = self.train_win[:limit_windows]
+            self.val_win = self.val_win[:limit_windows]
+        self._offs = np.arange(self.m + self.n_targets)
+
+    def gather(self, win: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        f = self.frames[win[:, 0:1], win[:, 1:2] + self._offs[None, :]]
+        return f[:, :self.m], f[:, self.m:]
+
+    def describe(self) -> str:
+        return (f"{self.path}: {self.frames.shape[0]} trajectories, {len(self.train_win)} train "
+                f"windows, {len(self.val_win)} validation windows ({len(self.val_traj)} "
+                f"trajectories), m={self.m}")
+
+
+# ------------------------------------------------------------------------------------- torch
+def _torch():
+    import torch
+    return torch
+
+
+def resolve_device(device: str) -> str:
+    torch = _torch()
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device not in ("cpu", "cuda"):
+        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device cuda asked for but torch.cuda.is_available() is False")
+    return device
+
+
+def hardware(device: str) -> str:
+    torch = _torch()
+    if device == "cuda":
+        return f"cuda:{torch.cuda.get_device_name(0)}"
+    return (f"cpu:{platform.processor() or platform.machine()} "
+            f"({os.cpu_count()} cores, {torch.get_num_threads()} torch threads)")
+
+
+def make_optimizer(net: Any, r: Recipe) -> Any:
+    torch = _torch()
+    return torch.optim.Adam(net.parameters(), lr=r.lr, betas=(r.beta1, r.beta2), eps=r.eps)
+
+
+def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float) -> Any:
+    """The recursive loss over the first ``steps`` targets (``steps=1``: 1-step teacher forced)."""
+    return net.recursive_loss(x, y[:, :steps], first_weight=first_weight)
+
+
+def save_checkpoint(run_dir: str | os.PathLike, net: Any, opt: Any, state: dict) -> Path:
+    """``checkpoint.pt`` (tensors and plain containers only: model and Adam state dicts,
+    readable with ``torch.load(weights_only=True)``) and ``checkpoint.json`` (recipe, position,
+    counters). Both written atomically; the JSON last, so it never points at a missing file."""
+    torch = _torch()
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    tmp = run_dir / (CKPT_NAME + ".tmp")
+    torch.save({"model": net.state_dict(), "optimizer": opt.state_dict()}, tmp)
+    os.replace(tmp, run_dir / CKPT_NAME)
+    tmpj = run_dir / (SIDECAR_NAME + ".tmp")
+    tmpj.write_text(json.dumps(state, indent=1, sort_keys=True))
+    os.replace(tmpj, run_dir / SIDECAR_NAME)
+    return run_dir / CKPT_NAME
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[dict, dict]:
+    """``(torch payload, sidecar state)`` from a run directory or a ``checkpoint.pt``."""
+    torch = _torch()
+    p = Path(path)
+    ckpt = p / CKPT_NAME if p.is_dir() else p
+    side = ckpt.with_name(SIDECAR_NAME)
+    if not ckpt.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {ckpt}")
+    payload = torch.load(ckpt, map_location="cpu", weights_only=True)
+    state = json.loads(side.read_text()) if side.is_file() else {}
+    return payload, state
+
+
+# ------------------------------------------------------------------------------------- sizes
+#: named network sizes: the released one and reduced widths for CPU experiments and tests
+SIZES: dict[str, dict[str, Any]] = {
+    "full": {},
+    "small": dict(mlp1=(32, 32), mlp2=(64, 128, 256), global_features=64,
+                  lstm_units=(64, 32, 32)),
+    "tiny": dict(mlp1=(8, 8), mlp2=(8, 16, 16), global_features=8, lstm_units=(8, 8, 8)),
+}
+
+
+def size_config(size: str = "full", m: int = 4, **kw: Any) -> TPNetConfig:
+    if size not in SIZES:
+        raise ValueError(f"size must be one of {sorted(SIZES)}, got {size!r}")
+    return TPNetConfig(m=m, **{**SIZES[size], **kw})
+
+
+# ------------------------------------------------------------------------------------- eval
+def evaluate(net: Any, data: WindowData, wins: np.ndarray, r: Recipe, device: str,
+             batch: int = 256) -> dict[str, float]:
+    """Validation: the published 8-step loss (weights ``first_weight``, 1, ...) and the
+    per-step released Chamfer distance, averaged over ``wins``."""
+    torch = _torch()
+    from .torch_model import chamfer_released
+
+    if len(wins) == 0:
+        return {}
+    steps = r.rollout
+    tot = np.zeros(steps)
+    was = net.training
+    net.eval()
+    with torch.no_grad():
+        for i in range(0, len(wins), batch):
+            x, y = data.gather(wins[i:i + batch])
+            x = torch.from_numpy(x).to(device)
+            y = torch.from_numpy(y[:, :steps]).to(device)
+            cd = chamfer_released(net.rollout(x, steps), y)
+            tot += cd.double().cpu().numpy() * len(x)
+    net.train(was)
+    cd = tot / len(wins)
+    w = np.ones(steps)
+    w[0] = r.first_weight
+    return {"val_loss": float((cd * w).sum()), "val_cd1": float(cd[0]),
+            f"val_cd{steps}": float(cd[-1])}
+
+
+def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_STEPS_MAX,
+              first_weight: float = 9.0) -> dict[str, dict[str, float]]:
+    """Two model-free references on ``wins`` (default: the validation windows), scored like
+    :func:`evaluate`: ``copy_last`` (the last input frame, repeated) and ``const_velocity``
+    (points matched by index, the last two frames' displacement continued)."""
+    wins = data.val_win if wins is None else wins
+    x, y = data.gather(wins)
+    y = y[:, :steps].astype(np.float64)
+    last = x[:, -1].astype(np.float64)
+    vel = last - x[:, -2].astype(np.float64)
+    k = np.arange(1, steps + 1)[None, :, None, None]
+    preds = {"copy_last": np.broadcast_to(last[:, None], y.shape),
+             "const_velocity": last[:, None] + k * vel[:, None]}
+    w = np.ones(steps)
+    w[0] = first_weight
+    out = {}
+    for name, p in preds.items():
+        d = np.sqrt(((p[..., :, None, :] - y[..., None, :, :]) ** 2).sum(-1))   # (W, S, N, N)
+        cd = (d.min(-1).sum(-1) + d.min(-2).sum(-1)).mean(0)
+        out[name] = {"val_loss": float((cd * w).sum()), "val_cd1": float(cd[0]),
+                     f"val_cd{steps}": float(cd[-1])}
+    return out
+
+
+# ------------------------------------------------------------------------------------- train
+def _log(run_dir: Path, rec: dict) -> None:
+    with open(run_dir / LOG_NAME, "a") as f:
+        f.write(json.dumps(rec, sort_keys=True) + "\n")
+
+
+def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Recipe | None = None,
+          *, resume: bool = False, epochs: int | None = None, device: str = "auto",
+          threads: int | None = 2, max_steps: int | None = None,
+          max_minutes: float | None = None, checkpoint_minutes: float = 5.0,
+          log_every: int = 50, val_every: int | None = None, limit_windows: int | None = None, progress: bool = True,
+          export_path: str | os.PathLike | None = None) -> dict:
+    """Train (or, with ``resume``, continue) the run in ``run_dir``; returns the final state.
+
+    ``max_steps`` (a global step count), ``max_minutes`` and SIGINT/SIGTERM (after the current
+    step) stop early with a checkpoint, so a
+    long run can be done in pieces; ``epochs`` on resume extends or shortens the run (the cosine
+    schedule follows the new length from there). A checkpoint is written every
+    ``checkpoint_minutes``, at every epoch end and when stopping."""
+    torch = _torch()
+    from .torch_model import TorchTPNet
+
+    run_dir = Path(run_dir)
+    t_start = time.perf_counter()
+    if threads:
+        torch.set_num_threads(int(threads))
+    dev = resolve_device(device)
+    payload: dict | None = None
+    if resume:
+        payload, state = load_checkpoint(run_dir)
+        r = Recipe.from_dict(state["recipe"])
+        if epochs is not None:
+            r.epochs = int(epochs)
+    else:
+        if (run_dir / SIDECAR_NAME).exists():
+            raise ValueError(f"{run_dir} already holds a run; pass --resume or another directory")
+        r = recipe or Recipe()
+        if epochs is not None:
+            r.epochs = int(epochs)
+        state = {"step": 0, "windows_seen": 0, "wall_s": 0.0, "nonfinite_skipped": 0,
+                 "epoch_loss_sum": 0.0, "epoch_loss_n": 0}
+    cfg = r.tpnet_config
+    data = WindowData(data_path, r.val_fraction, r.split_seed, limit_windows)
+    if data.m != cfg.m:
+        raise ValueError(f"dataset has m={data.m}, the recipe's network m={cfg.m}")
+    if len(data.train_win) == 0:
+        raise ValueError(f"{data_path}: no training windows")
+    torch.manual_seed(r.seed)
+    net = TorchTPNet(cfg).to(dev)
+    opt = make_optimizer(net, r)
+    if payload is not None:
+        net.load_state_dict(payload["model"])
+        opt.load_state_dict(payload["optimizer"])
+    run_dir.mkdir(parents=True, exist_ok=True)
+
+    n_train = len(data.train_win)
+    spe = max(1, n_train // r.batch)          # full batches only: every step has batch r.batch
+    total = r.epochs * spe
+    state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
+                  "total_steps": total, "train_windows": n_train,
+                  "val_windows": len(data.val_win), "device": dev, "hardware": hardware(dev),
+                  "torch": torch.__version__})
+    if state["step"] == 0 and not resume:
+        ev = evaluate(net, data, data.val_win, r, dev)
+        _log(run_dir, {"kind": "val", "step": 0, "epoch": 0.0, "windows_seen": 0, "wall_s": 0.0,
+                       **ev})
+        state["last_val"] = ev
+    stop_step = total if max_steps is None else min(total, int(max_steps))
+    deadline = None if max_minutes is None else t_start + 60.0 * max_minutes
+    wall0 = state["wall_s"]
+    last_ckpt = time.perf_counter()
+
+    def checkpoint() -> None:
+        nonlocal last_ckpt
+        state["wall_s"] = wall0 + (time.perf_counter() - t_start)
+        save_checkpoint(run_dir, net, opt, state)
+        last_ckpt = time.perf_counter()
+
+    bar = None
+    if progress:
+        try:
+            from tqdm import tqdm
+            bar = tqdm(total=stop_step, initial=min(state["step"], stop_step), unit="step",
+                       desc=f"train {r.recipe}", dynamic_ncols=True)
+        except ImportError:  # tqdm is optional
+            bar = None
+    if progress:
+        print(data.describe(), file=sys.stderr)
+    net.train()
+    stop_signal: list[int] = []
+    restore = _install_stop_handlers(stop_signal)
+    perm_epoch, perm = -1, None
+    consecutive_bad = 0
+    reason = "done"
+    try:
+        while state["step"] < stop_step:
+            step = state["step"]
+            epoch, b = divmod(step, spe)
+            if epoch != perm_epoch:
+                perm = np.random.default_rng([r.seed, epoch]).permutation(n_train)
+                perm_epoch = epoch
+            idx = perm[b * r.batch:(b + 1) * r.batch]
+            x, y = data.gather(data.train_win[np.sort(idx)])
+            x = torch.from_numpy(x)
+            if r.noise > 0:
+                g = torch.Generator().manual_seed(r.seed * 1_000_003 + step)
+                x = x + r.noise * torch.randn(x.shape, generator=g, dtype=x.dtype)
+            x, y = x.to(dev), torch.from_numpy(y).to(dev)
+            n_steps = r.steps_at(step / spe)
+            lr = r.lr_at(step, total)
+            for grp in opt.param_groups:
+                grp["lr"] = lr
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn(net, x, y, n_steps, r.first_weight)
+            lv = float(loss.detach())
+            if not math.isfinite(lv):
+                state["nonfinite_skipped"] += 1
+                consecutive_bad += 1
+                if consecutive_bad >= 10:
+                    checkpoint()
+                    raise FloatingPointError(f"loss not finite for 10 steps in a row at step {step}")
+            else:
+                consecutive_bad = 0
+                loss.backward()
+                if r.clip > 0:
+                    torch.nn.utils.clip_grad_norm_(net.parameters(), r.clip)
+                opt.step()
+                state["epoch_loss_sum"] += lv
+                state["epoch_loss_n"] += 1
+            state["step"] = step + 1
+            state["windows_seen"] += len(idx)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{lv:.4g}", k=n_steps, lr=f"{lr:.2g}")
+            if log_every and state["step"] % log_every == 0:
+                _log(run_dir, {"kind": "train", "step": state["step"], "epoch": state["step"] / spe,
+                               "loss": lv, "rollout": n_steps, "lr": lr,
+                               "windows_seen": state["windows_seen"],
+                               "wall_s": wall0 + time.perf_counter() - t_start})
+            epoch_end = state["step"] % spe == 0
+            if epoch_end or (val_every and state["step"] % val_every == 0):
+                # validate and log at every epoch end (and every val_every steps); checkpoint
+                ev = evaluate(net, data, data.val_win, r, dev)
+                n = max(1, state["epoch_loss_n"])
+                rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / spe,
+                       "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
+                       "windows_seen": state["windows_seen"],
+                       "wall_s": wall0 + time.perf_counter() - t_start, **ev}
+                _log(run_dir, rec)
+                state["last_val"] = ev
+                if epoch_end:
+                    state["epoch_loss_sum"], state["epoch_loss_n"] = 0.0, 0
+                if bar is not None:
+                    bar.write(f"epoch {rec['epoch']:.2f}: train {rec['train_loss']:.4g} "
+                              + " ".join(f"{k} {v:.4g}" for k, v in ev.items()))
+                checkpoint()
+            elif time.perf_counter() - last_ckpt > 60.0 * checkpoint_minutes:
+                checkpoint()
+            if deadline is not None and time.perf_counter() > deadline:
+                reason = "max_minutes"
+                break
+            if stop_signal:
+                reason = "interrupted"
+                break
+        else:
+            reason = "done" if state["step"] >= total else "max_steps"
+    finally:
+        restore()
+    if bar is not None:
+        bar.close()
+    state["stopped"] = reason
+    checkpoint()
+    if export_path is not None and state["step"] >= total:
+        export(run_dir, export_path)
+    return state
+
+
+def _install_stop_handlers(flag: list[int]):
+    """SIGINT / SIGTERM set ``flag``; the loop stops after the current step with a checkpoint
+    (a second signal acts as usual). Only in the main thread; returns a function that restores
+    the previous handlers."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    old = {}
+
+    def handler(signum: int, frame: Any) -> None:
+        flag.append(signum)
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        old[sig] = signal.getsignal(sig)
+        signal.signal(sig, handler)
+
+    def restore() -> None:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    return restore
+
+
+# ------------------------------------------------------------------------------------- export
+def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "float32",
+           check_bound: float = 1e-5) -> Any:
+    """Native weights file from a training checkpoint (run directory or ``checkpoint.pt``),
+    through :func:`tpnet_ref.weights.import_torch`, with provenance. Checks before writing that
+    the NumPy model's forward pass equals the torch module's (max abs difference <= check_bound
+    on random windows) and records the difference."""
+    torch = _torch()
+    from .torch_model import TorchTPNet
+    from .weights import import_torch
+
+    payload, state = load_checkpoint(source)
+    model = import_torch(payload["model"], dtype=dtype)
+    net = TorchTPNet(model.config)
+    net.load_state_dict(payload["model"])
+    net.eval()
+    cfg = model.config
+    w = np.random.default_rng(0).uniform(0.1, 0.9, (8, cfg.m, cfg.n_out, cfg.dim)).astype(np.float32)
+    with torch.no_grad():
+        yt = net(torch.from_numpy(w)).numpy()
+    diff = float(np.abs(model.predict_batch(w, normalized=True) - yt).max())
+    if not diff <= check_bound:
+        raise ValueError(f"export check failed: NumPy vs torch max abs diff {diff:.3g} > "
+                         f"{check_bound:g}")
+    spe = state.get("steps_per_epoch", 0) or 1
+    prov = {"source": str(source), "producer": "tpnet_ref.train",
+            "recipe": json.dumps(state.get("recipe", {}), sort_keys=True),
+            "training_steps": int(state.get("step", 0)),
+            "epochs": float(state.get("step", 0)) / spe,
+            "windows_seen": int(state.get("windows_seen", 0)),
+            "wall_time_s": float(state.get("wall_s", 0.0)),
+            "hardware": str(state.get("hardware", "unknown")),
+            "torch": str(state.get("torch", torch.__version__)),
+            "data": str(state.get("data", "")),
+            "val": json.dumps(state.get("last_val", {}), sort_keys=True),
+            "export_max_abs_diff": diff}
+    model.save(str(out), **prov)
+    return model
+
+
+# ------------------------------------------------------------------------------------- bench
+def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[int, ...] = (1, 8),
+          iters: int = 5, warmup: int = 1, device: str = "auto", threads: int | None = 2,
+          seed: int = 0) -> dict[int, float]:
+    """Training throughput, windows per second, of a full step (loss, backward, clip, Adam) for
+    each rollout length, on random windows."""
+    torch = _torch()
+    from .torch_model import TorchTPNet
+
+    if threads:
+        torch.set_num_threads(int(threads))
+    dev = resolve_device(device)
+    cfg = config or TPNetConfig()
+    torch.manual_seed(seed)
+    net = TorchTPNet(cfg).to(dev)
+    opt = make_optimizer(net, Recipe(config=cfg.to_dict()))
+    rng = np.random.default_rng(seed)
+    x = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, cfg.m, cfg.n_out, cfg.dim))
+                         .astype(np.float32)).to(dev)
+    y = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, N_STEPS_MAX, cfg.n_out, cfg.dim))
+                         .astype(np.float32)).to(dev)
+    out = {}
+    for k in rollouts:
+        for i in range(warmup + iters):
+            if i == warmup:
+                if dev == "cuda":
+                    torch.cuda.synchronize()
+                t0 = time.perf_counter()
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn(net, x, y, k, 9.0)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+            opt.step()
+        if dev == "cuda":
+            torch.cuda.synchronize()
+        out[k] = batch * iters / (time.perf_counter() - t0)
+    return out
+
+
+# ------------------------------------------------------------------------------------- CLI
+def add_cli(sub: Any) -> None:
+    p = sub.add_parser("train", help="train TP-Net in PyTorch (train extra) and export weights")
+    tsub = p.add_subparsers(dest="train_command", metavar="TRAIN_COMMAND")
+    tsub.required = True
+
+    q = tsub.add_parser("run", help="train (or --resume) a run on a `tpnet data generate` file")
+    q.add_argument("data", help="HDF5 dataset from `tpnet data generate`")
+    q.add_argument("-o", "--run-dir", required=True,
+                   help="run directory: checkpoint.pt, checkpoint.json, log.jsonl")
+    q.add_argument("--resume", action="store_true",
+                   help="continue the run in --run-dir (its stored recipe is used)")
+    d = Recipe()
+    q.add_argument("--recipe", choices=("paper", "curriculum"), default=d.recipe)
+    q.add_argument("--size", choices=sorted(SIZES), default="full",
+                   help="network widths: full (released), small, tiny")
+    q.add_argument("--lstm-activation", choices=("relu", "tanh"), default="relu")
+    q.add_argument("--epochs", type=int, default=None, help=f"default {d.epochs}")
+    q.add_argument("--batch", type=int, default=d.batch)
+    q.add_argument("--lr", type=float, default=d.lr)
+    q.add_argument("--beta1", type=float, default=d.beta1)
+    q.add_argument("--beta2", type=float, default=d.beta2)
+    q.add_argument("--adam-eps", type=float, default=d.eps)
+    q.add_argument("--schedule", choices=("constant", "cosine"), default=d.schedule)
+    q.add_argument("--lr-min", type=float, default=d.lr_min)
+    q.add_argument("--warmup-steps", type=int, default=d.warmup_steps)
+    q.add_argument("--clip", type=float, default=d.clip, help="max grad norm (0: off)")
+    q.add_argument("--noise", type=float, default=d.noise,
+                   help="std of Gaussian noise on input coordinates (normalised units)")
+    q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs)
+    q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
+    q.add_argument("--val-fraction", type=float, default=d.val_fraction,
+                   help="fraction of training-grid trajectories held out for validation")
+    q.add_argument("--split-seed", type=int, default=d.split_seed,
+                   help="seed of the validation split (kept apart from --seed)")
+    q.add_argument("--seed", type=int, default=d.seed, help="initialisation, order and noise")
+    q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    q.add_argument("--max-steps", type=int, default=None, help="stop (with a checkpoint) at this step")
+    q.add_argument("--max-minutes", type=float, default=None,
+                   help="stop (with a checkpoint) after this many minutes")
+    q.add_argument("--checkpoint-minutes", type=float, default=5.0)
+    q.add_argument("--log-every", type=int, default=50, help="steps between train-loss log lines")
+    q.add_argument("--val-every", type=int, default=None,
+                   help="also validate every N steps (default: at epoch ends only)")
+    q.add_argument("--export", default=None, metavar="OUT.h5",
+                   help="when the run completes, write the native weights file")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.set_defaults(func=_cli_run)
+
+    e = tsub.add_parser("export", help="native weights file from a checkpoint (with provenance)")
+    e.add_argument("checkpoint", help="run directory or checkpoint.pt")
+    e.add_argument("output", help="native HDF5 weights file to write")
+    e.add_argument("--dtype", choices=("float32", "float64"), default="float32")
+    e.set_defaults(func=_cli_export)
+
+    b = tsub.add_parser("bench", help="training throughput (windows/s) at a batch size")
+    b.add_argument("--size", choices=sorted(SIZES), default="full")
+    b.add_argument("--batch", type=int, default=128)
+    b.add_argument("--rollouts", type=int, nargs="+", default=[1, 8])
+    b.add_argument("--iters", type=int, default=5)
+    b.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    b.add_argument("--threads", type=int, default=2)
+    b.set_defaults(func=_cli_bench)
+
+    c = tsub.add_parser("baselines", help="copy-last-frame and constant-velocity scores on the "
+                                          "validation windows")
+    c.add_argument("data")
+    c.add_argument("--val-fraction", type=float, default=d.val_fraction)
+    c.add_argument("--split-seed", type=int, default=d.split_seed)
+    c.set_defaults(func=_cli_baselines)
+
+
+def _cli_run(args: Any) -> int:
+    recipe = None
+    if not args.resume:
+        import h5py
+        with h5py.File(args.data, "r") as h:
+            m = int(h.attrs["m"])
+        cfg = size_config(args.size, m=m, lstm_activation=args.lstm_activation)
+        recipe = Recipe(recipe=args.recipe, epochs=args.epochs or Recipe.epochs,
+                        batch=args.batch, lr=args.lr, beta1=args.beta1, beta2=args.beta2,
+                        eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,
+                        warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
+                        pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
+                        val_fraction=args.val_fraction, split_seed=args.split_seed,
+                        seed=args.seed, config=cfg.to_dict())
+    st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,
+               device=args.device, threads=args.threads, max_steps=args.max_steps,
+               max_minutes=args.max_minutes, checkpoint_minutes=args.checkpoint_minutes,
+               log_every=args.log_every, val_every=args.val_every, progress=not args.quiet, export_path=args.export)
+    print(f"{args.run_dir}: step {st['step']}/{st['total_steps']} ({st['stopped']}), "
+          f"{st['windows_seen']} windows seen, {st['wall_s']:.0f} s, last validation "
+          + json.dumps(st.get("last_val", {})))
+    return 0
+
+
+def _cli_export(args: Any) -> int:
+    model = export(args.checkpoint, args.output, dtype=args.dtype)
+    print(f"wrote {args.output}: {model!r}")
+    return 0
+
+
+def _cli_bench(args: Any) -> int:
+    cfg = size_config(args.size)
+    res = bench(cfg, batch=args.batch, rollouts=tuple(args.rollouts), iters=args.iters,
+                device=args.device, threads=args.threads)
+    dev = resolve_device(args.device)
+    print(f"train step throughput, size {args.size}, batch {args.batch}, {hardware(dev)}:")
+    for k, v in res.items():
+        print(f"  {k}-step loss: {v:8.1f} windows/s")
+    return 0
+
+
+def _cli_baselines(args: Any) -> int:
+    data = WindowData(args.data, args.val_fraction, args.split_seed)
+    print(data.describe())
+    for name, ev in baselines(data).items():
+        print(f"  {name:15s} " + " ".join(f"{k} {v:.4f}" for k, v in ev.items()))
+    return 0
+
+
+__all__ = ["Recipe", "WindowData", "train", "export", "bench", "baselines", "evaluate",
+           "save_checkpoint", "load_checkpoint", "size_config", "SIZES"]
