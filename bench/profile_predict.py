@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     counts = np.full(4, 30)
     pts = model.normalize(window.reshape(-1, 2).astype(np.float32))
     pts = pts[canonical_order(pts, counts)]
-    g = model.frame_features(pts, counts).reshape(1, 4, -1)
+    g = model.frame_features(pts, counts).reshape(4, 1, -1)   # time-major (m, B, k)
 
     stages: list[tuple[str, float, float]] = []
     stages.append(("validate + normalise + canonical sort",
@@ -80,12 +80,13 @@ def main(argv: list[str] | None = None) -> int:
     bc = np.full(1024, 30)
     bp = bp[canonical_order(bp, bc)]
     gb = model.frame_features(bp, bc).reshape(256, 4, -1)
+    gb_tm = gb.transpose(1, 0, 2)
     t_sort = med(lambda: canonical_order(bp, bc), 10)
     t_feat = med(lambda: model.frame_features(bp, bc), 10)
     t_head = med(lambda: model.sequence_head(gb), 10)
     flops = 0.0
     t_mm = 0.0
-    h = gb
+    h = gb_tm
     for i, (fused, gamma, beta) in enumerate(model._lstms):
         k, r, b = fused
         rows = h.reshape(-1, k.shape[0])

@@ -36,7 +36,7 @@ def lstm1_peak(model, w: np.ndarray) -> float:
     frames = model._check_window(w, "window")
     g = model._frames_to_features(frames, False)[None]
     with np.errstate(over="ignore", invalid="ignore"):
-        h = L.bilstm_fused(g, *model._lstms[0][0], activation=model.config.lstm_activation)
+        h = L.bilstm_fused(g.transpose(1, 0, 2), *model._lstms[0][0], activation=model.config.lstm_activation)
     return float(np.max(h))
 
 

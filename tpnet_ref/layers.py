@@ -158,35 +158,39 @@ def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
 
 def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
                  activation: str = "relu", return_sequences: bool = True) -> np.ndarray:
-    """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`.
+    """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`,
+    time-major: ``x (T, B, C)`` -> ``(T, B, 2u)`` or, with ``return_sequences=False``, ``(B, 2u)``.
 
-    Same result as two :func:`lstm` calls, computed faster: one product projects every step of
-    both directions, both directions advance together (step ``s`` is forward time ``s`` and
-    backward time ``T-1-s``; one batched product per step into a preallocated buffer, none at
-    step 0 where h = 0), and the gates are updated in place. ``x (B, T, C)`` -> ``(B, T, 2u)`` or, with
-    ``return_sequences=False``, ``(B, 2u)``.
+    Same result as two :func:`lstm` calls, computed faster: one GEMM projects every step of both
+    directions, both directions advance together (step ``s`` is forward time ``s`` and backward
+    time ``T-1-s``; one batched product per step written straight into the gate buffer, none at
+    step 0 where h = 0), and the gates are updated in place. Time-major layout keeps every step's
+    slice contiguous, so nothing is re-laid-out between layers.
     """
-    bsz, steps, _ = x.shape
+    steps, bsz, _ = x.shape
     u = recurrent.shape[1]
-    xp = (x.reshape(bsz * steps, -1) @ kernel).reshape(bsz, steps, 2, 4 * u)
-    # (step, direction, B, 4u): forward input at time s, backward input at time T-1-s, + bias
-    pairs = np.stack([xp[:, :, 0], xp[:, ::-1, 1]], axis=0).transpose(2, 0, 1, 3)
-    pairs += bias.reshape(2, 1, 4 * u)
+    xp = x.reshape(steps * bsz, -1) @ kernel
+    xp += bias
+    xp = xp.reshape(steps, bsz, 2, 4 * u)
     relu_act = activation == "relu"
     if not relu_act and activation != "tanh":
         _activation(activation)  # raises the error naming the activation
     dt = x.dtype
+    z = np.empty((2, bsz, 4 * u), dtype=dt)
     c = np.zeros((2, bsz, u), dtype=dt)
     tmp = np.empty((2, bsz, u), dtype=dt)
     hs = np.empty((steps, 2, bsz, u), dtype=dt)     # h after each step
-    prod = np.empty((2, bsz, 4 * u), dtype=dt)
     one = dt.type(1.0)
     with np.errstate(over="ignore"):
         for s in range(steps):
-            z = pairs[s]
-            if s > 0:
-                np.matmul(hs[s - 1], recurrent, out=prod)
-                z += prod
+            tf, tb = s, steps - 1 - s
+            if s == 0:
+                z[0] = xp[tf, :, 0]
+                z[1] = xp[tb, :, 1]
+            else:
+                np.matmul(hs[s - 1], recurrent, out=z)
+                z[0] += xp[tf, :, 0]
+                z[1] += xp[tb, :, 1]
             gates = z[..., :3 * u]                  # -x for i, f, o (negated weights)
             np.exp(gates, out=gates)                # may overflow to inf: 1/(1+inf) = 0
             gates += one
@@ -208,7 +212,7 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     if not return_sequences:
         return np.concatenate([hs[-1, 0], hs[-1, 1]], axis=-1)
     # forward output at time t is hs[t, 0]; backward output at time t is hs[T-1-t, 1]
-    return np.concatenate([hs[:, 0], hs[::-1, 1]], axis=-1).transpose(1, 0, 2).copy()
+    return np.concatenate([hs[:, 0], hs[::-1, 1]], axis=-1)
 
 
 def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -221,8 +225,9 @@ def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndar
     ``return_sequences=False`` -> ``(B, 2u)``: the forward state after the last step and the
     backward state after it has consumed the whole reversed sequence (its row ``t = 0``).
     """
-    return bilstm_fused(x, *fuse_bilstm(fwd, bwd), activation=activation,
-                        return_sequences=return_sequences)
+    y = bilstm_fused(x.transpose(1, 0, 2), *fuse_bilstm(fwd, bwd), activation=activation,
+                     return_sequences=return_sequences)
+    return y.transpose(1, 0, 2) if return_sequences else y
 
 
 def layer_norm(x: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: float) -> np.ndarray:

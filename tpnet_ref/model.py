@@ -265,7 +265,7 @@ class TPNet:
         """Prediction network: ``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1]."""
         act = self.config.lstm_activation
         eps = self.config.layer_norm_eps
-        h = features
+        h = features.transpose(1, 0, 2)   # time-major (m, B, k) through the BiLSTMs
         last = len(self._lstms) - 1
         # LayerNorm squares its centred input: a ReLU LSTM output above sqrt(max)/2 would
         # overflow the variance to inf and silently turn the layer's output into beta
