@@ -63,6 +63,22 @@ def segment_max(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return np.maximum.reduceat(x, starts, axis=0)
 
 
+def mlp_max(x: np.ndarray, layers: Sequence[tuple[np.ndarray, np.ndarray]],
+            counts: np.ndarray) -> np.ndarray:
+    """``segment_max(pointwise_mlp(x, layers), counts)``, the last layer's bias and ReLU applied
+    after the max: ``(P, C_in)`` -> ``(F, C_out)``.
+
+    Exact, not an approximation: adding a constant and ReLU are monotone, and so is rounding to
+    nearest, so ``max_n relu(fl(y_n + b)) == relu(fl(max_n y_n + b))`` bit for bit. It saves two
+    passes over the widest activation (``P x 512`` in TP-Net).
+    """
+    x = pointwise_mlp(x, layers[:-1])
+    w, b = layers[-1]
+    g = segment_max(x @ w, counts)
+    g += b
+    return relu(g)
+
+
 def apply_transform(x: np.ndarray, transforms: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Right-multiply every frame's points by its own matrix: ``P_f <- P_f @ T_f``.
 
@@ -90,7 +106,7 @@ def transform_net(x: np.ndarray, counts: np.ndarray,
     flattened identity), as the released code initialises it, every matrix is the identity.
     """
     k = x.shape[-1]
-    g = segment_max(pointwise_mlp(x, mlp), counts)
+    g = mlp_max(x, mlp, counts)
     for w, b in fc:
         g = dense(g, w, b, "relu")
     t = dense(g, *out)

@@ -257,8 +257,7 @@ class TPNet:
         h = L.pointwise_mlp(x, self._mlp1)
         if self._feature_tnet is not None:
             h = L.apply_transform(h, L.transform_net(h, counts, *self._feature_tnet), counts)
-        h = L.pointwise_mlp(h, self._mlp2)
-        g = L.segment_max(h, counts)
+        g = L.mlp_max(h, self._mlp2, counts)
         return L.dense(g, self.params["global.w"], self.params["global.b"], "relu")
 
     def sequence_head(self, features: np.ndarray) -> np.ndarray:
