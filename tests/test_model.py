@@ -283,3 +283,14 @@ def test_mlp_max_equals_pool_after_the_last_layer_bit_for_bit():
         ragged = np.array([1, 20, 30, 40])
         assert np.array_equal(L.mlp_max(x, layers, ragged),
                               L.segment_max(L.pointwise_mlp(x, layers), ragged))
+
+
+def test_rollout_batch_equals_rollout_per_window(model64):
+    rng = np.random.default_rng(12)
+    windows = [_window(rng), [rng.uniform(5, 40, size=(n, 2)) for n in (3, 30, 9, 1)]]
+    got = model64.rollout_batch(windows, 5)
+    assert got.shape == (2, 5, 30, 2)
+    for b, w in enumerate(windows):
+        np.testing.assert_allclose(got[b], model64.rollout(w, 5), rtol=0, atol=1e-10)
+    with pytest.raises(ValueError, match="steps"):
+        model64.rollout_batch(windows, 0)

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from .cases import TEST_CASES, TRAIN_POSITIONS
-from .model import NORM_HI, NORM_LO, TPNet, canonical_order
+from .model import NORM_HI, NORM_LO, TPNet
 
 FRAME_EVERY = 4                      # simulation rows per model frame
 SIM_ROWS = 600                       # rows per trajectory (SPEC §5)
@@ -162,47 +162,20 @@ def constant_velocity(windows: np.ndarray, steps: int) -> np.ndarray:
 
 def batched_rollout(model: TPNet, windows: np.ndarray, steps: int, *, normalized: bool = True,
                     batch: int = 256, progress: bool = False) -> np.ndarray:
-    """``steps`` recursive predictions of every window, the windows stepped together.
+    """``steps`` recursive predictions of every window, ``batch`` windows stepped together
+    (:meth:`TPNet.rollout_batch` on each chunk, with a progress bar over the chunks).
 
     ``windows (B, m, N, 2)`` -> ``(B, steps, n_out, 2)`` in ``model.dtype``. Equal to
-    ``model.rollout`` on each window (up to BLAS rounding): each frame's global feature is
-    computed once, the sequence head runs on all windows of a chunk of ``batch`` at a time.
+    ``model.rollout`` on each window (up to BLAS rounding).
     """
     w = np.asarray(windows)
     if w.ndim != 4 or w.shape[1] != model.config.m or w.shape[-1] != model.config.dim:
         raise ValueError(f"windows: expected (B, m={model.config.m}, N, {model.config.dim}), "
                          f"got {w.shape}")
-    if not np.isfinite(w).all():
-        raise ValueError("windows: contain NaN or infinite values")
-    steps = int(steps)
-    if steps < 1:
-        raise ValueError(f"steps: expected a positive integer, got {steps}")
-    B, m, N, _ = w.shape
-    cfg, dt = model.config, model.dtype
-    out = np.empty((B, steps, cfg.n_out, cfg.dim), dtype=dt)
-    chunks = list(range(0, B, batch))
-    bar = _progress(range(steps * len(chunks)), progress, steps * len(chunks), "rollout")
-    ticks = iter(bar)
-    for b0 in chunks:
-        x = w[b0:b0 + batch].astype(dt)
-        if not normalized:
-            x = model.normalize(x)
-        x = x + dt.type(0.0)               # a copy, and -0.0 -> +0.0 (canonical order)
-        nb = x.shape[0]
-        feats = np.empty((nb, m + steps, cfg.global_features), dtype=dt)
-        pts = x.reshape(nb * m * N, cfg.dim)
-        counts = np.full(nb * m, N)
-        feats[:, :m] = model.frame_features(pts[canonical_order(pts, counts)],
-                                            counts).reshape(nb, m, -1)
-        counts_out = np.full(nb, cfg.n_out)
-        for s in range(steps):
-            y = model.sequence_head(feats[:, s:s + m])              # (nb, n_out, dim)
-            out[b0:b0 + nb, s] = y
-            flat = y.reshape(nb * cfg.n_out, cfg.dim)
-            feats[:, m + s] = model.frame_features(flat[canonical_order(flat, counts_out)],
-                                                   counts_out)
-            next(ticks, None)
-    return out if normalized else model.denormalize(out)
+    chunks = range(0, w.shape[0], batch)
+    parts = [model.rollout_batch(w[b0:b0 + batch], steps, normalized=normalized)
+             for b0 in _progress(chunks, progress, len(chunks), "rollout")]
+    return np.concatenate(parts, axis=0)
 
 
 def errors(truth: np.ndarray, pred: np.ndarray) -> dict[str, np.ndarray]:

@@ -327,6 +327,11 @@ class TPNet:
 
     def predict_batch(self, windows: Any, normalized: bool = False) -> np.ndarray:
         """Next point set of each window: ``(B, m, N, dim)`` or B windows -> ``(B, n_out, dim)``."""
+        frames, batch = self._check_windows(windows)
+        return self._predict_frames(frames, batch, normalized)
+
+    def _check_windows(self, windows: Any) -> tuple[list[np.ndarray], int]:
+        """A batch of windows -> its validated frames, window after window, and the batch size."""
         if isinstance(windows, np.ndarray):
             arr = as_real_array(windows, "windows")
             if arr.ndim != 4:
@@ -341,7 +346,7 @@ class TPNet:
         frames: list[np.ndarray] = []
         for b, w in enumerate(windows):
             frames.extend(self._check_window(w, f"windows[{b}]"))
-        return self._predict_frames(frames, len(windows), normalized)
+        return frames, len(windows)
 
     def _predict_frames(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
         """``batch * m`` validated frames, window after window -> ``(batch, n_out, dim)``."""
@@ -355,21 +360,33 @@ class TPNet:
         After each step the window slides by one frame and the prediction becomes its newest
         frame. Each frame's global feature is computed once and kept.
         """
+        frames = self._check_window(window, "window")
+        return self._rollout_frames(frames, 1, steps, normalized)[0]
+
+    def rollout_batch(self, windows: Any, steps: int, normalized: bool = False) -> np.ndarray:
+        """:meth:`rollout` of every window, the windows stepped together:
+        ``(B, m, N, dim)`` or B windows -> ``(B, steps, n_out, dim)``."""
+        frames, batch = self._check_windows(windows)
+        return self._rollout_frames(frames, batch, steps, normalized)
+
+    def _rollout_frames(self, frames: list[np.ndarray], batch: int, steps: Any,
+                        normalized: bool) -> np.ndarray:
+        """``batch * m`` validated frames -> ``(batch, steps, n_out, dim)``."""
         if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
             raise ValueError(f"steps: expected a positive integer, got {steps!r}")
-        frames = self._check_window(window, "window")
-        m = self.config.m
+        m, steps = self.config.m, int(steps)
         try:
-            feats = np.empty((m + int(steps), self.config.global_features), dtype=self.dtype)
-            out = np.empty((int(steps), self.config.n_out, self.config.dim), dtype=self.dtype)
+            feats = np.empty((batch, m + steps, self.config.global_features), dtype=self.dtype)
+            out = np.empty((batch, steps, self.config.n_out, self.config.dim), dtype=self.dtype)
         except MemoryError:
             raise ValueError(f"steps: {steps} steps do not fit in memory") from None
-        feats[:m] = self._frames_to_features(frames, normalized)
-        ones = np.array([self.config.n_out])
-        for s in range(int(steps)):
-            y = self.sequence_head(feats[None, s:s + m])[0]
-            out[s] = y
-            feats[m + s] = self.frame_features(y[canonical_order(y, ones)], ones)[0]
+        feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
+        counts = np.full(batch, self.config.n_out)
+        for s in range(steps):
+            y = self.sequence_head(feats[:, s:s + m])                 # (batch, n_out, dim)
+            out[:, s] = y
+            flat = y.reshape(-1, self.config.dim)
+            feats[:, m + s] = self.frame_features(flat[canonical_order(flat, counts)], counts)
         return out if normalized else self.denormalize(out)
 
 

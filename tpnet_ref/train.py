@@ -284,20 +284,19 @@ def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_S
     """Two model-free references on ``wins`` (default: the validation windows), scored like
     :func:`evaluate`: ``copy_last`` (the last input frame, repeated) and ``const_velocity``
     (points matched by index, the last two frames' displacement continued)."""
+    from .evaluation import constant_velocity, copy_last
+    from .metrics import position_error
+
     wins = data.val_win if wins is None else wins
     x, y = data.gather(wins)
     y = y[:, :steps].astype(np.float64)
-    last = x[:, -1].astype(np.float64)
-    vel = last - x[:, -2].astype(np.float64)
-    k = np.arange(1, steps + 1)[None, :, None, None]
-    preds = {"copy_last": np.broadcast_to(last[:, None], y.shape),
-             "const_velocity": last[:, None] + k * vel[:, None]}
+    x = x.astype(np.float64)
+    preds = {"copy_last": copy_last(x, steps), "const_velocity": constant_velocity(x, steps)}
     w = np.ones(steps)
     w[0] = first_weight
     out = {}
     for name, p in preds.items():
-        d = np.sqrt(((p[..., :, None, :] - y[..., None, :, :]) ** 2).sum(-1))   # (W, S, N, N)
-        cd = (d.min(-1).sum(-1) + d.min(-2).sum(-1)).mean(0)
+        cd = np.asarray(position_error(y, p, variant="released")).mean(0)   # (S,) batch mean
         out[name] = {"val_loss": float((cd * w).sum()), "val_cd1": float(cd[0]),
                      f"val_cd{steps}": float(cd[-1])}
     return out
