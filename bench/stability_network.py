@@ -84,23 +84,21 @@ def main() -> None:
              if y32 is not None and y64 is not None else "-")
         print(f"| {s:g} | {np.abs(w).max():.3g} | {peak} | {e32 or 'finite'} | "
               f"{e64 or 'finite'} | {d} |")
-    lo, hi = 1.0, 1e30
-    for _ in range(60):
-        mid = float(np.exp((np.log(lo) + np.log(hi)) / 2))
-        if outcome(m32, c + (w0 - c) * mid)[1]:
-            hi = mid
-        else:
-            lo = mid
+    def refusal_scale(model, hi: float, iters: int) -> float:
+        """Smallest scale s (bisected in log space) at which ``model`` refuses the window."""
+        lo = 1.0
+        for _ in range(iters):
+            mid = float(np.exp((np.log(lo) + np.log(hi)) / 2))
+            if outcome(model, c + (w0 - c) * mid)[1]:
+                hi = mid
+            else:
+                lo = mid
+        return hi
+
+    hi = refusal_scale(m32, 1e30, 60)
     print(f"\nfloat32 refuses from s = {hi:.3g} (max |coordinate| {np.abs(c + (w0 - c) * hi).max():.3g}"
           f" world units); sqrt(float32 max)/4 = {np.sqrt(np.finfo(np.float32).max) / 4:.3g}")
-    lo, hi = 1.0, 1e300
-    for _ in range(80):
-        mid = float(np.exp((np.log(lo) + np.log(hi)) / 2))
-        if outcome(m64, c + (w0 - c) * mid)[1]:
-            hi = mid
-        else:
-            lo = mid
-    print(f"float64 refuses from s = {hi:.3g}")
+    print(f"float64 refuses from s = {refusal_scale(m64, 1e300, 80):.3g}")
     y_inf = m64.predict(c + (w0 - c) * 1e12)
     print("LayerNorm scale invariance: max |f64(s) - f64(1e12)| for s = 1e4, 1e6, 1e8: "
           + ", ".join(f"{np.abs(m64.predict(c + (w0 - c) * s) - y_inf).max():.3g}"
