@@ -67,8 +67,14 @@ def test_resume_gives_the_uninterrupted_run(dataset, tmp_path):
     assert b1["stopped"] == "max_steps" and b1["step"] == 7
     with pytest.raises(ValueError, match="already holds a run"):
         T.train(dataset, tmp_path / "b", r, threads=1, progress=False)
+    with open(tmp_path / "b" / T.LOG_NAME, "a") as f:     # a record written after the checkpoint
+        f.write(json.dumps({"kind": "train", "step": 9, "loss": 1.0}) + "\n")
     b2 = T.train(dataset, tmp_path / "b", resume=True, threads=1, progress=False)
     assert b2["step"] == a["step"] and b2["windows_seen"] == a["windows_seen"]
+
+    def log(run):
+        return [(d["kind"], d["step"]) for d in map(json.loads, (run / T.LOG_NAME).open())]
+    assert log(tmp_path / "b") == log(tmp_path / "a")        # stale record dropped on resume
     pa, pb = _params(tmp_path / "a"), _params(tmp_path / "b")
     assert pa.keys() == pb.keys()
     for k in pa:
@@ -154,3 +160,87 @@ def test_sigterm_stops_with_a_checkpoint(dataset, tmp_path):
     st2 = T.train(dataset, tmp_path / "run", resume=True, threads=1, progress=False,
                   max_steps=st["step"] + 2)
     assert st2["step"] == st["step"] + 2 and st2["stopped"] == "max_steps"
+
+
+def test_template_head_init_outputs_a_ring_of_the_body_size(dataset):
+    """--head-init template: before any step the network's output is (close to) a ring of the
+    rest radius around the data's mean position, whatever the input."""
+    r = _recipe(head_init="template")
+    data = T.WindowData(dataset, r.val_fraction, r.split_seed)
+    torch.manual_seed(0)
+    net = TorchTPNet(r.tpnet_config)
+    T.init_head_template(net, data)
+    x, _ = data.gather(data.train_win[:8])
+    with torch.no_grad():
+        y = net(torch.from_numpy(x)).numpy().astype(np.float64)        # (8, 30, 2)
+    f0 = data.frames[:, 0].astype(np.float64)
+    radius = np.linalg.norm(f0 - f0.mean(1, keepdims=True), axis=-1).mean()
+    c = y.mean(1, keepdims=True)
+    r_out = np.linalg.norm(y - c, axis=-1)
+    assert abs(r_out.mean() - radius) < 0.25 * radius                   # a ring of the body's size
+    assert np.median(np.abs(r_out / radius - 1)) < 0.5                  # ... not a few stray points
+    mean_pos = data.frames.reshape(-1, 2).mean(0)
+    assert np.abs(c[:, 0] - mean_pos).max() < 0.05                        # near the data's middle
+    # the default initialisation gives no such ring
+    torch.manual_seed(0)
+    plain = TorchTPNet(r.tpnet_config)
+    with torch.no_grad():
+        yp = plain(torch.from_numpy(x)).numpy()
+    rp = np.linalg.norm(yp - yp.mean(1, keepdims=True), axis=-1)
+    assert abs(rp.mean() - radius) > 0.5 * radius
+
+
+def test_fractional_epochs_rollout_and_validation_subset(dataset, tmp_path, capsys):
+    """--epochs may be fractional (total = round(epochs * steps/epoch)), --rollout caps the
+    recursive loss, --val-windows validates on an evenly spaced subset; all kept on resume."""
+    run = tmp_path / "run"
+    args = ["train", "run", dataset, "-o", str(run), "--size", "tiny", "--batch", "16",
+            "--epochs", "1.5", "--pretrain-epochs", "0.5", "--ramp-epochs", "0.5",
+            "--rollout", "3", "--val-windows", "5", "--head-init", "template", "--threads", "1",
+            "--quiet", "--val-fraction", "0.2"]
+    assert cli.main(args) == 0
+    st = json.loads((run / T.SIDECAR_NAME).read_text())
+    spe = st["steps_per_epoch"]
+    assert st["total_steps"] == round(1.5 * spe) and st["step"] == st["total_steps"]
+    assert st["recipe"]["rollout"] == 3 and st["recipe"]["head_init"] == "template"
+    assert st["val_windows_used"] == 5
+    log = [json.loads(s) for s in (run / T.LOG_NAME).read_text().splitlines()]
+    assert max(rec.get("rollout", 0) for rec in log) == 3
+    assert "val_cd3" in log[0]
+    r = T.Recipe.from_dict(st["recipe"])
+    assert [r.steps_at(e) for e in (0.0, 0.49, 0.5, 0.7, 0.9, 1.2)] == [1, 1, 1, 2, 3, 3]
+    with pytest.raises(ValueError, match="head_init"):
+        _recipe(head_init="zeros")
+    with pytest.raises(ValueError, match="epochs"):
+        _recipe(epochs=0)
+
+
+def test_init_from_fine_tunes_a_run_and_carries_its_provenance(dataset, tmp_path):
+    """--init-from starts a new run (own recipe, fresh Adam) from another run's weights; the
+    exported file counts the training of the whole chain; a different network is refused."""
+    parent = tmp_path / "parent"
+    T.train(dataset, parent, _recipe(epochs=1), threads=1, progress=False)
+    child = tmp_path / "child"
+    args = ["train", "run", dataset, "-o", str(child), "--init-from", str(parent),
+            "--recipe", "paper", "--rollout", "2", "--batch", "16", "--epochs", "1",
+            "--lr", "1e-9", "--schedule", "constant", "--warmup-steps", "0", "--threads", "1",
+            "--quiet",
+            "--val-fraction", "0.2"]
+    assert cli.main(args) == 0                  # --size is not given: the parent's network is used
+    pa, ch = _params(parent), _params(child)
+    assert pa.keys() == ch.keys()
+    for k in pa:                                # lr 1e-9: the child's weights are the parent's
+        np.testing.assert_allclose(ch[k].numpy(), pa[k].numpy(), atol=1e-6, err_msg=k)
+    pst = json.loads((parent / T.SIDECAR_NAME).read_text())
+    cst = json.loads((child / T.SIDECAR_NAME).read_text())
+    assert cst["inherited"]["windows_seen"] == pst["windows_seen"]
+    assert cst["recipe"]["init_from"] == str(parent) and cst["recipe"]["rollout"] == 2
+    T.export(child, tmp_path / "w.h5")
+    model = load_native(tmp_path / "w.h5")
+    assert model.meta["windows_seen"] == pst["windows_seen"] + cst["windows_seen"]
+    assert model.meta["training_steps"] == pst["step"] + cst["step"]
+    assert json.loads(model.meta["parent_runs"])[0]["run"] == str(parent)
+    with pytest.raises(ValueError, match="differs"):
+        T.train(dataset, tmp_path / "bad", _recipe(init_from=str(parent),
+                                                   config=T.size_config("small").to_dict()),
+                threads=1, progress=False)

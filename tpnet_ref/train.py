@@ -53,7 +53,7 @@ class Recipe:
     """Everything that decides what a run computes (stored with every checkpoint)."""
 
     recipe: str = "curriculum"          # "paper" or "curriculum"
-    epochs: int = 100
+    epochs: float = 100                 # may be fractional: the run is round(epochs * steps/epoch)
     batch: int = 128
     lr: float = 1e-3
     beta1: float = 0.99
@@ -68,6 +68,9 @@ class Recipe:
     rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published)
     pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
+    head_init: str = "default"          # "default" or "template" (output bias = a ring, see below)
+    init_from: str = ""                 # fine-tune: start from this run's weights (fresh Adam)
+    val_windows: int = 0                # validate on this many evenly spaced windows (0: all)
     val_fraction: float = 0.05
     split_seed: int = 0                 # which trajectories are validation (independent of seed)
     seed: int = 0
@@ -78,8 +81,12 @@ class Recipe:
             raise ValueError(f"recipe must be 'paper' or 'curriculum', got {self.recipe!r}")
         if self.schedule not in ("constant", "cosine"):
             raise ValueError(f"schedule must be 'constant' or 'cosine', got {self.schedule!r}")
-        if self.epochs < 1 or self.batch < 1:
-            raise ValueError("epochs and batch must be >= 1")
+        if not self.epochs > 0 or self.batch < 1:
+            raise ValueError("epochs must be > 0 and batch >= 1")
+        if self.head_init not in ("default", "template"):
+            raise ValueError(f"head_init must be 'default' or 'template', got {self.head_init!r}")
+        if self.val_windows < 0:
+            raise ValueError("val_windows must be >= 0")
         if not 1 <= self.rollout <= N_STEPS_MAX:
             raise ValueError(f"rollout must be in 1..{N_STEPS_MAX}, got {self.rollout}")
         if not 0 <= self.val_fraction < 1:
@@ -250,6 +257,31 @@ def size_config(size: str = "full", m: int = 4, **kw: Any) -> TPNetConfig:
     return TPNetConfig(m=m, **{**SIZES[size], **kw})
 
 
+def init_head_template(net: Any, data: "WindowData", weight_scale: float = 0.1) -> None:
+    """Data-dependent initialisation of the sigmoid head (``--head-init template``).
+
+    The head's bias becomes the logit of a ring of the body's rest radius (measured on the
+    first frame of the training trajectories) around the mean training position, and its
+    weights are scaled by ``weight_scale``: the untrained network then outputs a ring of the
+    right size near the middle of the data instead of 30 points scattered around 0.5, so the
+    first steps learn motion instead of first collapsing the point cloud into a shape. Output
+    order is free (the loss is a Chamfer distance), so ring index ``i`` is only a slot."""
+    torch = _torch()
+    train_traj = np.setdiff1d(np.arange(data.frames.shape[0]), data.val_traj)
+    f0 = data.frames[train_traj, 0].astype(np.float64)                  # (T, N, 2)
+    radius = float(np.linalg.norm(f0 - f0.mean(1, keepdims=True), axis=-1).mean())
+    centre = data.frames[train_traj].astype(np.float64).reshape(-1, 2).mean(0)
+    n_out, dim = net.config.n_out, net.config.dim
+    if dim != 2:
+        raise ValueError("template head initialisation is defined for 2-D points")
+    a = 2 * np.pi * np.arange(n_out) / n_out
+    ring = centre + radius * np.stack([np.sin(a), np.cos(a)], axis=1)
+    ring = np.clip(ring, 1e-4, 1 - 1e-4)
+    with torch.no_grad():
+        net.head.bias.copy_(torch.from_numpy(np.log(ring / (1 - ring)).reshape(-1)))
+        net.head.weight.mul_(weight_scale)
+
+
 # ------------------------------------------------------------------------------------- eval
 def evaluate(net: Any, data: WindowData, wins: np.ndarray, r: Recipe, device: str,
              batch: int = 256) -> dict[str, float]:
@@ -303,9 +335,34 @@ def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_S
 
 
 # ------------------------------------------------------------------------------------- train
+def _inherited(source: str | os.PathLike, pstate: dict) -> dict:
+    """Provenance carried into a fine-tuning run: the training that made its starting weights
+    (summed over the whole chain of runs, each listed)."""
+    prev = pstate.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
+                                    "epochs": 0.0})
+    me = {"run": str(source), "data": pstate.get("data", ""), "steps": int(pstate.get("step", 0)),
+          "epochs": float(pstate.get("step", 0)) / (pstate.get("steps_per_epoch", 0) or 1),
+          "windows_seen": int(pstate.get("windows_seen", 0)),
+          "wall_s": float(pstate.get("wall_s", 0.0)), "recipe": pstate.get("recipe", {})}
+    return {"runs": prev["runs"] + [me],
+            "windows_seen": prev["windows_seen"] + me["windows_seen"],
+            "wall_s": prev["wall_s"] + me["wall_s"], "steps": prev["steps"] + me["steps"],
+            "epochs": prev["epochs"] + me["epochs"]}
+
+
 def _log(run_dir: Path, rec: dict) -> None:
     with open(run_dir / LOG_NAME, "a") as f:
         f.write(json.dumps(rec, sort_keys=True) + "\n")
+
+
+def _trim_log(run_dir: Path, step: int) -> None:
+    """Drop log records past ``step`` (written after the checkpoint a resumed run restarts
+    from): the resumed run redoes those steps with the same batches and logs them again."""
+    path = run_dir / LOG_NAME
+    if path.exists():
+        keep = [s for s in path.read_text().splitlines(keepends=True)
+                if s.strip() and json.loads(s).get("step", 0) <= step]
+        path.write_text("".join(keep))
 
 
 def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Recipe | None = None,
@@ -332,15 +389,16 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     payload: dict | None = None
     if resume:
         payload, state = load_checkpoint(run_dir)
+        _trim_log(run_dir, int(state["step"]))
         r = Recipe.from_dict(state["recipe"])
         if epochs is not None:
-            r.epochs = int(epochs)
+            r.epochs = float(epochs)
     else:
         if (run_dir / SIDECAR_NAME).exists():
             raise ValueError(f"{run_dir} already holds a run; pass --resume or another directory")
         r = recipe or Recipe()
         if epochs is not None:
-            r.epochs = int(epochs)
+            r.epochs = float(epochs)
         state = {"step": 0, "windows_seen": 0, "wall_s": 0.0, "nonfinite_skipped": 0,
                  "epoch_loss_sum": 0.0, "epoch_loss_n": 0}
     cfg = r.tpnet_config
@@ -351,6 +409,16 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
         raise ValueError(f"{data_path}: no training windows")
     torch.manual_seed(r.seed)
     net = TorchTPNet(cfg).to(dev)
+    if payload is None and r.init_from:
+        parent, pstate = load_checkpoint(r.init_from)
+        pcfg = Recipe.from_dict(pstate["recipe"]).tpnet_config if "recipe" in pstate else None
+        if pcfg is not None and pcfg != cfg:
+            raise ValueError(f"--init-from {r.init_from}: its network {pcfg} differs from the "
+                             f"recipe's {cfg}")
+        net.load_state_dict(parent["model"])
+        state["inherited"] = _inherited(r.init_from, pstate)
+    elif payload is None and r.head_init == "template":
+        init_head_template(net, data)
     opt = make_optimizer(net, r)
     if payload is not None:
         net.load_state_dict(payload["model"])
@@ -359,13 +427,17 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
 
     n_train = len(data.train_win)
     spe = max(1, n_train // r.batch)          # full batches only: every step has batch r.batch
-    total = r.epochs * spe
+    total = max(1, int(round(r.epochs * spe)))
     state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
                   "total_steps": total, "train_windows": n_train,
                   "val_windows": len(data.val_win), "device": dev, "hardware": hardware(dev),
                   "torch": torch.__version__})
+    val_win = data.val_win
+    if r.val_windows and len(val_win) > r.val_windows:
+        val_win = val_win[np.linspace(0, len(val_win) - 1, r.val_windows).round().astype(int)]
+    state["val_windows_used"] = len(val_win)
     if state["step"] == 0 and not resume:
-        ev = evaluate(net, data, data.val_win, r, dev)
+        ev = evaluate(net, data, val_win, r, dev)
         _log(run_dir, {"kind": "val", "step": 0, "epoch": 0.0, "windows_seen": 0, "wall_s": 0.0,
                        **ev})
         state["last_val"] = ev
@@ -444,7 +516,7 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
             epoch_end = state["step"] % spe == 0
             if epoch_end or (val_every and state["step"] % val_every == 0):
                 # validate and log at every epoch end (and every val_every steps); checkpoint
-                ev = evaluate(net, data, data.val_win, r, dev)
+                ev = evaluate(net, data, val_win, r, dev)
                 n = max(1, state["epoch_loss_n"])
                 rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / spe,
                        "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
@@ -530,12 +602,15 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
         raise ValueError(f"export check failed: NumPy vs torch max abs diff {diff:.3g} > "
                          f"{check_bound:g}")
     spe = state.get("steps_per_epoch", 0) or 1
+    inh = state.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
+                                  "epochs": 0.0})
     prov = {"source": str(source), "producer": "tpnet_ref.train",
             "recipe": json.dumps(state.get("recipe", {}), sort_keys=True),
-            "training_steps": int(state.get("step", 0)),
-            "epochs": float(state.get("step", 0)) / spe,
-            "windows_seen": int(state.get("windows_seen", 0)),
-            "wall_time_s": float(state.get("wall_s", 0.0)),
+            "training_steps": int(state.get("step", 0)) + int(inh["steps"]),
+            "epochs": float(state.get("step", 0)) / spe + float(inh["epochs"]),
+            "windows_seen": int(state.get("windows_seen", 0)) + int(inh["windows_seen"]),
+            "wall_time_s": float(state.get("wall_s", 0.0)) + float(inh["wall_s"]),
+            "parent_runs": json.dumps(inh["runs"], sort_keys=True),
             "hardware": str(state.get("hardware", "unknown")),
             "torch": str(state.get("torch", torch.__version__)),
             "data": str(state.get("data", "")),
@@ -601,7 +676,8 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--size", choices=sorted(SIZES), default="full",
                    help="network widths: full (released), small, tiny")
     q.add_argument("--lstm-activation", choices=("relu", "tanh"), default="relu")
-    q.add_argument("--epochs", type=int, default=None, help=f"default {d.epochs}")
+    q.add_argument("--epochs", type=float, default=None,
+                   help=f"default {d.epochs}; may be fractional")
     q.add_argument("--batch", type=int, default=d.batch)
     q.add_argument("--lr", type=float, default=d.lr)
     q.add_argument("--beta1", type=float, default=d.beta1)
@@ -615,6 +691,15 @@ def add_cli(sub: Any) -> None:
                    help="std of Gaussian noise on input coordinates (normalised units)")
     q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs)
     q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
+    q.add_argument("--rollout", type=int, default=d.rollout,
+                   help=f"longest recursive loss (1..{N_STEPS_MAX}; published {N_STEPS_MAX})")
+    q.add_argument("--head-init", choices=("default", "template"), default=d.head_init,
+                   help="template: the untrained head outputs a ring of the body's size")
+    q.add_argument("--init-from", default=d.init_from, metavar="RUN_DIR",
+                   help="fine-tune: start from this run's weights (fresh optimizer and schedule; "
+                        "its network is used, --size is ignored)")
+    q.add_argument("--val-windows", type=int, default=d.val_windows,
+                   help="validate on this many evenly spaced validation windows (0: all)")
     q.add_argument("--val-fraction", type=float, default=d.val_fraction,
                    help="fraction of training-grid trajectories held out for validation")
     q.add_argument("--split-seed", type=int, default=d.split_seed,
@@ -664,12 +749,15 @@ def _cli_run(args: Any) -> int:
         with h5py.File(args.data, "r") as h:
             m = int(h.attrs["m"])
         cfg = size_config(args.size, m=m, lstm_activation=args.lstm_activation)
+        if args.init_from:
+            cfg = Recipe.from_dict(load_checkpoint(args.init_from)[1]["recipe"]).tpnet_config
         recipe = Recipe(recipe=args.recipe, epochs=args.epochs or Recipe.epochs,
                         batch=args.batch, lr=args.lr, beta1=args.beta1, beta2=args.beta2,
                         eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,
                         warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
                         pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
-                        val_fraction=args.val_fraction, split_seed=args.split_seed,
+                        rollout=args.rollout, head_init=args.head_init, init_from=args.init_from,
+                        val_windows=args.val_windows, val_fraction=args.val_fraction, split_seed=args.split_seed,
                         seed=args.seed, config=cfg.to_dict())
     st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,
                device=args.device, threads=args.threads, max_steps=args.max_steps,
