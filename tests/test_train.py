@@ -62,8 +62,8 @@ def test_resume_gives_the_uninterrupted_run(dataset, tmp_path):
     (curriculum rollout lengths, cosine schedule and input noise all exercised)."""
     r = _recipe(recipe="curriculum", epochs=3, pretrain_epochs=0.5, ramp_epochs=1.5,
                 noise=0.01, schedule="cosine")
-    a = T.train(dataset, tmp_path / "a", r, threads=1, progress=False)
-    b1 = T.train(dataset, tmp_path / "b", r, threads=1, progress=False, max_steps=7)
+    a = T.train(dataset, tmp_path / "a", r, threads=1, progress=False, val_every=4)
+    b1 = T.train(dataset, tmp_path / "b", r, threads=1, progress=False, max_steps=7, val_every=4)
     assert b1["stopped"] == "max_steps" and b1["step"] == 7
     with pytest.raises(ValueError, match="already holds a run"):
         T.train(dataset, tmp_path / "b", r, threads=1, progress=False)
@@ -74,7 +74,9 @@ def test_resume_gives_the_uninterrupted_run(dataset, tmp_path):
 
     def log(run):
         return [(d["kind"], d["step"]) for d in map(json.loads, (run / T.LOG_NAME).open())]
-    assert log(tmp_path / "b") == log(tmp_path / "a")        # stale record dropped on resume
+    # stale record dropped on resume; the resumed run keeps validating every 4 steps
+    assert log(tmp_path / "b") == log(tmp_path / "a")
+    assert ("val", 12) in log(tmp_path / "b")
     pa, pb = _params(tmp_path / "a"), _params(tmp_path / "b")
     assert pa.keys() == pb.keys()
     for k in pa:
@@ -244,3 +246,69 @@ def test_init_from_fine_tunes_a_run_and_carries_its_provenance(dataset, tmp_path
         T.train(dataset, tmp_path / "bad", _recipe(init_from=str(parent),
                                                    config=T.size_config("small").to_dict()),
                 threads=1, progress=False)
+
+
+def test_init_from_a_native_weights_file_carries_its_provenance(dataset, tmp_path):
+    """--init-from also takes a native weights file (the shipped model is fine-tuned this way):
+    the run starts from exactly its parameters and the export adds the file's training counts."""
+    parent = tmp_path / "parent"
+    T.train(dataset, parent, _recipe(epochs=1), threads=1, progress=False)
+    T.export(parent, tmp_path / "parent.h5")
+    pmeta = load_native(tmp_path / "parent.h5").meta
+    child = tmp_path / "child"
+    r = _recipe(epochs=1, init_from=str(tmp_path / "parent.h5"), lr=1e-12, schedule="constant",
+                warmup_steps=0)
+    T.train(dataset, child, r, threads=1, progress=False)
+    # the same function (the native format holds one LSTM bias, so torch's two are re-split)
+    nets = []
+    for run in (parent, child):
+        net = TorchTPNet(r.tpnet_config)
+        net.load_state_dict(T.load_checkpoint(run)[0]["model"])
+        nets.append(net.eval())
+    data = T.WindowData(dataset, r.val_fraction, r.split_seed)
+    x = torch.from_numpy(data.gather(data.train_win[:8])[0])
+    with torch.no_grad():
+        np.testing.assert_allclose(nets[1](x).numpy(), nets[0](x).numpy(), atol=1e-6)
+    cst = json.loads((child / T.SIDECAR_NAME).read_text())
+    T.export(child, tmp_path / "child.h5")
+    meta = load_native(tmp_path / "child.h5").meta
+    assert meta["windows_seen"] == pmeta["windows_seen"] + cst["windows_seen"]
+    assert meta["training_steps"] == pmeta["training_steps"] + cst["step"]
+    assert meta["epochs"] == pytest.approx(pmeta["epochs"] + 1.0)
+    chain = json.loads(meta["parent_runs"])
+    assert chain[0]["recipe"]["weights_file"] == str(tmp_path / "parent.h5")
+    with pytest.raises(ValueError, match="differs"):
+        T.train(dataset, tmp_path / "bad", _recipe(init_from=str(tmp_path / "parent.h5"),
+                                                   config=T.size_config("small").to_dict()),
+                threads=1, progress=False)
+
+
+def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_path):
+    """--shape-weight λ adds λ·Σ w_i·E_s (released shape error of the centred sets): the torch
+    term equals tpnet_ref.metrics.shape_error, is invariant to translating either set, and the
+    run logs val_es1 / val_esK."""
+    from tpnet_ref.metrics import shape_error
+    from tpnet_ref.torch_model import chamfer_shape
+
+    rng = np.random.default_rng(0)
+    p, q = rng.uniform(0, 1, (5, 3, 30, 2)), rng.uniform(0, 1, (5, 3, 27, 2))
+    ours = chamfer_shape(torch.from_numpy(p), torch.from_numpy(q)).numpy()
+    ref = np.asarray(shape_error(q, p, variant="released")).mean(0)
+    np.testing.assert_allclose(ours, ref, rtol=1e-10)
+    shifted = chamfer_shape(torch.from_numpy(p + 0.3), torch.from_numpy(q - 0.1)).numpy()
+    np.testing.assert_allclose(shifted, ours, rtol=1e-10)
+
+    r = _recipe(epochs=1, shape_weight=2.0, rollout=3)
+    data = T.WindowData(dataset, r.val_fraction, r.split_seed)
+    x, y = (torch.from_numpy(a) for a in data.gather(data.train_win[:8]))
+    net = TorchTPNet(r.tpnet_config)
+    with torch.no_grad():
+        plain = float(T.loss_fn(net, x, y, 3, 9.0))
+        both = float(T.loss_fn(net, x, y, 3, 9.0, 2.0))
+        es = chamfer_shape(net.rollout(x, 3), y[:, :3]).numpy()
+    assert both == pytest.approx(plain + 2.0 * float(es @ np.array([9.0, 1.0, 1.0])), rel=1e-5)
+    T.train(dataset, tmp_path / "run", r, threads=1, progress=False)
+    log = [json.loads(s) for s in (tmp_path / "run" / T.LOG_NAME).read_text().splitlines()]
+    assert {"val_es1", "val_es3", "val_cd1", "val_cd3"} <= set(log[0])
+    with pytest.raises(ValueError, match="shape_weight"):
+        _recipe(shape_weight=-1.0)

@@ -211,13 +211,19 @@ class TorchTPNet(nn.Module):
         return torch.stack(outs, dim=1)
 
     def recursive_loss(self, windows: torch.Tensor, targets: torch.Tensor,
-                       first_weight: float = 9.0) -> torch.Tensor:
+                       first_weight: float = 9.0, shape_weight: float = 0.0) -> torch.Tensor:
         """The published loss ``9·CD(P_{t+1}) + Σ_{i=2..S} CD(P_{t+i})`` (released-code Chamfer:
-        Euclidean, both directions summed, batch mean). ``targets (B, S, N, dim)``, S = 8."""
+        Euclidean, both directions summed, batch mean). ``targets (B, S, N, dim)``, S = 8.
+
+        ``shape_weight`` λ > 0 adds ``λ·Σ_i w_i·CD(P_i − c_P, Q_i − c_Q)``: the same Chamfer on
+        the sets centred on their own centroids, i.e. the released-code shape error E_s."""
         pred = self.rollout(windows, targets.shape[1])
         w = torch.ones(targets.shape[1], dtype=pred.dtype, device=pred.device)
         w[0] = first_weight
-        return (chamfer_released(pred, targets) * w).sum()
+        loss = (chamfer_released(pred, targets) * w).sum()
+        if shape_weight:
+            loss = loss + shape_weight * (chamfer_shape(pred, targets) * w).sum()
+        return loss
 
     # ---------------------------------------------------------------- conversion
     def native_state(self) -> dict[str, np.ndarray]:
@@ -252,4 +258,10 @@ def chamfer_released(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return per.mean(dim=0)
 
 
-__all__ = ["TorchTPNet", "BiLSTM", "TNet", "chamfer_released", "TORCH_FORMAT"]
+def chamfer_shape(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """:func:`chamfer_released` of the two sets each centred on its own centroid (the released
+    shape error E_s): ``p (B, ..., N, d)``, ``q (B, ..., M, d)`` -> ``(...)``."""
+    return chamfer_released(p - p.mean(dim=-2, keepdim=True), q - q.mean(dim=-2, keepdim=True))
+
+
+__all__ = ["TorchTPNet", "BiLSTM", "TNet", "chamfer_released", "chamfer_shape", "TORCH_FORMAT"]

@@ -8,16 +8,20 @@ the native HDF5 weights through :func:`tpnet_ref.weights.import_torch` with prov
 Recipes (``--recipe``):
 
 * ``paper``: every step is the published loss, ``9·CD(P_{t+1}) + Σ_{i=2..8} CD(P_{t+i})`` over 8
-  recursive predictions (released-code Chamfer: Euclidean, not squared, both directions summed).
+  recursive predictions (released-code Chamfer: Euclidean, not squared, both directions summed);
+  ``--rollout K`` shortens it to K predictions (same weights).
 * ``curriculum`` (default): ``--pretrain-epochs`` of the 1-step loss (teacher forced, the first
   term alone), then the recursive loss with the rollout length growing linearly from 1 to 8 over
-  ``--ramp-epochs``, then the published 8-step loss. Same weights 9, 1, 1, ...
+  ``--ramp-epochs``, then the ``--rollout``-step loss (8, the published one, by default). Same
+  weights 9, 1, 1, ...
 
 Both: Adam with the released code's constants (lr 1e-3, beta_1 0.99, beta_2 0.999, eps 1e-7),
 optional linear warm-up and cosine decay, gradient-norm clipping, optional Gaussian noise on the
 input coordinates (never on the targets). Validation is a held-out set of whole training-grid
-*trajectories* (``--val-fraction``), always scored with the published 8-step loss and the 1-step
-Chamfer distance; the 60 test cases are never read.
+*trajectories* (``--val-fraction``), always scored with the recipe's ``--rollout``-step loss and the
+Chamfer distances of its first and last predictions; the 60 test cases are never read.
+``--init-from RUN`` starts a new run (fresh Adam and schedule) from another run's weights and
+carries its provenance.
 
 Determinism: the epoch's window order comes from ``default_rng([seed, epoch])`` and the noise of
 step ``s`` from a torch generator seeded with ``(seed, s)``, so a run resumed from a checkpoint
@@ -65,11 +69,12 @@ class Recipe:
     clip: float = 10.0                  # max gradient norm; 0 = no clipping
     noise: float = 0.0                  # std of Gaussian input noise, normalised units
     first_weight: float = 9.0
+    shape_weight: float = 0.0           # λ of the added shape term λ·Σ w_i·CD(centred sets)
     rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published)
     pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
     head_init: str = "default"          # "default" or "template" (output bias = a ring, see below)
-    init_from: str = ""                 # fine-tune: start from this run's weights (fresh Adam)
+    init_from: str = ""                 # fine-tune: start from this run's (or .h5 file's) weights
     val_windows: int = 0                # validate on this many evenly spaced windows (0: all)
     val_fraction: float = 0.05
     split_seed: int = 0                 # which trajectories are validation (independent of seed)
@@ -91,8 +96,8 @@ class Recipe:
             raise ValueError(f"rollout must be in 1..{N_STEPS_MAX}, got {self.rollout}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
-        if self.noise < 0 or self.clip < 0:
-            raise ValueError("noise and clip must be >= 0")
+        if self.noise < 0 or self.clip < 0 or self.shape_weight < 0:
+            raise ValueError("noise, clip and shape_weight must be >= 0")
         if isinstance(self.config, TPNetConfig):
             self.config = self.config.to_dict()
         self.config = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.config.items()}
@@ -207,9 +212,12 @@ def make_optimizer(net: Any, r: Recipe) -> Any:
     return torch.optim.Adam(net.parameters(), lr=r.lr, betas=(r.beta1, r.beta2), eps=r.eps)
 
 
-def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float) -> Any:
-    """The recursive loss over the first ``steps`` targets (``steps=1``: 1-step teacher forced)."""
-    return net.recursive_loss(x, y[:, :steps], first_weight=first_weight)
+def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float,
+            shape_weight: float = 0.0) -> Any:
+    """The recursive loss over the first ``steps`` targets (``steps=1``: 1-step teacher forced),
+    plus ``shape_weight`` times the same sum of shape Chamfer distances (centred sets)."""
+    return net.recursive_loss(x, y[:, :steps], first_weight=first_weight,
+                              shape_weight=shape_weight)
 
 
 def save_checkpoint(run_dir: str | os.PathLike, net: Any, opt: Any, state: dict) -> Path:
@@ -285,15 +293,18 @@ def init_head_template(net: Any, data: "WindowData", weight_scale: float = 0.1) 
 # ------------------------------------------------------------------------------------- eval
 def evaluate(net: Any, data: WindowData, wins: np.ndarray, r: Recipe, device: str,
              batch: int = 256) -> dict[str, float]:
-    """Validation: the published 8-step loss (weights ``first_weight``, 1, ...) and the
-    per-step released Chamfer distance, averaged over ``wins``."""
+    """Validation: the recipe's ``r.rollout``-step loss (weights ``first_weight``, 1, ...; with
+    its shape term when ``r.shape_weight`` > 0), the released Chamfer distance of the first and
+    last predictions (``val_cd1``, ``val_cdK``) and their shape errors (``val_es1``,
+    ``val_esK``), averaged over ``wins``."""
     torch = _torch()
-    from .torch_model import chamfer_released
+    from .torch_model import chamfer_released, chamfer_shape
 
     if len(wins) == 0:
         return {}
     steps = r.rollout
     tot = np.zeros(steps)
+    tot_s = np.zeros(steps)
     was = net.training
     net.eval()
     with torch.no_grad():
@@ -301,14 +312,16 @@ def evaluate(net: Any, data: WindowData, wins: np.ndarray, r: Recipe, device: st
             x, y = data.gather(wins[i:i + batch])
             x = torch.from_numpy(x).to(device)
             y = torch.from_numpy(y[:, :steps]).to(device)
-            cd = chamfer_released(net.rollout(x, steps), y)
-            tot += cd.double().cpu().numpy() * len(x)
+            pred = net.rollout(x, steps)
+            tot += chamfer_released(pred, y).double().cpu().numpy() * len(x)
+            tot_s += chamfer_shape(pred, y).double().cpu().numpy() * len(x)
     net.train(was)
-    cd = tot / len(wins)
+    cd, es = tot / len(wins), tot_s / len(wins)
     w = np.ones(steps)
     w[0] = r.first_weight
-    return {"val_loss": float((cd * w).sum()), "val_cd1": float(cd[0]),
-            f"val_cd{steps}": float(cd[-1])}
+    return {"val_loss": float((cd * w).sum() + r.shape_weight * (es * w).sum()),
+            "val_cd1": float(cd[0]), f"val_cd{steps}": float(cd[-1]),
+            "val_es1": float(es[0]), f"val_es{steps}": float(es[-1])}
 
 
 def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_STEPS_MAX,
@@ -341,13 +354,41 @@ def _inherited(source: str | os.PathLike, pstate: dict) -> dict:
     prev = pstate.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
                                     "epochs": 0.0})
     me = {"run": str(source), "data": pstate.get("data", ""), "steps": int(pstate.get("step", 0)),
-          "epochs": float(pstate.get("step", 0)) / (pstate.get("steps_per_epoch", 0) or 1),
+          "epochs": float(pstate["epochs"]) if "epochs" in pstate else
+          float(pstate.get("step", 0)) / (pstate.get("steps_per_epoch", 0) or 1),
           "windows_seen": int(pstate.get("windows_seen", 0)),
           "wall_s": float(pstate.get("wall_s", 0.0)), "recipe": pstate.get("recipe", {})}
     return {"runs": prev["runs"] + [me],
             "windows_seen": prev["windows_seen"] + me["windows_seen"],
             "wall_s": prev["wall_s"] + me["wall_s"], "steps": prev["steps"] + me["steps"],
             "epochs": prev["epochs"] + me["epochs"]}
+
+
+def load_parent(source: str | os.PathLike) -> tuple[dict, dict, TPNetConfig]:
+    """Starting weights of a fine-tuning run: ``(torch state dict, provenance state, config)``
+    from a run directory / ``checkpoint.pt`` or from a native weights file (``.h5``, e.g. a
+    shipped model; its stored provenance becomes the inherited chain)."""
+    p = Path(source)
+    if p.suffix in (".h5", ".hdf5") and p.is_file():
+        from . import load
+        from .torch_model import TorchTPNet
+        model = load(p, dtype="float32")
+        meta = model.meta
+        cfg = model.config
+        # the file's counters already total the chain that made it: one inherited entry
+        state = {"data": str(meta.get("data", "")), "step": int(meta.get("training_steps", 0)),
+                 "epochs": float(meta.get("epochs", 0.0)),
+                 "windows_seen": int(meta.get("windows_seen", 0)),
+                 "wall_s": float(meta.get("wall_time_s", 0.0)),
+                 "recipe": {"weights_file": str(p), "source": str(meta.get("source", "")),
+                            "recipe": json.loads(meta.get("recipe", "{}") or "{}"),
+                            "parent_runs": json.loads(meta.get("parent_runs", "[]") or "[]")}}
+        net = TorchTPNet.from_numpy(model)
+        return net.state_dict(), state, cfg
+    parent, pstate = load_checkpoint(source)
+    if "recipe" not in pstate:
+        raise ValueError(f"--init-from {source}: checkpoint has no checkpoint.json recipe")
+    return parent["model"], pstate, Recipe.from_dict(pstate["recipe"]).tpnet_config
 
 
 def _log(run_dir: Path, rec: dict) -> None:
@@ -393,6 +434,8 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
         r = Recipe.from_dict(state["recipe"])
         if epochs is not None:
             r.epochs = float(epochs)
+        if val_every is None:                 # keep the run's validation cadence
+            val_every = state.get("val_every")
     else:
         if (run_dir / SIDECAR_NAME).exists():
             raise ValueError(f"{run_dir} already holds a run; pass --resume or another directory")
@@ -410,12 +453,11 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     torch.manual_seed(r.seed)
     net = TorchTPNet(cfg).to(dev)
     if payload is None and r.init_from:
-        parent, pstate = load_checkpoint(r.init_from)
-        pcfg = Recipe.from_dict(pstate["recipe"]).tpnet_config if "recipe" in pstate else None
-        if pcfg is not None and pcfg != cfg:
+        parent, pstate, pcfg = load_parent(r.init_from)
+        if pcfg != cfg:
             raise ValueError(f"--init-from {r.init_from}: its network {pcfg} differs from the "
                              f"recipe's {cfg}")
-        net.load_state_dict(parent["model"])
+        net.load_state_dict(parent)
         state["inherited"] = _inherited(r.init_from, pstate)
     elif payload is None and r.head_init == "template":
         init_head_template(net, data)
@@ -431,7 +473,7 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
                   "total_steps": total, "train_windows": n_train,
                   "val_windows": len(data.val_win), "device": dev, "hardware": hardware(dev),
-                  "torch": torch.__version__})
+                  "torch": torch.__version__, "val_every": val_every})
     val_win = data.val_win
     if r.val_windows and len(val_win) > r.val_windows:
         val_win = val_win[np.linspace(0, len(val_win) - 1, r.val_windows).round().astype(int)]
@@ -487,7 +529,7 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
             for grp in opt.param_groups:
                 grp["lr"] = lr
             opt.zero_grad(set_to_none=True)
-            loss = loss_fn(net, x, y, n_steps, r.first_weight)
+            loss = loss_fn(net, x, y, n_steps, r.first_weight, r.shape_weight)
             lv = float(loss.detach())
             if not math.isfinite(lv):
                 state["nonfinite_skipped"] += 1
@@ -689,15 +731,18 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--clip", type=float, default=d.clip, help="max grad norm (0: off)")
     q.add_argument("--noise", type=float, default=d.noise,
                    help="std of Gaussian noise on input coordinates (normalised units)")
+    q.add_argument("--shape-weight", type=float, default=d.shape_weight,
+                   help="λ: add λ × the same weighted sum of shape Chamfer distances (sets centred "
+                        "on their centroids; the released shape error E_s); 0 = published loss")
     q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs)
     q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
     q.add_argument("--rollout", type=int, default=d.rollout,
                    help=f"longest recursive loss (1..{N_STEPS_MAX}; published {N_STEPS_MAX})")
     q.add_argument("--head-init", choices=("default", "template"), default=d.head_init,
                    help="template: the untrained head outputs a ring of the body's size")
-    q.add_argument("--init-from", default=d.init_from, metavar="RUN_DIR",
-                   help="fine-tune: start from this run's weights (fresh optimizer and schedule; "
-                        "its network is used, --size is ignored)")
+    q.add_argument("--init-from", default=d.init_from, metavar="RUN_DIR|WEIGHTS.h5",
+                   help="fine-tune: start from this run's weights or a native weights file "
+                        "(fresh optimizer and schedule; its network is used, --size is ignored)")
     q.add_argument("--val-windows", type=int, default=d.val_windows,
                    help="validate on this many evenly spaced validation windows (0: all)")
     q.add_argument("--val-fraction", type=float, default=d.val_fraction,
@@ -750,12 +795,12 @@ def _cli_run(args: Any) -> int:
             m = int(h.attrs["m"])
         cfg = size_config(args.size, m=m, lstm_activation=args.lstm_activation)
         if args.init_from:
-            cfg = Recipe.from_dict(load_checkpoint(args.init_from)[1]["recipe"]).tpnet_config
+            cfg = load_parent(args.init_from)[2]
         recipe = Recipe(recipe=args.recipe, epochs=args.epochs or Recipe.epochs,
                         batch=args.batch, lr=args.lr, beta1=args.beta1, beta2=args.beta2,
                         eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,
                         warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
-                        pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
+                        shape_weight=args.shape_weight, pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
                         rollout=args.rollout, head_init=args.head_init, init_from=args.init_from,
                         val_windows=args.val_windows, val_fraction=args.val_fraction, split_seed=args.split_seed,
                         seed=args.seed, config=cfg.to_dict())
