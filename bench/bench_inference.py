@@ -3,6 +3,7 @@
     python bench/bench_inference.py            # full run (about 2 minutes on 2 cores)
     python bench/bench_inference.py --quick    # fewer repetitions
     python bench/bench_inference.py --threads 1   # every peer on one core (BLAS, torch, ORT)
+    python bench/bench_inference.py --blas-kernel SkylakeX   # NumPy's OpenBLAS with this kernel
 
 Every peer runs the same weights (a random network of the released shape, m = 4, N = 30,
 identity transform nets, as every checkpoint of the released code has): tpnet_ref float32 and
@@ -24,19 +25,22 @@ import time
 from pathlib import Path
 
 
-def _pin_threads() -> int | None:
-    """``--threads K``: re-run this script with every thread pool limited to K (the BLAS reads
-    its variable when NumPy is first imported, so it must be set before that)."""
-    if "--threads" not in sys.argv:
-        return None
-    k = sys.argv[sys.argv.index("--threads") + 1]
-    if os.environ.get("OPENBLAS_NUM_THREADS") != k:
-        env = dict(os.environ, OPENBLAS_NUM_THREADS=k, OMP_NUM_THREADS=k, MKL_NUM_THREADS=k)
+def _pin_env() -> int | None:
+    """``--threads K``: re-run this script with every thread pool limited to K;
+    ``--blas-kernel NAME``: with ``OPENBLAS_CORETYPE=NAME`` (OpenBLAS reads both variables when
+    NumPy is first imported, so they must be set before that). Returns K or None."""
+    env = dict(os.environ)
+    k = sys.argv[sys.argv.index("--threads") + 1] if "--threads" in sys.argv else None
+    if k is not None:
+        env.update(OPENBLAS_NUM_THREADS=k, OMP_NUM_THREADS=k, MKL_NUM_THREADS=k)
+    if "--blas-kernel" in sys.argv:
+        env["OPENBLAS_CORETYPE"] = sys.argv[sys.argv.index("--blas-kernel") + 1]
+    if env != dict(os.environ):
         os.execve(sys.executable, [sys.executable] + sys.argv, env)
-    return int(k)
+    return None if k is None else int(k)
 
 
-THREADS = _pin_threads()
+THREADS = _pin_env()
 
 import numpy as np  # noqa: E402
 
@@ -64,8 +68,10 @@ def machine() -> str:
         blas = f"{b['name']} {b['version']}"
     except Exception:
         pass
+    from tpnet_ref.blas import describe
     return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
-            f"NumPy {np.__version__} ({blas})")
+            f"NumPy {np.__version__} ({blas}; {describe()}; OPENBLAS_CORETYPE="
+            f"{os.environ.get('OPENBLAS_CORETYPE', 'unset')})")
 
 
 def timeit(fn, min_time: float, min_reps: int = 3) -> float:
@@ -143,15 +149,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
     ap.add_argument("--threads", type=int, default=None,
                     help="limit every peer to this many threads (default: each library's own)")
+    ap.add_argument("--blas-kernel", default=None,
+                    help="OPENBLAS_CORETYPE for NumPy's OpenBLAS (default: the environment's)")
     args = ap.parse_args(argv)
     t_min = 0.5 if args.quick else 2.0
 
     print(f"machine: {machine()}; threads per peer: {THREADS or 'library default'}")
     cfg = TPNetConfig()
     m32 = init_random(cfg, seed=0, dtype="float32")
+    m32.threads = THREADS                 # None: a large batch is split across every core
     m64 = m32.astype("float64")
     m_tn = init_random(TPNetConfig(input_transform_trained=True, feature_transform_trained=True),
                        seed=0, dtype="float32")
+    m_tn.threads = THREADS
+    m_one = m32.astype("float32")
+    m_one.threads = 1                     # the batch never split: one NumPy thread + the BLAS's
     rng = np.random.default_rng(0)
     x1 = rng.uniform(0.1, 0.9, (1, 4, 30, 2)).astype(np.float32)
     x256 = rng.uniform(0.1, 0.9, (256, 4, 30, 2)).astype(np.float32)
@@ -170,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     measure("tpnet_ref float64", lambda x: m64.predict_batch(x.astype(np.float64), normalized=True))
     measure("tpnet_ref float32, transform nets computed",
             lambda x: m_tn.predict_batch(x, normalized=True))
+    if (THREADS or 2) > 1:
+        measure("tpnet_ref float32, batch not split", lambda x: m_one.predict_batch(x, normalized=True))
     peers = {}
     for label, (fn, note) in (("onnxruntime", onnx_peer(m32)), ("PyTorch eager", torch_peer(m32))):
         if fn is None:

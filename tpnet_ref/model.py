@@ -20,12 +20,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from . import layers as L
+from .blas import cpu_count, single_threaded
 from .validation import NonFiniteResultError, as_point_set, as_real_array
 
 #: world-unit range of the particle centres used for normalisation (SPEC §5)
@@ -33,6 +35,16 @@ NORM_LO = 1.1438
 NORM_HI = 43.8562
 #: points per block of the feature extractor (activations of a block stay in cache)
 BLOCK_POINTS = 2048
+#: batches of this many windows or more are split across threads (measured: docs/performance.md)
+SPLIT_MIN_BATCH = 64
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """A process-wide pool of ``n`` threads for split batches, made on first use."""
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tpnet")
+    return _POOLS[n]
 
 
 @dataclass(frozen=True)
@@ -156,6 +168,8 @@ class TPNet:
         self.config = config
         self.dtype = _as_dtype(dtype)
         self.meta: dict[str, Any] = dict(meta or {})
+        #: threads a large batch is split across (None: every core; 1: never split)
+        self.threads: int | None = None
         expected = param_shapes(config)
         missing = [k for k in expected if k not in params]
         extra = [k for k in params if k not in expected]
@@ -200,7 +214,9 @@ class TPNet:
 
     def astype(self, dtype: Any) -> "TPNet":
         """The same network with its parameters in ``dtype`` (float32 or float64)."""
-        return TPNet(self.config, self.params, dtype, self.meta)
+        out = TPNet(self.config, self.params, dtype, self.meta)
+        out.threads = self.threads
+        return out
 
     @property
     def num_params(self) -> int:
@@ -328,7 +344,7 @@ class TPNet:
     def predict_batch(self, windows: Any, normalized: bool = False) -> np.ndarray:
         """Next point set of each window: ``(B, m, N, dim)`` or B windows -> ``(B, n_out, dim)``."""
         frames, batch = self._check_windows(windows)
-        return self._predict_frames(frames, batch, normalized)
+        return self._split(self._predict_frames, frames, batch, normalized)
 
     def _check_windows(self, windows: Any) -> tuple[list[np.ndarray], int]:
         """A batch of windows -> its validated frames, window after window, and the batch size."""
@@ -347,6 +363,20 @@ class TPNet:
         for b, w in enumerate(windows):
             frames.extend(self._check_window(w, f"windows[{b}]"))
         return frames, len(windows)
+
+    def _split(self, fn: Any, frames: list[np.ndarray], batch: int, *args: Any) -> np.ndarray:
+        """``fn(frames, batch, *args)``, or, for a batch of ``SPLIT_MIN_BATCH`` windows or more
+        and ``self.threads`` > 1, the same on consecutive parts of the batch in threads, each
+        with a one-thread BLAS (NumPy's element-wise work then uses every core too), joined
+        along the batch axis. The parts depend on ``batch`` and ``self.threads`` only."""
+        n = min(self.threads or cpu_count(), batch // (SPLIT_MIN_BATCH // 2))
+        if batch < SPLIT_MIN_BATCH or n < 2:
+            return fn(frames, batch, *args)
+        m = self.config.m
+        bounds = np.linspace(0, batch, n + 1).round().astype(int)
+        parts = [(frames[b0 * m:b1 * m], int(b1 - b0)) for b0, b1 in zip(bounds[:-1], bounds[1:])]
+        with single_threaded():
+            return np.concatenate(list(_pool(n).map(lambda p: fn(p[0], p[1], *args), parts)))
 
     def _predict_frames(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
         """``batch * m`` validated frames, window after window -> ``(batch, n_out, dim)``."""
@@ -367,7 +397,7 @@ class TPNet:
         """:meth:`rollout` of every window, the windows stepped together:
         ``(B, m, N, dim)`` or B windows -> ``(B, steps, n_out, dim)``."""
         frames, batch = self._check_windows(windows)
-        return self._rollout_frames(frames, batch, steps, normalized)
+        return self._split(self._rollout_frames, frames, batch, steps, normalized)
 
     def _rollout_frames(self, frames: list[np.ndarray], batch: int, steps: Any,
                         normalized: bool) -> np.ndarray:
