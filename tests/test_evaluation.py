@@ -339,3 +339,21 @@ def test_eval_from_dataset_file(tmp_path):
         rows = text.split("## Rollout error")[1].split("Same, paper metric")[0].splitlines()
         return [r.split("|")[:4] for r in rows if r.startswith("| 4 |")]
     assert ep_cells(ta) == ep_cells(tb) and len(ep_cells(ta)) == 2
+
+
+def test_ring_phase_floor_matches_its_closed_form():
+    """E_s of the rest ring against itself turned by phase φ is 60 · 2r·sin(d/2), d = the
+    angular distance to the nearest particle (both directions alike); averaged over φ uniform
+    in one spacing this is the floor results.md quotes."""
+    from tpnet_ref.metrics import shape_error
+    from tpnet_ref.model import NORM_HI, NORM_LO
+    n, r = 30, 2.0 / (NORM_HI - NORM_LO)
+    s = 2 * np.pi / n
+    ph = (np.arange(720) + 0.5) / 720 * s
+    d = np.minimum(ph, s - ph)
+    closed = float(np.mean(60 * 2 * r * np.sin(d / 2)))
+    assert E.ring_phase_floor() == pytest.approx(closed, rel=1e-9)
+    assert 0.14 < closed < 0.15
+    a = 2 * np.pi * np.arange(n) / n
+    ring = np.stack([r * np.sin(a), r * np.cos(a)], -1)
+    assert shape_error(ring, ring[::-1] + 0.3, variant="released") == pytest.approx(0, abs=1e-12)

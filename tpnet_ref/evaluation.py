@@ -584,6 +584,22 @@ def _load() -> str:
         return ""
 
 
+def ring_phase_floor(n: int = 30, radius: float = 2.0, samples: int = 720) -> float:
+    """Released shape error E_s between the body's rest ring (``n`` particles, ``radius`` world
+    units, normalised like the data) and the same ring rotated by a phase drawn uniformly from
+    one particle spacing (``samples`` evenly spaced phases, averaged). A prediction that has the
+    exact shape but not the particles' rotation phase scores this on average: copying the last
+    frame scores about this once the body has turned, so beating it on E_s needs the phase."""
+    from .metrics import shape_error
+    r = radius / (NORM_HI - NORM_LO)
+    a = 2 * np.pi * np.arange(n) / n
+    ph = (np.arange(samples) + 0.5) / samples * (2 * np.pi / n)
+    ring = np.stack([r * np.sin(a), r * np.cos(a)], axis=-1)
+    turned = np.stack([r * np.sin(a[None] + ph[:, None]), r * np.cos(a[None] + ph[:, None])], -1)
+    return float(np.mean(shape_error(np.broadcast_to(ring, turned.shape), turned,
+                                     variant="released")))
+
+
 def _scale_note(curves: Sequence[Curve]) -> list[str]:
     """What the released-metric numbers mean in distances (from the copy-last row)."""
     cands = [c for c in curves if c.name == "copy last" and c.ordering == "given"
@@ -606,6 +622,12 @@ def _scale_note(curves: Sequence[Curve]) -> list[str]:
                      f"{e / p:.0f}× below copying the last frame; compare the model rows with "
                      "care (a per-point mean instead of a sum would divide by "
                      f"{n} or {2 * n}).")
+    lines += ["", f"Shape error floor: the body's rest ring (30 particles, radius 2) against the "
+              f"same ring turned by a random fraction of one particle spacing scores E_s "
+              f"{ring_phase_floor():.3f} (`evaluation.ring_phase_floor()`). Copy last sits near "
+              f"it once the body has rolled ({_fmt(c.at(h, 'Es_released'))} @{h}), so a model "
+              f"beats it on E_s only if it predicts where each particle has turned to, i.e. "
+              f"positions to a fraction of the 0.42 world-unit particle spacing."]
     return lines + [""]
 
 
