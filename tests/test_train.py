@@ -312,3 +312,24 @@ def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_pa
     assert {"val_es1", "val_es3", "val_cd1", "val_cd3"} <= set(log[0])
     with pytest.raises(ValueError, match="shape_weight"):
         _recipe(shape_weight=-1.0)
+
+
+def test_score_rollouts_on_validation_trajectories(dataset, tmp_path, capsys):
+    """`tpnet train score`: the test protocol on the validation trajectories (never the test
+    cases), for weights files and both baselines; copy last scored as computed directly."""
+    from tpnet_ref.evaluation import copy_last
+    from tpnet_ref.metrics import position_error
+
+    T.train(dataset, tmp_path / "run", _recipe(epochs=1), threads=1, progress=False)
+    T.export(tmp_path / "run", tmp_path / "w.h5")
+    data = T.WindowData(dataset, 0.2, 0)
+    res = T.score_rollouts(data, [tmp_path / "w.h5"], horizon=10, at=(1, 10))
+    assert set(res) == {"copy last", "constant velocity", str(tmp_path / "w.h5")}
+    f = data.frames[data.val_traj].astype(np.float64)
+    want = position_error(f[:, 4 + 9], copy_last(f[:, :4], 10)[:, 9], variant="released").mean()
+    assert res["copy last"]["Ep@10"] == pytest.approx(want, rel=1e-12)
+    assert all(np.isfinite(v) for row in res.values() for v in row.values())
+    assert cli.main(["train", "score", dataset, str(tmp_path / "w.h5"), "--horizon", "10",
+                     "--val-fraction", "0.2"]) == 0
+    out = capsys.readouterr().out
+    assert "Es@10" in out and "copy last" in out and "Ep@40" not in out

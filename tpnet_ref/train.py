@@ -347,6 +347,32 @@ def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_S
     return out
 
 
+def score_rollouts(data: WindowData, weights: list[str | os.PathLike], horizon: int = 80,
+                   at: tuple[int, ...] = (40, 80)) -> dict[str, dict[str, float]]:
+    """Model selection without the test cases: the test protocol (frames 0..m-1 in, ``horizon``
+    recursive predictions, released E_p / E_s averaged over trajectories) on the *validation*
+    trajectories of the training grid, for each weights file and the two baselines.
+    Returns ``{name: {"Ep@40": ..., "Es@40": ..., ...}}``."""
+    from . import evaluation as E
+    from . import load
+
+    frames = data.frames[data.val_traj].astype(np.float64)
+    windows, truth = E.split_protocol(frames, data.m, horizon)
+    preds = {"copy last": E.copy_last(windows, horizon),
+             "constant velocity": E.constant_velocity(windows, horizon)}
+    for w in weights:
+        model = load(w)
+        if model.config.m != data.m:
+            raise ValueError(f"{w}: m={model.config.m}, the dataset has m={data.m}")
+        preds[str(w)] = E.batched_rollout(model, windows, horizon)
+    out = {}
+    for name, p in preds.items():
+        err = E.errors(truth, p)
+        out[name] = {f"{k}@{h}": float(err[f"{k}_released"][:, h - 1].mean())
+                     for h in at for k in ("Ep", "Es")}
+    return out
+
+
 # ------------------------------------------------------------------------------------- train
 def _inherited(source: str | os.PathLike, pstate: dict) -> dict:
     """Provenance carried into a fine-tuning run: the training that made its starting weights
@@ -779,6 +805,15 @@ def add_cli(sub: Any) -> None:
     b.add_argument("--threads", type=int, default=2)
     b.set_defaults(func=_cli_bench)
 
+    s = tsub.add_parser("score", help="model selection on validation trajectories (the test "
+                                      "protocol, never the test cases): E_p/E_s at 40/80")
+    s.add_argument("data")
+    s.add_argument("weights", nargs="+", help="native weights files to compare")
+    s.add_argument("--horizon", type=int, default=80)
+    s.add_argument("--val-fraction", type=float, default=d.val_fraction)
+    s.add_argument("--split-seed", type=int, default=d.split_seed)
+    s.set_defaults(func=_cli_score)
+
     c = tsub.add_parser("baselines", help="copy-last-frame and constant-velocity scores on the "
                                           "validation windows")
     c.add_argument("data")
@@ -831,6 +866,19 @@ def _cli_bench(args: Any) -> int:
     return 0
 
 
+def _cli_score(args: Any) -> int:
+    data = WindowData(args.data, args.val_fraction, args.split_seed)
+    print(f"{data.describe()}\nvalidation trajectories from frame 0, {args.horizon} recursive "
+          f"predictions, released metric, mean over {len(data.val_traj)} trajectories:")
+    at = tuple(h for h in (1, 10, 40, 80) if h <= args.horizon)
+    res = score_rollouts(data, args.weights, args.horizon, at)
+    cols = [f"{k}@{h}" for h in at for k in ("Ep", "Es")]
+    print(f"  {'':40s}" + "".join(f"{c:>9s}" for c in cols))
+    for name, row in res.items():
+        print(f"  {name:40s}" + "".join(f"{row[c]:9.3f}" for c in cols))
+    return 0
+
+
 def _cli_baselines(args: Any) -> int:
     data = WindowData(args.data, args.val_fraction, args.split_seed)
     print(data.describe())
@@ -840,4 +888,5 @@ def _cli_baselines(args: Any) -> int:
 
 
 __all__ = ["Recipe", "WindowData", "train", "export", "bench", "baselines", "evaluate",
+           "score_rollouts", "load_parent",
            "save_checkpoint", "load_checkpoint", "size_config", "SIZES"]
