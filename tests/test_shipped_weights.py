@@ -1,0 +1,85 @@
+"""The shipped model (weights/tpnet-m4.h5): it is what `tpnet_ref.load()` returns, it says where it
+came from, and what it reaches on the 60 held-out cases (SPEC §5 protocol, 80 predictions)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import tpnet_ref
+from tpnet_ref import evaluation as E
+from tpnet_ref.cases import TEST_CASES
+from tpnet_ref.model import TPNetConfig
+from tpnet_ref.weights import default_weights_path
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    path = default_weights_path()
+    assert path.is_file(), f"the shipped weights are missing: {path}"
+    return tpnet_ref.load()
+
+
+def test_default_load_is_the_full_m4_network(shipped):
+    assert shipped.config == TPNetConfig()            # m = 4, released widths, Keras semantics
+    assert shipped.config.m == 4 and shipped.config.n_out == 30
+    assert shipped.dtype == np.float32
+    for key in ("producer", "recipe", "windows_seen", "wall_time_s", "hardware"):
+        assert key in shipped.meta, key
+
+
+@pytest.fixture(scope="module")
+def rollouts(shipped):
+    frames = E.normalize(E.simulate_cases(np.asarray(TEST_CASES), rows=4 * (4 + 80), workers=1))
+    windows, truth = E.split_protocol(frames, shipped.config.m, 80)
+    pred = E.batched_rollout(shipped, windows, 80, normalized=True)
+    return windows, truth, pred
+
+
+def _at(errs: dict, key: str, h: int) -> float:
+    return float(errs[key][:, h - 1].mean())
+
+
+@pytest.mark.parametrize("baseline", ["copy_last", "constant_velocity"])
+def test_shipped_model_beats_the_baselines_on_position_error(rollouts, baseline):
+    """E_p (released metric, mean over the 60 held-out cases) below both baselines at 40 and 80
+    predicted frames, as the training issue asks."""
+    windows, truth, pred = rollouts
+    ours = E.errors(truth, pred)
+    theirs = E.errors(truth, getattr(E, baseline)(windows, 80))
+    for h in (40, 80):
+        a, b = _at(ours, "Ep_released", h), _at(theirs, "Ep_released", h)
+        assert a < b, f"Ep_released@{h}: model {a:.4f} >= {baseline} {b:.4f}"
+
+
+def test_shipped_model_shape_error_stays_near_copy_last(rollouts):
+    """Regression guard for what the shipped model reaches on E_s: within 1.5x of copying the
+    last frame at 40 and 80 frames (shipped: 1.12x and 1.31x, weights/MODEL_CARD.md), and its
+    one-step shape error below the random-phase ring floor (0.147)."""
+    windows, truth, pred = rollouts
+    ours, base = E.errors(truth, pred), E.errors(truth, E.copy_last(windows, 80))
+    for h in (40, 80):
+        a, b = _at(ours, "Es_released", h), _at(base, "Es_released", h)
+        assert a < 1.5 * b, f"Es_released@{h}: model {a:.4f} vs copy-last {b:.4f}"
+    assert _at(ours, "Es_released", 1) < 1.2 * E.ring_phase_floor()
+
+
+@pytest.mark.xfail(strict=True, reason="open goal of the training issue: after 40-80 frames "
+                   "copy-last scores near the random-phase ring floor E_s 0.147, so beating it "
+                   "needs each particle's rotation phase, i.e. positions to a fraction of the "
+                   "particle spacing (weights/MODEL_CARD.md); strict, so meeting it turns this "
+                   "red until the marker is removed")
+def test_shipped_model_beats_the_baselines_on_shape_error(rollouts):
+    windows, truth, pred = rollouts
+    ours = E.errors(truth, pred)
+    for baseline in ("copy_last", "constant_velocity"):
+        theirs = E.errors(truth, getattr(E, baseline)(windows, 80))
+        for h in (40, 80):
+            assert _at(ours, "Es_released", h) < _at(theirs, "Es_released", h)
+
+
+def test_shipped_rollout_stays_finite_and_in_the_box(rollouts):
+    _, _, pred = rollouts
+    assert np.isfinite(pred).all()
+    assert pred.min() >= 0.0 and pred.max() <= 1.0       # sigmoid head, normalised box
