@@ -61,16 +61,9 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    blas = "?"
-    try:
-        cfg = np.show_config(mode="dicts")
-        b = cfg["Build Dependencies"]["blas"]
-        blas = f"{b['name']} {b['version']}"
-    except Exception:
-        pass
-    from tpnet_ref.blas import describe
+    from tpnet_ref.blas import describe   # the BLAS as loaded: library, version, kernel, threads
     return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
-            f"NumPy {np.__version__} ({blas}; {describe()}; OPENBLAS_CORETYPE="
+            f"NumPy {np.__version__} ({describe()}; OPENBLAS_CORETYPE="
             f"{os.environ.get('OPENBLAS_CORETYPE', 'unset')})")
 
 
