@@ -333,3 +333,63 @@ def test_score_rollouts_on_validation_trajectories(dataset, tmp_path, capsys):
                      "--val-fraction", "0.2"]) == 0
     out = capsys.readouterr().out
     assert "Es@10" in out and "copy last" in out and "Ep@40" not in out
+
+
+def test_budget_minutes_sets_the_run_length_from_measured_throughput(dataset, tmp_path,
+                                                                    monkeypatch):
+    calls = []
+
+    def fake_bench(cfg, *, batch, rollouts, **kw):       # 100 windows/s, whatever the machine
+        calls.append((batch, rollouts))
+        return {rollouts[0]: 100.0}
+
+    monkeypatch.setattr(T, "bench", fake_bench)
+    r = _recipe(epochs=50, rollout=3)
+    st = T.train(dataset, tmp_path / "run", r, threads=1, progress=False, budget_minutes=0.05)
+    assert calls == [(16, (3,))]                         # the recipe's batch and longest loss
+    spe = st["steps_per_epoch"]
+    want = 0.9 * 0.05 * 60 * 100.0 / (spe * 16)          # 90 % of the budget at that rate
+    assert st["budget"] == {"minutes": 0.05, "bench_windows_per_s": 100.0, "epochs": want}
+    assert st["recipe"]["epochs"] == want and st["total_steps"] == round(want * spe)
+    assert st["stopped"] == "done" and st["step"] == st["total_steps"]
+    with pytest.raises(ValueError, match="budget_minutes"):
+        T.train(dataset, tmp_path / "run2", _recipe(), threads=1, progress=False,
+                budget_minutes=0)
+
+
+def test_matched_distance_is_the_optimal_bijection_and_penalises_clumping():
+    import itertools
+
+    from tpnet_ref.torch_model import chamfer_released, matched_distance
+
+    g = torch.Generator().manual_seed(0)
+    p = torch.rand(4, 2, 6, 2, generator=g, dtype=torch.float64)
+    q = torch.rand(4, 2, 6, 2, generator=g, dtype=torch.float64)
+    got = matched_distance(p, q)
+    assert got.shape == (2,)
+    for s in range(2):
+        brute = [2 * min(sum(float(torch.linalg.norm(p[b, s, k] - q[b, s, perm[k]]))
+                             for k in range(6)) for perm in itertools.permutations(range(6)))
+                 for b in range(4)]
+        assert float(got[s]) == pytest.approx(np.mean(brute), rel=1e-12)
+    assert (got >= chamfer_released(p, q) - 1e-12).all()       # Chamfer pairs need not be 1:1
+    # two predictions on one target, one target uncovered: Chamfer sees half of the gap,
+    # the matched distance all of it; the gradient moves a duplicate towards the free target
+    ring = torch.tensor([[[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]], dtype=torch.float64)
+    clump = torch.tensor([[[0.0, 0.0], [1.0, 0.0], [1.0, 0.0]]], dtype=torch.float64,
+                         requires_grad=True)
+    assert float(chamfer_released(clump.detach(), ring)) == pytest.approx(1.0)
+    em = matched_distance(clump, ring)
+    assert float(em) == pytest.approx(2.0)
+    em.backward()
+    assert float(clump.grad[0, 1:, 0].min()) < 0                # one duplicate pushed to x = 2
+    with pytest.raises(ValueError, match="equal shape"):
+        matched_distance(p[:, :, :5], q)
+
+
+def test_match_term_trains_and_is_stored_in_the_recipe(dataset, tmp_path):
+    st = T.train(dataset, tmp_path / "run", _recipe(epochs=1, match_weight=2.0, rollout=2),
+                 threads=1, progress=False)
+    assert st["stopped"] == "done" and st["recipe"]["match_weight"] == 2.0
+    with pytest.raises(ValueError, match="match_weight"):
+        _recipe(match_weight=-1.0)

@@ -70,6 +70,7 @@ class Recipe:
     noise: float = 0.0                  # std of Gaussian input noise, normalised units
     first_weight: float = 9.0
     shape_weight: float = 0.0           # λ of the added shape term λ·Σ w_i·CD(centred sets)
+    match_weight: float = 0.0           # μ of the added term μ·Σ w_i·EMD (optimal bijection)
     rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published)
     pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
@@ -96,8 +97,8 @@ class Recipe:
             raise ValueError(f"rollout must be in 1..{N_STEPS_MAX}, got {self.rollout}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
-        if self.noise < 0 or self.clip < 0 or self.shape_weight < 0:
-            raise ValueError("noise, clip and shape_weight must be >= 0")
+        if self.noise < 0 or self.clip < 0 or self.shape_weight < 0 or self.match_weight < 0:
+            raise ValueError("noise, clip, shape_weight and match_weight must be >= 0")
         if isinstance(self.config, TPNetConfig):
             self.config = self.config.to_dict()
         self.config = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.config.items()}
@@ -213,11 +214,12 @@ def make_optimizer(net: Any, r: Recipe) -> Any:
 
 
 def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float,
-            shape_weight: float = 0.0) -> Any:
+            shape_weight: float = 0.0, match_weight: float = 0.0) -> Any:
     """The recursive loss over the first ``steps`` targets (``steps=1``: 1-step teacher forced),
-    plus ``shape_weight`` times the same sum of shape Chamfer distances (centred sets)."""
+    plus ``shape_weight`` times the same sum of shape Chamfer distances (centred sets) and
+    ``match_weight`` times the same sum of matched (earth mover's) distances."""
     return net.recursive_loss(x, y[:, :steps], first_weight=first_weight,
-                              shape_weight=shape_weight)
+                              shape_weight=shape_weight, match_weight=match_weight)
 
 
 def save_checkpoint(run_dir: str | os.PathLike, net: Any, opt: Any, state: dict) -> Path:
@@ -437,14 +439,20 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
           threads: int | None = 2, max_steps: int | None = None,
           max_minutes: float | None = None, checkpoint_minutes: float = 5.0,
           log_every: int = 50, val_every: int | None = None, limit_windows: int | None = None, progress: bool = True,
-          export_path: str | os.PathLike | None = None) -> dict:
+          export_path: str | os.PathLike | None = None,
+          budget_minutes: float | None = None) -> dict:
     """Train (or, with ``resume``, continue) the run in ``run_dir``; returns the final state.
 
     ``max_steps`` (a global step count), ``max_minutes`` and SIGINT/SIGTERM (after the current
     step) stop early with a checkpoint, so a
     long run can be done in pieces; ``epochs`` on resume extends or shortens the run (the cosine
     schedule follows the new length from there). A checkpoint is written every
-    ``checkpoint_minutes``, at every epoch end and when stopping."""
+    ``checkpoint_minutes``, at every epoch end and when stopping.
+
+    ``budget_minutes`` (new runs only) fits the run to a wall-clock budget on this device: a
+    few steps of the longest loss (``r.rollout`` predictions, batch ``r.batch``) are timed on
+    random windows and the run's length (hence its learning-rate schedule) is set to 90 % of
+    what that rate allows; ``max_minutes`` defaults to the budget as a hard stop."""
     torch = _torch()
     from .torch_model import TorchTPNet
 
@@ -495,6 +503,17 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
 
     n_train = len(data.train_win)
     spe = max(1, n_train // r.batch)          # full batches only: every step has batch r.batch
+    if budget_minutes is not None and not resume:
+        if not budget_minutes > 0:
+            raise ValueError(f"budget_minutes must be > 0, got {budget_minutes}")
+        wps = bench(cfg, batch=r.batch, rollouts=(r.rollout,), iters=5, warmup=2, device=dev,
+                    threads=threads, seed=r.seed, shape_weight=r.shape_weight,
+                    match_weight=r.match_weight)[r.rollout]
+        r.epochs = max(1.0 / spe, 0.9 * 60.0 * budget_minutes * wps / (spe * r.batch))
+        state["budget"] = {"minutes": float(budget_minutes), "bench_windows_per_s": float(wps),
+                           "epochs": r.epochs}
+        if max_minutes is None:
+            max_minutes = float(budget_minutes)
     total = max(1, int(round(r.epochs * spe)))
     state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
                   "total_steps": total, "train_windows": n_train,
@@ -555,7 +574,7 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
             for grp in opt.param_groups:
                 grp["lr"] = lr
             opt.zero_grad(set_to_none=True)
-            loss = loss_fn(net, x, y, n_steps, r.first_weight, r.shape_weight)
+            loss = loss_fn(net, x, y, n_steps, r.first_weight, r.shape_weight, r.match_weight)
             lv = float(loss.detach())
             if not math.isfinite(lv):
                 state["nonfinite_skipped"] += 1
@@ -691,7 +710,7 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
 # ------------------------------------------------------------------------------------- bench
 def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[int, ...] = (1, 8),
           iters: int = 5, warmup: int = 1, device: str = "auto", threads: int | None = 2,
-          seed: int = 0) -> dict[int, float]:
+          seed: int = 0, shape_weight: float = 0.0, match_weight: float = 0.0) -> dict[int, float]:
     """Training throughput, windows per second, of a full step (loss, backward, clip, Adam) for
     each rollout length, on random windows."""
     torch = _torch()
@@ -717,7 +736,7 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
                     torch.cuda.synchronize()
                 t0 = time.perf_counter()
             opt.zero_grad(set_to_none=True)
-            loss = loss_fn(net, x, y, k, 9.0)
+            loss = loss_fn(net, x, y, k, 9.0, shape_weight, match_weight)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
             opt.step()
@@ -760,6 +779,10 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--shape-weight", type=float, default=d.shape_weight,
                    help="λ: add λ × the same weighted sum of shape Chamfer distances (sets centred "
                         "on their centroids; the released shape error E_s); 0 = published loss")
+    q.add_argument("--match-weight", type=float, default=d.match_weight,
+                   help="μ: add μ × the same weighted sum of matched (earth mover's) distances, "
+                        "optimal one-to-one pairs (scipy); stops predicted points from "
+                        "clumping on one target; 0 = published loss")
     q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs)
     q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
     q.add_argument("--rollout", type=int, default=d.rollout,
@@ -781,6 +804,9 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--max-steps", type=int, default=None, help="stop (with a checkpoint) at this step")
     q.add_argument("--max-minutes", type=float, default=None,
                    help="stop (with a checkpoint) after this many minutes")
+    q.add_argument("--budget-minutes", type=float, default=None,
+                   help="new runs: time a few steps here, then set --epochs so the run (and its "
+                        "cosine schedule) fits 90%% of this many minutes; also the hard stop")
     q.add_argument("--checkpoint-minutes", type=float, default=5.0)
     q.add_argument("--log-every", type=int, default=50, help="steps between train-loss log lines")
     q.add_argument("--val-every", type=int, default=None,
@@ -835,14 +861,16 @@ def _cli_run(args: Any) -> int:
                         batch=args.batch, lr=args.lr, beta1=args.beta1, beta2=args.beta2,
                         eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,
                         warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
-                        shape_weight=args.shape_weight, pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
+                        shape_weight=args.shape_weight, match_weight=args.match_weight,
+                        pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
                         rollout=args.rollout, head_init=args.head_init, init_from=args.init_from,
                         val_windows=args.val_windows, val_fraction=args.val_fraction, split_seed=args.split_seed,
                         seed=args.seed, config=cfg.to_dict())
     st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,
                device=args.device, threads=args.threads, max_steps=args.max_steps,
                max_minutes=args.max_minutes, checkpoint_minutes=args.checkpoint_minutes,
-               log_every=args.log_every, val_every=args.val_every, progress=not args.quiet, export_path=args.export)
+               log_every=args.log_every, val_every=args.val_every, progress=not args.quiet,
+               export_path=args.export, budget_minutes=args.budget_minutes)
     print(f"{args.run_dir}: step {st['step']}/{st['total_steps']} ({st['stopped']}), "
           f"{st['windows_seen']} windows seen, {st['wall_s']:.0f} s, last validation "
           + json.dumps(st.get("last_val", {})))
