@@ -333,6 +333,32 @@ def test_score_rollouts_on_validation_trajectories(dataset, tmp_path, capsys):
                      "--val-fraction", "0.2"]) == 0
     out = capsys.readouterr().out
     assert "Es@10" in out and "copy last" in out and "Ep@40" not in out
+    sp = T.spacing_report(data, [tmp_path / "w.h5"], every=1)
+    assert set(sp) == {"truth", str(tmp_path / "w.h5")}
+    assert sp["truth"]["nn_mean"] == pytest.approx(0.418, abs=0.02)   # a ring, barely deformed
+    assert cli.main(["train", "score", dataset, str(tmp_path / "w.h5"), "--horizon", "10",
+                     "--val-fraction", "0.2", "--spacing"]) == 0
+    assert "nn_min" in capsys.readouterr().out
+
+
+def test_spacing_stats_of_the_rest_ring_and_of_a_clump():
+    from tpnet_ref.evaluation import spacing_stats
+    from tpnet_ref.model import NORM_HI, NORM_LO
+
+    a = 2 * np.pi * np.arange(30) / 30
+    r = 2.0 / (NORM_HI - NORM_LO)
+    ring = np.stack([0.5 + r * np.sin(a), 0.5 + r * np.cos(a)], axis=-1)
+    st = spacing_stats(ring[None])
+    spacing = 2 * 2.0 * np.sin(np.pi / 30)                              # chord, world units
+    assert st["nn_mean"] == pytest.approx(spacing, rel=1e-12)
+    assert st["nn_min"] == pytest.approx(spacing, rel=1e-12)
+    assert st["radius_std"] == pytest.approx(0.0, abs=1e-12)
+    clumped = ring.copy()
+    clumped[1] = clumped[0]                                             # two on one particle
+    st = spacing_stats(np.stack([ring, clumped]))
+    assert st["nn_min"] == pytest.approx(spacing / 2, rel=1e-12)        # mean of 0.418 and 0
+    with pytest.raises(ValueError, match="sets"):
+        spacing_stats(ring)
 
 
 def test_budget_minutes_sets_the_run_length_from_measured_throughput(dataset, tmp_path,

@@ -375,6 +375,20 @@ def score_rollouts(data: WindowData, weights: list[str | os.PathLike], horizon: 
     return out
 
 
+def spacing_report(data: WindowData, weights: list[str | os.PathLike],
+                   every: int = 8) -> dict[str, dict[str, float]]:
+    """:func:`~tpnet_ref.evaluation.spacing_stats` of the one-step predictions of each weights
+    file on every ``every``-th validation window, and of the true next frames (``"truth"``)."""
+    from . import load
+    from .evaluation import spacing_stats
+
+    x, y = data.gather(data.val_win[::every])
+    out = {"truth": spacing_stats(y[:, 0])}
+    for w in weights:
+        out[str(w)] = spacing_stats(load(w).predict_batch(x.astype(np.float64), normalized=True))
+    return out
+
+
 # ------------------------------------------------------------------------------------- train
 def _inherited(source: str | os.PathLike, pstate: dict) -> dict:
     """Provenance carried into a fine-tuning run: the training that made its starting weights
@@ -836,6 +850,9 @@ def add_cli(sub: Any) -> None:
     s.add_argument("data")
     s.add_argument("weights", nargs="+", help="native weights files to compare")
     s.add_argument("--horizon", type=int, default=80)
+    s.add_argument("--spacing", action="store_true",
+                   help="also how evenly the one-step predictions cover the ring (world units: "
+                        "nearest-neighbour distance, smallest one per set, radius spread)")
     s.add_argument("--val-fraction", type=float, default=d.val_fraction)
     s.add_argument("--split-seed", type=int, default=d.split_seed)
     s.set_defaults(func=_cli_score)
@@ -904,6 +921,13 @@ def _cli_score(args: Any) -> int:
     print(f"  {'':40s}" + "".join(f"{c:>9s}" for c in cols))
     for name, row in res.items():
         print(f"  {name:40s}" + "".join(f"{row[c]:9.3f}" for c in cols))
+    if args.spacing:
+        sp = spacing_report(data, args.weights)
+        print("one-step predictions on every 8th validation window, world units:")
+        print(f"  {'':40s}{'nn_mean':>11s}{'nn_min':>11s}{'radius_std':>11s}")
+        for name, row in sp.items():
+            print(f"  {name:40s}" + "".join(f"{row[k]:11.3f}" for k in
+                                            ("nn_mean", "nn_min", "radius_std")))
     return 0
 
 
@@ -916,5 +940,5 @@ def _cli_baselines(args: Any) -> int:
 
 
 __all__ = ["Recipe", "WindowData", "train", "export", "bench", "baselines", "evaluate",
-           "score_rollouts", "load_parent",
+           "score_rollouts", "spacing_report", "load_parent",
            "save_checkpoint", "load_checkpoint", "size_config", "SIZES"]
