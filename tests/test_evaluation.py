@@ -357,3 +357,42 @@ def test_ring_phase_floor_matches_its_closed_form():
     a = 2 * np.pi * np.arange(n) / n
     ring = np.stack([r * np.sin(a), r * np.cos(a)], -1)
     assert shape_error(ring, ring[::-1] + 0.3, variant="released") == pytest.approx(0, abs=1e-12)
+
+
+def _ring(n=30, r=2.0, turn_deg=0.0, centre=(10.0, 20.0)):
+    """The body's start ring (SPEC §5 particle order), turned counter-clockwise by turn_deg."""
+    a = 2 * np.pi * np.arange(n) / n - np.radians(turn_deg)
+    return np.stack([centre[0] + r * np.sin(a), centre[1] + r * np.cos(a)], -1)
+
+
+@pytest.mark.parametrize("turn", [0.0, 5.0, -30.0, 179.0])
+def test_ring_rotation_reads_how_far_the_body_has_turned(turn):
+    assert E.ring_rotation(_ring(turn_deg=turn)) == pytest.approx(turn, abs=1e-9)
+    moved = _ring(turn_deg=turn, centre=(30.0, 5.0))        # any place, and batched
+    np.testing.assert_allclose(E.ring_rotation(np.stack([moved, moved])), [turn, turn], atol=1e-9)
+    with pytest.raises(ValueError, match="particle order"):
+        E.ring_rotation(moved[:29])
+
+
+def test_resample_outline_spaces_points_evenly_along_the_same_polygon():
+    """An evenly spaced ring comes back as itself (offset 0) or turned by half a spacing
+    (offset 0.5); a ring with one point moved onto its neighbour (a clump and a gap) comes back
+    evenly spaced, on the clumped polygon."""
+    from tpnet_ref.metrics import shape_error
+    ring = _ring()
+    rng = np.random.default_rng(1)
+    shuffled = ring[rng.permutation(30)][None]
+    back = E.resample_outline(shuffled)
+    assert shape_error(ring, back[0], variant="released") == pytest.approx(0, abs=1e-9)
+    half = E.resample_outline(shuffled, 0.5)[0]              # midpoints of the polygon's sides
+    mid = 0.5 * (ring + np.roll(ring, -1, axis=0))
+    assert shape_error(mid, half, variant="released") == pytest.approx(0, abs=1e-9)
+    clumped = ring.copy()
+    clumped[7] = ring[8] + 1e-3
+    st0 = E.spacing_stats(E.normalize(clumped)[None])
+    st1 = E.spacing_stats(E.normalize(E.resample_outline(clumped[None], [0.25])))
+    assert st0["nn_min"] < 0.01 and st1["nn_min"] > 0.38      # world units; the ring has 0.418
+    d = np.linalg.norm(np.diff(E.resample_outline(clumped[None])[0], axis=0), axis=1)
+    assert d.std() < 0.05 * d.mean()
+    with pytest.raises(ValueError, match="sets"):
+        E.resample_outline(ring)

@@ -283,6 +283,40 @@ def test_init_from_a_native_weights_file_carries_its_provenance(dataset, tmp_pat
                 threads=1, progress=False)
 
 
+def test_init_from_a_model_of_another_window_length(dataset, tmp_path):
+    """The m = 3 and m = 5 models start from the m = 4 weights: no weight depends on m, so
+    --init-from accepts a parent of another window length and the child's network takes the
+    dataset's m (the same parameters, run over 3 frames)."""
+    parent = tmp_path / "parent"
+    T.train(dataset, parent, _recipe(epochs=1), threads=1, progress=False)
+    T.export(parent, tmp_path / "parent.h5")
+    data3 = tmp_path / "m3.h5"
+    D.generate(str(data3), D.train_grid([1.3], [200.0, 245.0], positions=3), None, m=3,
+               steps=120, seed=0, progress=False)
+    child = tmp_path / "child"
+    args = ["train", "run", str(data3), "-o", str(child), "--init-from", str(tmp_path / "parent.h5"),
+            "--rollout", "2", "--batch", "16", "--epochs", "1", "--lr", "1e-12",
+            "--schedule", "constant", "--warmup-steps", "0", "--threads", "1", "--quiet",
+            "--val-fraction", "0.2"]
+    assert cli.main(args) == 0
+    cst = json.loads((child / T.SIDECAR_NAME).read_text())
+    assert cst["recipe"]["config"]["m"] == 3
+    T.export(child, tmp_path / "child.h5")
+    m3, m4 = load_native(tmp_path / "child.h5"), load_native(tmp_path / "parent.h5")
+    assert (m3.config.m, m4.config.m) == (3, 4)
+    assert m3.params.keys() == m4.params.keys()
+    for k in m4.params:                          # lr 1e-12: the parent's parameters
+        np.testing.assert_allclose(m3.params[k], m4.params[k], atol=1e-6, err_msg=k)
+    w = np.random.default_rng(0).uniform(0.3, 0.7, (4, 30, 2))
+    assert m3.predict(w[1:]).shape == (30, 2)
+    with pytest.raises(ValueError):              # the child's network wants 3 frames
+        m3.predict(w)
+    other = T.size_config("small", m=3).to_dict()
+    with pytest.raises(ValueError, match="differs"):   # another size is still refused
+        T.train(str(data3), tmp_path / "bad", _recipe(init_from=str(tmp_path / "parent.h5"),
+                                                      config=other), threads=1, progress=False)
+
+
 def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_path):
     """--shape-weight λ adds λ·Σ w_i·E_s (released shape error of the centred sets): the torch
     term equals tpnet_ref.metrics.shape_error, is invariant to translating either set, and the

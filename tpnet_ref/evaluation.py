@@ -619,6 +619,48 @@ def spacing_stats(sets: np.ndarray) -> dict[str, float]:
             "radius_std": float(r.std(axis=1).mean() * scale)}
 
 
+def resample_outline(sets: np.ndarray, offset: float | np.ndarray = 0.0) -> np.ndarray:
+    """Each set's outline, resampled with its points evenly spaced along it.
+
+    The outline is the closed polygon through the points taken in angular order about the
+    centroid; point ``j`` of the result sits at arc length ``(j + offset) / N`` of its perimeter,
+    starting from the point of smallest angle. ``sets (K, N, 2)``; ``offset`` a scalar or
+    ``(K,)`` array, in spacings. Returns ``(K, N, 2)`` float64 (same units as ``sets``). Used to
+    tell an outline's error from its spacing's: clumped points and the same outline evenly
+    spaced have the same polygon."""
+    x = np.asarray(sets, dtype=np.float64)
+    if x.ndim != 3 or x.shape[-1] != 2 or x.shape[1] < 3:
+        raise ValueError(f"sets: expected (K, N >= 3, 2), got shape {x.shape}")
+    k, n = x.shape[:2]
+    off = np.broadcast_to(np.asarray(offset, dtype=np.float64), (k,))
+    d = x - x.mean(axis=1, keepdims=True)
+    order = np.argsort(np.arctan2(d[..., 1], d[..., 0]), axis=1, kind="stable")
+    q = np.take_along_axis(x, order[..., None], axis=1)
+    q = np.concatenate([q, q[:, :1]], axis=1)                      # close the polygon
+    s = np.concatenate([np.zeros((k, 1)),
+                        np.cumsum(np.linalg.norm(np.diff(q, axis=1), axis=-1), axis=1)], axis=1)
+    out = np.empty_like(x)
+    for i in range(k):
+        t = (np.arange(n) + off[i]) % n / n * s[i, -1]
+        out[i, :, 0] = np.interp(t, s[i], q[i, :, 0])
+        out[i, :, 1] = np.interp(t, s[i], q[i, :, 1])
+    return out
+
+
+def ring_rotation(frames: np.ndarray, n: int = 30) -> np.ndarray:
+    """How far the body has turned since its start, in degrees (counter-clockwise positive):
+    the circular mean, over the particles, of each particle's angle about the centroid minus its
+    start angle (SPEC §5: particle ``i`` starts at ``i·360°/n`` from +y towards +x).
+    ``frames (..., n, 2)`` in the simulator's particle order -> ``(...)``."""
+    x = np.asarray(frames, dtype=np.float64)
+    if x.shape[-2:] != (n, 2):
+        raise ValueError(f"frames: expected (..., {n}, 2) in particle order, got {x.shape}")
+    d = x - x.mean(axis=-2, keepdims=True)
+    ang = np.arctan2(d[..., 0], d[..., 1])            # from +y towards +x, like the start ring
+    start = 2 * np.pi * np.arange(n) / n
+    return -np.degrees(np.angle(np.exp(1j * (ang - start)).mean(axis=-1)))
+
+
 def _scale_note(curves: Sequence[Curve]) -> list[str]:
     """What the released-metric numbers mean in distances (from the copy-last row)."""
     cands = [c for c in curves if c.name == "copy last" and c.ordering == "given"

@@ -21,7 +21,8 @@ input coordinates (never on the targets). Validation is a held-out set of whole 
 *trajectories* (``--val-fraction``), always scored with the recipe's ``--rollout``-step loss and the
 Chamfer distances of its first and last predictions; the 60 test cases are never read.
 ``--init-from RUN`` starts a new run (fresh Adam and schedule) from another run's weights and
-carries its provenance.
+carries its provenance. The parent may have another window length ``m``: no weight depends on m
+(the LSTMs run over any number of frames), so the m = 3 and m = 5 models start from m = 4's.
 
 Determinism: the epoch's window order comes from ``default_rng([seed, epoch])`` and the noise of
 step ``s`` from a torch generator seeded with ``(seed, s)``, so a run resumed from a checkpoint
@@ -32,6 +33,7 @@ torch is imported inside the functions only; ``import tpnet_ref.train`` is cheap
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -502,9 +504,13 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     net = TorchTPNet(cfg).to(dev)
     if payload is None and r.init_from:
         parent, pstate, pcfg = load_parent(r.init_from)
-        if pcfg != cfg:
+        # the weights do not depend on m (the LSTMs run over any number of frames), so a
+        # model for another window length may start from them
+        if dataclasses.replace(pcfg, m=cfg.m) != cfg:
             raise ValueError(f"--init-from {r.init_from}: its network {pcfg} differs from the "
                              f"recipe's {cfg}")
+        if pcfg.m != cfg.m:              # the stored config names the parent's m
+            parent = {**parent, "_extra_state": net.get_extra_state()}
         net.load_state_dict(parent)
         state["inherited"] = _inherited(r.init_from, pstate)
     elif payload is None and r.head_init == "template":
@@ -872,8 +878,8 @@ def _cli_run(args: Any) -> int:
         with h5py.File(args.data, "r") as h:
             m = int(h.attrs["m"])
         cfg = size_config(args.size, m=m, lstm_activation=args.lstm_activation)
-        if args.init_from:
-            cfg = load_parent(args.init_from)[2]
+        if args.init_from:   # the parent's network, for this dataset's window length m
+            cfg = dataclasses.replace(load_parent(args.init_from)[2], m=m)
         recipe = Recipe(recipe=args.recipe, epochs=args.epochs or Recipe.epochs,
                         batch=args.batch, lr=args.lr, beta1=args.beta1, beta2=args.beta2,
                         eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,

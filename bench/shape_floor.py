@@ -1,0 +1,96 @@
+"""What the shape error E_s can reach without the particles' rotation phase (model card, issue 6).
+
+    PYTHONPATH=. python bench/shape_floor.py [--weights weights/tpnet-m4.h5] [--m 4]
+
+On the 60 held-out test cases (SPEC §5 protocol, released metric, normalised), E_s at
+horizons 1, 10, 40, 80 of predictors that know more or less than a model can:
+
+* copy last / constant velocity: the baselines of the issue;
+* rest ring at a random phase: the body's undeformed ring, turned by a uniform fraction of one
+  particle spacing (averaged over 16 phases);
+* true shape, evenly spaced, random phase: the exact outline of the true frame with its points
+  evenly spaced along it from a random start (8 draws): what a perfect model that does not
+  know the rotation phase would score;
+* the model, and its own outline evenly spaced (how much of its E_s is clumping).
+
+Then how far the body has turned (``ring_rotation``): the share of cases whose rotation,
+modulo one particle spacing (12°), is more than 1° from the start phase, and the mean distance
+from it (a uniform phase gives 3°).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+import tpnet_ref
+from tpnet_ref import evaluation as ev
+from tpnet_ref.cases import TEST_CASES
+from tpnet_ref.metrics import shape_error
+
+HS = (1, 10, 40, 80)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    model = tpnet_ref.load(args.weights)
+    m, hmax = model.config.m, max(HS)
+    frames = ev.normalize(ev.simulate_cases(np.asarray(TEST_CASES), workers=args.workers))
+    inputs, targets = ev.split_protocol(frames, m, hmax)
+    truth = targets[:, [h - 1 for h in HS]]                            # (C, H, N, 2)
+    c, nh, n = truth.shape[:3]
+    rng = np.random.default_rng(0)
+
+    def es(pred: np.ndarray) -> np.ndarray:                           # (C, H, N, 2) -> (H,)
+        return shape_error(truth, np.broadcast_to(pred, truth.shape), variant="released").mean(0)
+
+    rows: list[tuple[str, np.ndarray]] = []
+    rows.append(("copy last input frame", es(ev.copy_last(inputs, hmax)[:, [h - 1 for h in HS]])))
+    rows.append(("constant velocity",
+                 es(ev.constant_velocity(inputs, hmax)[:, [h - 1 for h in HS]])))
+    r = 2.0 / (ev.NORM_HI - ev.NORM_LO)
+    a = 2 * np.pi * np.arange(n) / n
+    ring = [np.stack([r * np.sin(a + p), r * np.cos(a + p)], -1)
+            for p in (np.arange(16) + 0.5) / 16 * 2 * np.pi / n]
+    rows.append(("rest ring, random phase", np.mean([es(x) for x in ring], axis=0)))
+    flat = truth.reshape(c * nh, n, 2)
+    even = [resampled.reshape(truth.shape) for resampled in
+            (ev.resample_outline(flat, rng.uniform(0, 1, c * nh)) for _ in range(8))]
+    rows.append(("true shape, evenly spaced, random phase", np.mean([es(x) for x in even], 0)))
+    pred = ev.batched_rollout(model, inputs, hmax)[:, [h - 1 for h in HS]]
+    rows.append(("this model", es(pred)))
+    rows.append(("this model's outline, evenly spaced",
+                 es(ev.resample_outline(pred.reshape(c * nh, n, 2)).reshape(truth.shape))))
+
+    print(f"E_s (released, normalised) on the {c} test cases, m = {m}, "
+          f"weights {args.weights or 'shipped'}; rest ring at a uniform phase: "
+          f"{ev.ring_phase_floor():.3f}")
+    print()
+    print("| predictor | " + " | ".join(f"E_s @{h}" for h in HS) + " |")
+    print("|---|" + "---|" * nh)
+    for name, v in rows:
+        print(f"| {name} | " + " | ".join(f"{x:.3f}" for x in v) + " |")
+    print()
+    spacing = 360.0 / n
+    rot = ev.ring_rotation(ev.denormalize(truth))                      # (C, H) degrees
+    off = np.abs((rot + spacing / 2) % spacing - spacing / 2)
+    print("| horizon | " + " | ".join(f"@{h}" for h in HS) + " |")
+    print("|---|" + "---|" * nh)
+    print("| median \\|rotation\\| since the start (°) | "
+          + " | ".join(f"{x:.1f}" for x in np.median(np.abs(rot), 0)) + " |")
+    print("| cases off the start phase by > 1° (mod 12°) | "
+          + " | ".join(f"{x:.0f} %" for x in 100 * (off > 1.0).mean(0)) + " |")
+    print(f"| mean distance from the start phase (°; uniform {spacing / 4:.1f}) | "
+          + " | ".join(f"{x:.2f}" for x in off.mean(0)) + " |")
+    print(f"\n{time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
