@@ -686,9 +686,10 @@ def _scale_note(curves: Sequence[Curve]) -> list[str]:
     lines += ["", f"Shape error floor: the body's rest ring (30 particles, radius 2) against the "
               f"same ring turned by a random fraction of one particle spacing scores E_s "
               f"{ring_phase_floor():.3f} (`evaluation.ring_phase_floor()`). Copy last sits near "
-              f"it once the body has rolled ({_fmt(c.at(h, 'Es_released'))} @{h}), so a model "
-              f"beats it on E_s only if it predicts where each particle has turned to, i.e. "
-              f"positions to a fraction of the 0.42 world-unit particle spacing."]
+              f"it once the body has rolled ({_fmt(c.at(h, 'Es_released'))} @{h}). Beating it "
+              f"needs either where each particle has turned to (positions to a fraction of the "
+              f"0.42 world-unit particle spacing) or evenly spaced points on a nearly exact "
+              f"outline (`bench/shape_floor.py` scores such references)."]
     return lines + [""]
 
 

@@ -61,6 +61,14 @@ def default_weights_path() -> Path:
     return weights_dir() / DEFAULT_WEIGHTS
 
 
+def shipped_weights_path(m: int = 4) -> Path:
+    """The shipped model for windows of ``m`` frames: ``tpnet-m{m}.h5`` in :func:`weights_dir`
+    (m = 4 is the default model; m = 3 and 5 are fine-tuned from it, ``weights/MODEL_CARD.md``)."""
+    if m not in (3, 4, 5):
+        raise ValueError(f"no model is shipped for m={m!r}: there are m = 3, 4 and 5")
+    return weights_dir() / f"tpnet-m{m}.h5"
+
+
 def save_native(model: TPNet, path: str | os.PathLike, **provenance: Any) -> None:
     """Write ``model`` to ``path`` in the native format, in the model's dtype (bit-exact)."""
     import h5py
