@@ -1,6 +1,6 @@
 """What the shape error E_s can reach without the particles' rotation phase (model card, issue 6).
 
-    PYTHONPATH=. python bench/shape_floor.py [--weights weights/tpnet-m4.h5] [--m 4]
+    PYTHONPATH=. python bench/shape_floor.py [--weights weights/tpnet-m5.h5]
 
 On the 60 held-out test cases (SPEC §5 protocol, released metric, normalised), E_s at
 horizons 1, 10, 40, 80 of predictors that know more or less than a model can:
@@ -43,7 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     m, hmax = model.config.m, max(HS)
     frames = ev.normalize(ev.simulate_cases(np.asarray(TEST_CASES), workers=args.workers))
     inputs, targets = ev.split_protocol(frames, m, hmax)
-    truth = targets[:, [h - 1 for h in HS]]                            # (C, H, N, 2)
+    at = [h - 1 for h in HS]
+    truth = targets[:, at]                                             # (C, H, N, 2)
     c, nh, n = truth.shape[:3]
     rng = np.random.default_rng(0)
 
@@ -51,9 +52,8 @@ def main(argv: list[str] | None = None) -> int:
         return shape_error(truth, np.broadcast_to(pred, truth.shape), variant="released").mean(0)
 
     rows: list[tuple[str, np.ndarray]] = []
-    rows.append(("copy last input frame", es(ev.copy_last(inputs, hmax)[:, [h - 1 for h in HS]])))
-    rows.append(("constant velocity",
-                 es(ev.constant_velocity(inputs, hmax)[:, [h - 1 for h in HS]])))
+    rows.append(("copy last input frame", es(ev.copy_last(inputs, hmax)[:, at])))
+    rows.append(("constant velocity", es(ev.constant_velocity(inputs, hmax)[:, at])))
     r = 2.0 / (ev.NORM_HI - ev.NORM_LO)
     a = 2 * np.pi * np.arange(n) / n
     ring = [np.stack([r * np.sin(a + p), r * np.cos(a + p)], -1)
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     even = [resampled.reshape(truth.shape) for resampled in
             (ev.resample_outline(flat, rng.uniform(0, 1, c * nh)) for _ in range(8))]
     rows.append(("true shape, evenly spaced, random phase", np.mean([es(x) for x in even], 0)))
-    pred = ev.batched_rollout(model, inputs, hmax)[:, [h - 1 for h in HS]]
+    pred = ev.batched_rollout(model, inputs, hmax)[:, at]
     rows.append(("this model", es(pred)))
     rows.append(("this model's outline, evenly spaced",
                  es(ev.resample_outline(pred.reshape(c * nh, n, 2)).reshape(truth.shape))))

@@ -48,18 +48,23 @@ def test_the_other_window_lengths_are_shipped_with_their_m():
         shipped_weights_path(6)
 
 
-@pytest.fixture(scope="module", params=[3, 4, 5], ids=lambda m: f"m{m}")
-def rollouts(request, frames):
-    model = tpnet_ref.load(shipped_weights_path(request.param))
-    windows, truth = E.split_protocol(frames, model.config.m, 80)
-    pred = E.batched_rollout(model, windows, 80, normalized=True)
-    return windows, truth, pred
-
-
 @pytest.fixture(scope="module")
-def rollouts_m4(shipped, frames):
-    windows, truth = E.split_protocol(frames, shipped.config.m, 80)
-    return windows, truth, E.batched_rollout(shipped, windows, 80, normalized=True)
+def rollout_of(frames):
+    """``rollout_of(m)``: (windows, truth, predictions) of the shipped m model, each made once."""
+    done: dict[int, tuple] = {}
+
+    def get(m: int) -> tuple:
+        if m not in done:
+            model = tpnet_ref.load(shipped_weights_path(m))
+            windows, truth = E.split_protocol(frames, m, 80)
+            done[m] = windows, truth, E.batched_rollout(model, windows, 80, normalized=True)
+        return done[m]
+    return get
+
+
+@pytest.fixture(scope="module", params=[3, 4, 5], ids=lambda m: f"m{m}")
+def rollouts(request, rollout_of):
+    return rollout_of(request.param)
 
 
 def _at(errs: dict, key: str, h: int) -> float:
@@ -97,8 +102,8 @@ def test_shipped_model_shape_error_stays_near_copy_last(rollouts):
                    "needs each particle's rotation phase, i.e. positions to a fraction of the "
                    "particle spacing (weights/MODEL_CARD.md); strict, so meeting it turns this "
                    "red until the marker is removed")
-def test_shipped_model_beats_the_baselines_on_shape_error(rollouts_m4):
-    windows, truth, pred = rollouts_m4
+def test_shipped_model_beats_the_baselines_on_shape_error(rollout_of):
+    windows, truth, pred = rollout_of(4)
     ours = E.errors(truth, pred)
     for baseline in ("copy_last", "constant_velocity"):
         theirs = E.errors(truth, getattr(E, baseline)(windows, 80))
