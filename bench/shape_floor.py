@@ -54,11 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[tuple[str, np.ndarray]] = []
     rows.append(("copy last input frame", es(ev.copy_last(inputs, hmax)[:, at])))
     rows.append(("constant velocity", es(ev.constant_velocity(inputs, hmax)[:, at])))
-    r = 2.0 / (ev.NORM_HI - ev.NORM_LO)
-    a = 2 * np.pi * np.arange(n) / n
-    ring = [np.stack([r * np.sin(a + p), r * np.cos(a + p)], -1)
-            for p in (np.arange(16) + 0.5) / 16 * 2 * np.pi / n]
-    rows.append(("rest ring, random phase", np.mean([es(x) for x in ring], axis=0)))
+    rings = ev.rest_ring((np.arange(16) + 0.5) / 16 * 2 * np.pi / n, n)
+    rows.append(("rest ring, random phase", np.mean([es(x) for x in rings], axis=0)))
     flat = truth.reshape(c * nh, n, 2)
     even = [resampled.reshape(truth.shape) for resampled in
             (ev.resample_outline(flat, rng.uniform(0, 1, c * nh)) for _ in range(8))]

@@ -584,20 +584,26 @@ def _load() -> str:
         return ""
 
 
+def rest_ring(phases: float | np.ndarray = 0.0, n: int = 30, radius: float = 2.0) -> np.ndarray:
+    """The body's undeformed ring (SPEC §5: particle ``i`` at angle ``i·2π/n`` from +y towards
+    +x, ``radius`` world units) in normalised units about the origin, each particle's angle
+    advanced by ``phases`` (radians, scalar or ``(P,)``): ``(n, 2)`` or ``(P, n, 2)``."""
+    r = radius / (NORM_HI - NORM_LO)
+    a = 2 * np.pi * np.arange(n) / n + np.asarray(phases, dtype=np.float64)[..., None]
+    return np.stack([r * np.sin(a), r * np.cos(a)], axis=-1)
+
+
 def ring_phase_floor(n: int = 30, radius: float = 2.0, samples: int = 720) -> float:
     """Released shape error E_s between the body's rest ring (``n`` particles, ``radius`` world
     units, normalised like the data) and the same ring rotated by a phase drawn uniformly from
     one particle spacing (``samples`` evenly spaced phases, averaged). A prediction that has the
     exact shape but not the particles' rotation phase scores this on average: copying the last
-    frame scores about this once the body has turned, so beating it on E_s needs the phase."""
+    frame scores about this once the body has turned, so beating it on E_s needs the phase or
+    a nearly exact outline (``bench/shape_floor.py``)."""
     from .metrics import shape_error
-    r = radius / (NORM_HI - NORM_LO)
-    a = 2 * np.pi * np.arange(n) / n
-    ph = (np.arange(samples) + 0.5) / samples * (2 * np.pi / n)
-    ring = np.stack([r * np.sin(a), r * np.cos(a)], axis=-1)
-    turned = np.stack([r * np.sin(a[None] + ph[:, None]), r * np.cos(a[None] + ph[:, None])], -1)
-    return float(np.mean(shape_error(np.broadcast_to(ring, turned.shape), turned,
-                                     variant="released")))
+    turned = rest_ring((np.arange(samples) + 0.5) / samples * (2 * np.pi / n), n, radius)
+    return float(np.mean(shape_error(np.broadcast_to(rest_ring(0.0, n, radius), turned.shape),
+                                     turned, variant="released")))
 
 
 def spacing_stats(sets: np.ndarray) -> dict[str, float]:

@@ -35,8 +35,6 @@ from .model import TPNet, TPNetConfig, param_shapes
 
 FORMAT = "tpnet_ref-weights"
 FORMAT_VERSION = 1
-#: the shipped model that ``load()`` uses when no path is given
-DEFAULT_WEIGHTS = "tpnet-m4.h5"
 #: a config larger than this many parameters is refused as implausible (the paper's is ~8.1M)
 MAX_PARAMS = 200_000_000
 #: one imported tensor larger than this many elements is refused before it is read (the
@@ -57,8 +55,8 @@ def weights_dir() -> Path:
 
 
 def default_weights_path() -> Path:
-    """The file ``load()`` reads when called without a path."""
-    return weights_dir() / DEFAULT_WEIGHTS
+    """The file ``load()`` reads when called without a path (the m = 4 model)."""
+    return shipped_weights_path(4)
 
 
 def shipped_weights_path(m: int = 4) -> Path:
