@@ -11,11 +11,16 @@ horizons 1, 10, 40, 80 of predictors that know more or less than a model can:
 * true shape, evenly spaced, random phase: the exact outline of the true frame with its points
   evenly spaced along it from a random start (8 draws): what a perfect model that does not
   know the rotation phase would score;
-* the model, and its own outline evenly spaced (how much of its E_s is clumping).
+* each true frame as the evenly spaced circle of its mean radius at a random phase: the
+  best guess at a ring whose vibration is unknown;
+* the model, its own outline evenly spaced (how much of its E_s is clumping), and the circle
+  of its own mean radius (how much is its outline's raggedness and wrong deformation).
 
 Then how far the body has turned (``ring_rotation``): the share of cases whose rotation,
 modulo one particle spacing (12°), is more than 1° from the start phase, and the mean distance
-from it (a uniform phase gives 3°).
+from it (a uniform phase gives 3°). Last, the mean radius and the raggedness (mean distance of
+the points from the set's smooth outline, Fourier modes ≤ 4; ``radial_fit``) of the true
+frames and of the model's, in world units.
 """
 from __future__ import annotations
 
@@ -60,10 +65,19 @@ def main(argv: list[str] | None = None) -> int:
     even = [resampled.reshape(truth.shape) for resampled in
             (ev.resample_outline(flat, rng.uniform(0, 1, c * nh)) for _ in range(8))]
     rows.append(("true shape, evenly spaced, random phase", np.mean([es(x) for x in even], 0)))
+    phases = [rng.uniform(0, 2 * np.pi / n, c * nh) for _ in range(8)]
+
+    def circle(sets: np.ndarray) -> np.ndarray:                        # mean over 8 phases
+        flat_sets = sets.reshape(c * nh, n, 2)
+        return np.mean([es(ev.radial_outline(flat_sets, 0, p).reshape(truth.shape))
+                        for p in phases], axis=0)
+
+    rows.append(("true shape as a circle of its mean radius, random phase", circle(truth)))
     pred = ev.batched_rollout(model, inputs, hmax)[:, at]
     rows.append(("this model", es(pred)))
     rows.append(("this model's outline, evenly spaced",
                  es(ev.resample_outline(pred.reshape(c * nh, n, 2)).reshape(truth.shape))))
+    rows.append(("this model as a circle of its mean radius, random phase", circle(pred)))
 
     print(f"E_s (released, normalised) on the {c} test cases, m = {m}, "
           f"weights {args.weights or 'shipped'}; rest ring at a uniform phase: "
@@ -85,6 +99,17 @@ def main(argv: list[str] | None = None) -> int:
           + " | ".join(f"{x:.0f} %" for x in 100 * (off > 1.0).mean(0)) + " |")
     print(f"| mean distance from the start phase (°; uniform {spacing / 4:.1f}) | "
           + " | ".join(f"{x:.2f}" for x in off.mean(0)) + " |")
+    print()
+    scale = ev.NORM_HI - ev.NORM_LO
+    print("| horizon (world units) | " + " | ".join(f"@{h}" for h in HS) + " |")
+    print("|---|" + "---|" * nh)
+    for name, sets in (("truth", truth), ("this model", pred)):
+        coef, res = ev.radial_fit(sets.reshape(c * nh, n, 2), modes=4)
+        r0 = coef[:, 0].reshape(c, nh).mean(0) * scale
+        rag = np.abs(res).reshape(c, nh, n).mean((0, 2)) * scale
+        print(f"| {name}: mean radius | " + " | ".join(f"{x:.4f}" for x in r0) + " |")
+        print(f"| {name}: raggedness (mean \\|radius − modes ≤ 4 fit\\|) | "
+              + " | ".join(f"{x:.4f}" for x in rag) + " |")
     print(f"\n{time.perf_counter() - t0:.1f} s")
     return 0
 

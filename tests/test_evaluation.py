@@ -396,3 +396,42 @@ def test_resample_outline_spaces_points_evenly_along_the_same_polygon():
     assert d.std() < 0.05 * d.mean()
     with pytest.raises(ValueError, match="sets"):
         E.resample_outline(ring)
+
+
+def test_radial_fit_reads_radius_squash_and_raggedness():
+    """A circle fits with its radius and no residual; an ellipse (a mode-2 squash) needs mode 2;
+    a ragged ring (every other point pushed out) leaves its raggedness in the residual."""
+    a = 2 * np.pi * np.arange(30) / 30
+    circle = _ring(r=2.0)
+    coef, res = E.radial_fit(circle[None], modes=4)
+    assert coef[0, 0] == pytest.approx(2.0, abs=1e-9)
+    np.testing.assert_allclose(coef[0, 1:], 0, atol=1e-9)
+    np.testing.assert_allclose(res, 0, atol=1e-9)
+    ellipse = np.stack([2.2 * np.cos(a), 1.8 * np.sin(a)], -1)
+    c0, r0 = E.radial_fit(ellipse[None], modes=0)
+    c2, r2 = E.radial_fit(ellipse[None], modes=2)
+    assert c2[0, 3] > 0.15 and np.abs(r2).max() < 0.2 * np.abs(r0).max()
+    ragged = circle + 0.05 * np.where(np.arange(30) % 2, 1, -1)[:, None] * (circle - circle.mean(0)) / 2
+    _, rr = E.radial_fit(ragged[None], modes=4)
+    assert np.abs(rr).mean() == pytest.approx(0.05, rel=1e-6)
+    with pytest.raises(ValueError, match="sets"):
+        E.radial_fit(circle)
+
+
+@pytest.mark.parametrize("phase", [0.0, 0.1])
+def test_radial_outline_is_the_evenly_spaced_smooth_outline(phase):
+    """modes = 0 turns a ragged, clumped, shuffled ring into the evenly spaced circle of its
+    mean radius at the given phase; a circle at that phase comes back unchanged."""
+    from tpnet_ref.metrics import shape_error
+    a = 2 * np.pi * np.arange(30) / 30 + phase
+    circle = np.stack([3 + 2 * np.cos(a), 4 + 2 * np.sin(a)], -1)
+    np.testing.assert_allclose(E.radial_outline(circle[None], 0, phase)[0], circle, atol=1e-12)
+    rng = np.random.default_rng(0)
+    messy = circle * 1.0
+    messy[3] = messy[4] + 1e-3
+    messy = (messy - messy.mean(0)) * (1 + 0.01 * rng.standard_normal((30, 1))) + messy.mean(0)
+    out = E.radial_outline(messy[rng.permutation(30)][None], 0, [phase])[0]
+    r = np.linalg.norm(out - out.mean(0), axis=1)
+    assert r.std() < 1e-12
+    assert shape_error(circle, out, variant="released") < 0.05 * 60
+    assert np.diff(np.unwrap(np.arctan2(*(out - out.mean(0)).T[::-1]))).std() < 1e-9

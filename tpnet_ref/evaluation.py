@@ -653,6 +653,47 @@ def resample_outline(sets: np.ndarray, offset: float | np.ndarray = 0.0) -> np.n
     return out
 
 
+def radial_fit(sets: np.ndarray, modes: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Each set's distance from its centroid as a Fourier series in the angle about it.
+
+    Least-squares fit of ``r(θ) = a_0 + Σ_{k=1..modes} (a_k cos kθ + b_k sin kθ)`` to the points
+    of each set. ``sets (K, N, 2)`` -> ``(coef (K, 1 + 2·modes), residual (K, N))``, coefficients
+    ordered ``a_0, a_1, b_1, a_2, ...`` and the residual in the units of ``sets``. ``modes = 0``
+    fits a circle (``a_0`` the mean radius); mode 2 is the ring's squash. The residual's spread
+    tells a ragged outline (point to point) from a smooth deformation."""
+    x = np.asarray(sets, dtype=np.float64)
+    if x.ndim != 3 or x.shape[-1] != 2 or x.shape[1] < 1 + 2 * modes or modes < 0:
+        raise ValueError(f"sets: expected (K, N >= {1 + 2 * max(modes, 0)}, 2) and modes >= 0, "
+                         f"got shape {x.shape}, modes {modes}")
+    d = x - x.mean(axis=1, keepdims=True)
+    th = np.arctan2(d[..., 1], d[..., 0])
+    r = np.linalg.norm(d, axis=-1)
+    a = _radial_basis(th, modes)                                    # (K, N, 1 + 2·modes)
+    coef = np.stack([np.linalg.lstsq(a[i], r[i], rcond=None)[0] for i in range(len(x))])
+    return coef, r - np.einsum("knj,kj->kn", a, coef)
+
+
+def _radial_basis(th: np.ndarray, modes: int) -> np.ndarray:
+    cols = [np.ones_like(th)]
+    for k in range(1, modes + 1):
+        cols += [np.cos(k * th), np.sin(k * th)]
+    return np.stack(cols, axis=-1)
+
+
+def radial_outline(sets: np.ndarray, modes: int = 0, phase: float | np.ndarray = 0.0) -> np.ndarray:
+    """Each set replaced by its smooth outline (:func:`radial_fit` with ``modes``) sampled at
+    ``N`` evenly spaced angles ``phase + 2πj/N`` (radians, scalar or ``(K,)``) about the same
+    centroid: ``(K, N, 2)`` float64. ``modes = 0`` gives the circle of the set's mean radius,
+    the best phase-blind guess at a ring whose vibration is unknown (``bench/shape_floor.py``)."""
+    x = np.asarray(sets, dtype=np.float64)
+    coef, _ = radial_fit(x, modes)
+    k, n = x.shape[:2]
+    th = np.broadcast_to(np.asarray(phase, dtype=np.float64), (k,))[:, None] \
+        + 2 * np.pi * np.arange(n) / n
+    r = np.einsum("knj,kj->kn", _radial_basis(th, modes), coef)
+    return x.mean(axis=1, keepdims=True) + np.stack([r * np.cos(th), r * np.sin(th)], axis=-1)
+
+
 def ring_rotation(frames: np.ndarray, n: int = 30) -> np.ndarray:
     """How far the body has turned since its start, in degrees (counter-clockwise positive):
     the circular mean, over the particles, of each particle's angle about the centroid minus its
@@ -1131,4 +1172,5 @@ __all__ = ["simulate_cases", "split_protocol", "order_points", "copy_last", "con
            "batched_rollout", "errors", "evaluate", "generalisation_cases", "timing_table",
            "sim_coarse", "results_tables", "ordering_table", "md_table", "render_markdown",
            "write_results", "demo", "Curve", "Report", "TimingRow", "ModelSpec", "PAPER_TABLE",
-           "HORIZONS", "ORDERINGS", "FRAME_EVERY", "ring_phase_floor", "spacing_stats"]
+           "HORIZONS", "ORDERINGS", "FRAME_EVERY", "ring_phase_floor", "spacing_stats",
+           "rest_ring", "resample_outline", "ring_rotation", "radial_fit", "radial_outline"]
