@@ -26,7 +26,6 @@ import numpy as np
 
 import tpnet_ref
 from tpnet_ref import evaluation as ev
-from tpnet_ref.metrics import position_error, shape_error
 from tpnet_ref.train import WindowData
 
 HS = (1, 10, 40, 80)
@@ -67,12 +66,11 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(1)
 
     def report(step: int, pred: np.ndarray) -> None:
+        err = ev.errors(vtruth, pred)
         r = {"step": step}
         for h in HS:
-            r[f"Ep@{h}"] = round(float(position_error(vtruth[:, h - 1], pred[:, h - 1],
-                                                      variant="released").mean()), 3)
-            r[f"Es@{h}"] = round(float(shape_error(vtruth[:, h - 1], pred[:, h - 1],
-                                                   variant="released").mean()), 3)
+            r[f"Ep@{h}"] = round(float(err["Ep_released"][:, h - 1].mean()), 3)
+            r[f"Es@{h}"] = round(float(err["Es_released"][:, h - 1].mean()), 3)
         print(json.dumps(r), flush=True)
 
     report(-1, np.broadcast_to(vin[:, -1:], vtruth.shape))      # copy-last, printed as step -1

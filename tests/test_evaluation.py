@@ -434,4 +434,6 @@ def test_radial_outline_is_the_evenly_spaced_smooth_outline(phase):
     r = np.linalg.norm(out - out.mean(0), axis=1)
     assert r.std() < 1e-12
     assert shape_error(circle, out, variant="released") < 0.05 * 60
-    assert np.diff(np.unwrap(np.arctan2(*(out - out.mean(0)).T[::-1]))).std() < 1e-9
+    ang = np.unwrap(np.arctan2(*(out - out.mean(0)).T[::-1]))
+    assert ang[0] == pytest.approx(phase, abs=1e-12)
+    np.testing.assert_allclose(np.diff(ang), 2 * np.pi / 30, atol=1e-12)
