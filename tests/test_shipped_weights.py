@@ -98,10 +98,11 @@ def test_shipped_model_shape_error_stays_near_copy_last(rollouts):
 
 
 @pytest.mark.xfail(strict=True, reason="open goal of the training issue: after 40-80 frames "
-                   "copy-last scores near the random-phase ring floor E_s 0.147, so beating it "
-                   "needs each particle's rotation phase, i.e. positions to a fraction of the "
-                   "particle spacing (weights/MODEL_CARD.md); strict, so meeting it turns this "
-                   "red until the marker is removed")
+                   "copy-last scores near the random-phase ring floor E_s 0.147; at 80 frames "
+                   "even a perfect circle of the true radius only ties it (0.166 vs 0.167), so "
+                   "beating it needs each particle's rotation phase or the ring's vibration 7 s "
+                   "ahead (bench/shape_floor.py, weights/MODEL_CARD.md); strict, so meeting it "
+                   "turns this red until the marker is removed")
 def test_shipped_model_beats_the_baselines_on_shape_error(rollout_of):
     windows, truth, pred = rollout_of(4)
     ours = E.errors(truth, pred)
