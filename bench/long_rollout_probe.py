@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
             r[f"Es@{h}"] = round(float(err["Es_released"][:, h - 1].mean()), 3)
         print(json.dumps(r), flush=True)
 
-    report(-1, np.broadcast_to(vin[:, -1:], vtruth.shape))      # copy-last, printed as step -1
+    report(-1, ev.copy_last(vin, max(HS)))                      # copy-last, printed as step -1
     report(0, ev.batched_rollout(net.to_numpy("float32"), vin, max(HS)))
     t0 = time.perf_counter()
     h, b = args.horizon, args.batch
