@@ -22,7 +22,7 @@ import numpy as np
 
 from tpnet_ref import layers as L
 from tpnet_ref.model import init_random
-from tpnet_ref.validation import NonFiniteResultError
+from tpnet_ref.checks import NonFiniteResultError
 
 
 def window(m: int) -> np.ndarray:

@@ -346,7 +346,7 @@ def test_ring_phase_floor_matches_its_closed_form():
     angular distance to the nearest particle (both directions alike); averaged over φ uniform
     in one spacing this is the floor results.md quotes."""
     from tpnet_ref.metrics import shape_error
-    from tpnet_ref.model import NORM_HI, NORM_LO
+    from tpnet_ref.config import NORM_HI, NORM_LO
     n, r = 30, 2.0 / (NORM_HI - NORM_LO)
     s = 2 * np.pi / n
     ph = (np.arange(720) + 0.5) / 720 * s

@@ -12,7 +12,7 @@ from hypothesis.extra import numpy as hnp
 from scipy.spatial import cKDTree
 
 from tpnet_ref.metrics import chamfer_loss, position_error, shape_error
-from tpnet_ref.validation import NonFiniteResultError
+from tpnet_ref.checks import NonFiniteResultError
 
 METHODS = ["auto", "brute", "grid", "kdtree"]
 VARIANTS = ["paper", "released"]

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import tpnet_ref
-from tpnet_ref.model import NORM_HI, NORM_LO, TPNetConfig, init_random, param_shapes
+from tpnet_ref.config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
+from tpnet_ref.model import init_random
 
 import reference_python as ref
 
@@ -322,7 +323,7 @@ def test_large_batches_split_across_threads_give_the_unsplit_results(model32, mo
         assert np.array_equal(three.predict_batch(shuffled), got)
     assert [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"] == blas_before
     # an overflow in one part reaches the caller as the documented error, not NaN
-    from tpnet_ref.validation import NonFiniteResultError
+    from tpnet_ref.checks import NonFiniteResultError
     huge = np.stack([_window(rng) for _ in range(b)])
     huge[-1] *= 1e30
     with pytest.raises(NonFiniteResultError):

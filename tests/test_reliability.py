@@ -15,9 +15,10 @@ from hypothesis.extra import numpy as hnp
 import tpnet_ref
 from tpnet_ref import metrics
 from tpnet_ref.cli import main
-from tpnet_ref.model import NORM_HI, NORM_LO, TPNetConfig, init_random
+from tpnet_ref.config import NORM_HI, NORM_LO, TPNetConfig
+from tpnet_ref.model import init_random
 from tpnet_ref.sim import SceneParams, simulate
-from tpnet_ref.validation import NonFiniteResultError
+from tpnet_ref.checks import NonFiniteResultError
 
 SMALL = dict(input_tnet_mlp=(8,), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
              feature_tnet_fc=(8,), mlp2=(8, 16), global_features=8, lstm_units=(8, 6), n_out=5)

@@ -377,7 +377,7 @@ def test_score_rollouts_on_validation_trajectories(dataset, tmp_path, capsys):
 
 def test_spacing_stats_of_the_rest_ring_and_of_a_clump():
     from tpnet_ref.evaluation import spacing_stats
-    from tpnet_ref.model import NORM_HI, NORM_LO
+    from tpnet_ref.config import NORM_HI, NORM_LO
 
     a = 2 * np.pi * np.arange(30) / 30
     r = 2.0 / (NORM_HI - NORM_LO)

@@ -55,7 +55,7 @@ def rollout(window: Any, steps: int, model: TPNet | None = None,
     return _model(model).rollout(window, steps, normalized=normalized)
 
 
-_LAZY = ("metrics", "sim", "weights", "data", "evaluation", "layers", "model", "validation", "blas")
+_LAZY = ("metrics", "sim", "weights", "data", "evaluation", "layers", "model", "checks", "config", "blas")
 
 
 def __getattr__(name: str) -> Any:

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
-from .model import NORM_HI, NORM_LO
+from .config import NORM_HI, NORM_LO
 from .sim import SceneParams, simulate, validate_params
 
 FORMAT = "tpnet_ref.data/2"
@@ -216,7 +216,7 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
 
 def _cases(a: Any, name: str) -> np.ndarray:
     """``(T, 4)`` finite float cases (force, angle, x, y)."""
-    from .validation import as_real_array, check_finite
+    from .checks import as_real_array, check_finite
     arr = as_real_array(a, name)
     if arr.ndim == 1 and arr.size == 4:
         arr = arr[None]

@@ -41,7 +41,8 @@ from typing import Any
 import numpy as np
 
 from .cases import TEST_CASES, TRAIN_POSITIONS
-from .model import NORM_HI, NORM_LO, TPNet
+from .config import NORM_HI, NORM_LO
+from .model import TPNet
 
 FRAME_EVERY = 4                      # simulation rows per model frame
 SIM_ROWS = 600                       # rows per trajectory (SPEC §5)

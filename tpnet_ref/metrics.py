@@ -32,7 +32,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .validation import NonFiniteResultError, as_point_sets
+from .checks import NonFiniteResultError, as_point_sets
 
 __all__ = ["position_error", "shape_error", "chamfer_loss"]
 

@@ -17,22 +17,18 @@ with row blocking. (Max-pooling alone is invariant in exact arithmetic only.)
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from . import layers as L
+from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from .blas import cpu_count, single_threaded
-from .validation import NonFiniteResultError, as_point_set, as_real_array
+from .checks import NonFiniteResultError, as_point_set, as_real_array
 
-#: world-unit range of the particle centres used for normalisation (SPEC §5)
-NORM_LO = 1.1438
-NORM_HI = 43.8562
 #: points per block of the feature extractor (activations of a block stay in cache)
 BLOCK_POINTS = 2048
 #: batches of this many windows or more are split across threads (measured: docs/performance.md)
@@ -45,111 +41,6 @@ def _pool(n: int) -> ThreadPoolExecutor:
     if n not in _POOLS:
         _POOLS[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tpnet")
     return _POOLS[n]
-
-
-@dataclass(frozen=True)
-class TPNetConfig:
-    """Everything that fixes the network's shapes and semantics (defaults: the released model)."""
-
-    m: int = 4                                    # input frames per window
-    n_out: int = 30                               # points in the predicted set
-    dim: int = 2                                  # coordinates per point
-    input_tnet_mlp: tuple[int, ...] = (64, 128, 512)
-    input_tnet_fc: tuple[int, ...] = (256, 128)
-    mlp1: tuple[int, ...] = (64, 64)
-    feature_tnet_mlp: tuple[int, ...] = (64, 128, 512)
-    feature_tnet_fc: tuple[int, ...] = (256, 128)
-    mlp2: tuple[int, ...] = (128, 256, 512)
-    global_features: int = 128                    # k, the size of G_t
-    lstm_units: tuple[int, ...] = (512, 256, 256)
-    lstm_activation: str = "relu"                 # "relu" (released code) or "tanh"
-    layer_norm_eps: float = 1e-3                  # Keras default; PyTorch's is 1e-5
-    input_transform_trained: bool = False         # False: the 2x2 transform is the identity
-    feature_transform_trained: bool = False       # False: the 64x64 transform is the identity
-    norm_lo: float = NORM_LO                      # world units -> (x - lo) / (hi - lo)
-    norm_hi: float = NORM_HI
-
-    def __post_init__(self) -> None:
-        def integral(x: Any, what: str) -> int:
-            if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)):
-                raise TypeError(f"TPNetConfig.{what} must be an integer, got {x!r}")
-            return int(x)
-
-        for name in ("m", "n_out", "dim", "global_features"):
-            if integral(getattr(self, name), name) < 1:
-                raise ValueError(f"TPNetConfig.{name} must be >= 1, got {getattr(self, name)}")
-            object.__setattr__(self, name, int(getattr(self, name)))
-        for name in ("input_tnet_mlp", "input_tnet_fc", "mlp1", "feature_tnet_mlp",
-                     "feature_tnet_fc", "mlp2", "lstm_units"):
-            raw = getattr(self, name)
-            if isinstance(raw, (str, bytes)) or not hasattr(raw, "__iter__"):
-                raise TypeError(f"TPNetConfig.{name} must be a sequence of widths, got {raw!r}")
-            v = tuple(integral(x, name) for x in raw)
-            if not v or min(v) < 1:
-                raise ValueError(f"TPNetConfig.{name} must be non-empty positive widths, got {v}")
-            object.__setattr__(self, name, v)
-        if self.lstm_activation not in ("relu", "tanh"):
-            raise ValueError(f"TPNetConfig.lstm_activation must be 'relu' or 'tanh', "
-                             f"got {self.lstm_activation!r}")
-        if not (self.layer_norm_eps > 0 and math.isfinite(self.layer_norm_eps)):
-            raise ValueError(f"TPNetConfig.layer_norm_eps must be > 0, got {self.layer_norm_eps}")
-        if not (math.isfinite(self.norm_lo) and math.isfinite(self.norm_hi)
-                and self.norm_hi > self.norm_lo):
-            raise ValueError(f"TPNetConfig: need norm_lo < norm_hi, got {self.norm_lo}, {self.norm_hi}")
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "TPNetConfig":
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(f"unknown TPNetConfig field(s): {sorted(unknown)}")
-        return cls(**d)
-
-
-def param_shapes(cfg: TPNetConfig) -> dict[str, tuple[int, ...]]:
-    """The name and shape of every parameter the config needs, in forward order.
-
-    Names: ``<block>.<layer>.w|b`` for dense/point-wise layers, ``lstmI.fwd|bwd.kernel|recurrent|bias``
-    (Keras layout and gate order i, f, c, o), ``lnI.gamma|beta``. Identity transform nets have no
-    parameters at all.
-    """
-    shapes: dict[str, tuple[int, ...]] = {}
-
-    def stack(prefix: str, cin: int, widths: Sequence[int]) -> int:
-        for i, cout in enumerate(widths):
-            shapes[f"{prefix}.{i}.w"] = (cin, cout)
-            shapes[f"{prefix}.{i}.b"] = (cout,)
-            cin = cout
-        return cin
-
-    def tnet(prefix: str, k: int, mlp: Sequence[int], fc: Sequence[int]) -> None:
-        stack(f"{prefix}.fc", stack(f"{prefix}.mlp", k, mlp), fc)
-        shapes[f"{prefix}.out.w"] = (fc[-1], k * k)
-        shapes[f"{prefix}.out.b"] = (k * k,)
-
-    if cfg.input_transform_trained:
-        tnet("input_tnet", cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
-    c = stack("mlp1", cfg.dim, cfg.mlp1)
-    if cfg.feature_transform_trained:
-        tnet("feature_tnet", c, cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
-    c = stack("mlp2", c, cfg.mlp2)
-    shapes["global.w"] = (c, cfg.global_features)
-    shapes["global.b"] = (cfg.global_features,)
-    c = cfg.global_features
-    for i, u in enumerate(cfg.lstm_units, start=1):
-        for d in ("fwd", "bwd"):
-            shapes[f"lstm{i}.{d}.kernel"] = (c, 4 * u)
-            shapes[f"lstm{i}.{d}.recurrent"] = (u, 4 * u)
-            shapes[f"lstm{i}.{d}.bias"] = (4 * u,)
-        c = 2 * u
-        shapes[f"ln{i}.gamma"] = (c,)
-        shapes[f"ln{i}.beta"] = (c,)
-    shapes["head.w"] = (c, cfg.n_out * cfg.dim)
-    shapes["head.b"] = (cfg.n_out * cfg.dim,)
-    return shapes
 
 
 def _as_dtype(dtype: Any) -> np.dtype:
@@ -472,55 +363,6 @@ def init_random(config: TPNetConfig | None = None, seed: int = 0, dtype: Any = "
             params[name] = rng.uniform(-0.1, 0.1, size=shape)
     return TPNet(cfg, params, dtype, meta={"producer": "tpnet_ref.model.init_random",
                                            "seed": int(seed)})
-
-
-# ------------------------------------------------------------------------ CLI
-def add_cli(sub: Any) -> None:
-    p = sub.add_parser("info", help="describe a weights file (config, parameters, provenance)")
-    p.add_argument("weights", nargs="?", default=None,
-                   help="native weights file (default: the shipped m=4 model)")
-    p.set_defaults(func=_cli_info)
-
-    p = sub.add_parser("predict", help="predict the next point set(s) from a window in a .npy file")
-    p.add_argument("window", help=".npy file holding an (m, N, 2) window in world units")
-    p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
-    p.add_argument("--steps", type=int, default=1, help="frames to roll out (default 1)")
-    p.add_argument("--normalized", action="store_true", help="window is in model coordinates")
-    p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
-    p.add_argument("-o", "--output", default=None, help=".npy file for the (steps, n_out, 2) result")
-    p.set_defaults(func=_cli_predict)
-
-
-def _cli_info(args: Any) -> int:
-    from .weights import load
-    model = load(args.weights, dtype="float64")
-    print(model)
-    for k, v in model.config.to_dict().items():
-        print(f"  {k:26s} {v}")
-    for k, v in sorted(model.meta.items()):
-        print(f"  meta.{k:21s} {v}")
-    return 0
-
-
-def _cli_predict(args: Any) -> int:
-    from .weights import load
-    model = load(args.weights, dtype=args.dtype)
-    try:
-        window = np.load(args.window, allow_pickle=False)
-    except (ValueError, EOFError, OSError) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise FileNotFoundError(f"window file not found: {args.window}") from None
-        raise ValueError(f"window file {args.window}: not a numeric .npy array ({exc})") from None
-    if not isinstance(window, np.ndarray):
-        raise ValueError(f"window file {args.window}: holds an archive, not one .npy array")
-    out = model.rollout(window, args.steps, normalized=args.normalized)
-    if args.output:
-        np.save(args.output, out)
-        print(f"wrote {out.shape} to {args.output}")
-    else:
-        np.set_printoptions(precision=4, suppress=True)
-        print(out)
-    return 0
 
 
 __all__ = ["TPNetConfig", "TPNet", "param_shapes", "init_random", "canonical_order",

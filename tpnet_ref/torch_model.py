@@ -30,7 +30,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .model import TPNet, TPNetConfig
+from .config import TPNetConfig
+from .model import TPNet
 
 #: tag stored in ``_extra_state`` so importers recognise our checkpoints
 TORCH_FORMAT = "tpnet_ref-torch"

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from .model import TPNetConfig
+from .config import TPNetConfig
 
 CKPT_NAME = "checkpoint.pt"
 SIDECAR_NAME = "checkpoint.json"

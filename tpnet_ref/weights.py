@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from .model import TPNet, TPNetConfig, param_shapes
+from .config import TPNetConfig, param_shapes
+from .model import TPNet
 
 FORMAT = "tpnet_ref-weights"
 FORMAT_VERSION = 1

@@ -16,12 +16,12 @@ from collections.abc import Sequence
 
 # module path -> the sub-commands it registers (for the record; each module's add_cli is called)
 COMMAND_MODULES: tuple[str, ...] = (
-    "tpnet_ref.model",
-    "tpnet_ref.weights",
-    "tpnet_ref.sim",
-    "tpnet_ref.data",
-    "tpnet_ref.evaluation",
-    "tpnet_ref.train",
+    "tpnet_ref.cli.model",        # info, predict
+    "tpnet_ref.cli.weights",      # import
+    "tpnet_ref.cli.sim",          # sim run|show
+    "tpnet_ref.cli.data",         # data generate
+    "tpnet_ref.cli.evaluation",   # eval, demo
+    "tpnet_ref.cli.train",        # train run|export|bench|baselines|score
 )
 
 
