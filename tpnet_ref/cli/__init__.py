@@ -43,7 +43,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         rc = args.func(args)
     except (ValueError, TypeError, FileNotFoundError, KeyError, OSError, ArithmeticError,
-            MemoryError) as exc:
+            MemoryError, ImportError) as exc:
+        # ImportError: MissingExtraError names the extra to install (tpnet_ref.extras)
         # ArithmeticError: NonFiniteResultError (float32 overflow) and the simulator's
         # FloatingPointError; MemoryError: a request larger than memory
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc

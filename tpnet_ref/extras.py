@@ -1,0 +1,40 @@
+"""Optional dependencies: each lives in an extra named after what it enables.
+
+``require("numba", "metrics")`` imports and returns the module, or raises
+:class:`MissingExtraError` (an ``ImportError``) whose one-line message names the extra to install.
+The core (config, layers, model, checks, native weights file) needs NumPy and h5py only.
+"""
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+#: what each extra enables (pyproject.toml [project.optional-dependencies] has the pins)
+EXTRAS: dict[str, str] = {
+    "metrics": "the Chamfer metrics (numba)",
+    "sim": "the soft-body simulator (pymunk, numba)",
+    "plot": "figures (matplotlib)",
+    "eval": "the evaluation protocol and the demo (metrics, sim, plot, tqdm)",
+    "train": "training (PyTorch, scipy, tqdm)",
+    "crosscheck": "framework cross-checks (PyTorch, onnx, onnxruntime)",
+}
+
+
+class MissingExtraError(ImportError):
+    """An optional dependency is missing; the message names the extra that installs it."""
+
+
+def require(module: str, extra: str, what: str | None = None) -> ModuleType:
+    """``importlib.import_module(module)``, or a one-line :class:`MissingExtraError` naming
+    ``extra`` (``pip install 'tpnet-ref[extra]'``)."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        need = what or EXTRAS.get(extra, extra)
+        top = module.split(".")[0]
+        raise MissingExtraError(
+            f"{need} needs {top}, which is not installed: pip install 'tpnet-ref[{extra}]'"
+        ) from exc
+
+
+__all__ = ["require", "MissingExtraError", "EXTRAS"]
