@@ -7,7 +7,7 @@
 
 Every peer runs the same weights (a random network of the released shape, m = 4, N = 30,
 identity transform nets, as every checkpoint of the released code has): tpnet_ref float32 and
-float64, onnxruntime (graph built by ``bench/onnx_peer.py``), PyTorch eager
+float64, onnxruntime (graph built by ``tpnet_ref.onnx_peer``), PyTorch eager
 (``tpnet_ref.torch_model``). Peers that are not installed are skipped and said so. Also: the
 same network with trained (non-identity) transform nets, an 80-frame rollout against 80
 independent ``predict`` calls, cold start and peak memory in fresh processes. Prints each
@@ -99,7 +99,7 @@ def torch_peer(model):
 def onnx_peer(model):
     try:
         import onnxruntime as ort
-        from onnx_peer import onnx_session
+        from tpnet_ref.onnx_peer import onnx_session
     except ImportError as exc:
         return None, f"skipped ({exc})"
     sess = onnx_session(model, threads=THREADS)

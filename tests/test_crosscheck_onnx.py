@@ -1,25 +1,20 @@
 """The NumPy forward pass against onnxruntime, an independent implementation of the same ops.
 
-The graph is built by ``bench/onnx_peer.py`` from the NumPy model's weights: onnxruntime's own
+The graph is built by ``tpnet_ref.onnx_peer`` from the NumPy model's weights: onnxruntime's own
 LSTM kernel (activations Sigmoid/Relu/Relu, gates converted to ONNX order i,o,f,c), its ReduceMax
 and LayerNormalization. Agreement within 1e-5 checks gate order, the ReLU cell, the backward
 direction's alignment, the final-output convention and LayerNorm eps against code we did not write.
 """
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
-
-from onnx_peer import onnx_session  # noqa: E402
 
 from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
+from tpnet_ref.onnx_peer import onnx_session  # noqa: E402
 
 
 @pytest.mark.parametrize("cfg", [

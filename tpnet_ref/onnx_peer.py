@@ -1,4 +1,4 @@
-"""The same TP-Net as an ONNX graph, for onnxruntime as a peer in the benchmarks.
+"""The same TP-Net as an ONNX graph, for onnxruntime as a peer in benchmarks and cross-checks.
 
 Built directly from a :class:`tpnet_ref.model.TPNet` (float32) with ``onnx.helper``: point-wise
 layers are MatMul/Add/Relu on ``(B*m*N, C)``, max-pooling is ReduceMax, the LSTMs are ONNX
@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .extras import require
+
 
 def _ifco_to_iofc(a: np.ndarray) -> np.ndarray:
     """Reorder the gate blocks on axis 0 from Keras (i, f, c, o) to ONNX (i, o, f, c)."""
@@ -19,7 +21,7 @@ def _ifco_to_iofc(a: np.ndarray) -> np.ndarray:
 
 def build_onnx(model, n_points: int = 30, opset: int = 17):
     """ONNX ``ModelProto`` computing ``model``'s forward pass in float32 (batch is dynamic)."""
-    import onnx
+    onnx = require("onnx", "crosscheck")
     from onnx import TensorProto, helper, numpy_helper
 
     cfg, p = model.config, model.params
@@ -107,8 +109,7 @@ def build_onnx(model, n_points: int = 30, opset: int = 17):
 
 def onnx_session(model, n_points: int = 30, threads: int | None = None):
     """An onnxruntime ``InferenceSession`` (CPU) for ``model``; ``run(window)`` -> prediction."""
-    import onnxruntime as ort
-
+    ort = require("onnxruntime", "crosscheck")
     opts = ort.SessionOptions()
     if threads:
         opts.intra_op_num_threads = threads
@@ -116,3 +117,6 @@ def onnx_session(model, n_points: int = 30, threads: int | None = None):
     sess = ort.InferenceSession(build_onnx(model, n_points).SerializeToString(), opts,
                                 providers=["CPUExecutionProvider"])
     return sess
+
+
+__all__ = ["build_onnx", "onnx_session"]
