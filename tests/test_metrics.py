@@ -10,12 +10,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from tpnet_ref.metrics import chamfer_loss, position_error, shape_error
 from tpnet_ref.checks import NonFiniteResultError
 
 METHODS = ["auto", "brute", "grid", "kdtree"]
-VARIANTS = ["paper", "released"]
+VARIANTS = ["paper", "squared", "released"]
 
 
 def ref_sums(P, Q):
@@ -34,6 +35,8 @@ def ref_error(P, Q, variant, centre=False):
     a, b = ref_sums(P, Q)
     if variant == "paper":
         return (a.sum() + b.sum()) / len(P)
+    if variant == "squared":
+        return a.sum() + b.sum()
     return np.sqrt(a).sum() + np.sqrt(b).sum()
 
 
@@ -42,7 +45,46 @@ def kd_error(P, Q, variant):
     b = cKDTree(P).query(Q)[0]
     if variant == "paper":
         return ((a ** 2).sum() + (b ** 2).sum()) / len(P)
+    if variant == "squared":
+        return (a ** 2).sum() + (b ** 2).sum()
     return a.sum() + b.sum()
+
+
+def cdist_reading(P, Q, variant):
+    """The three readings written out from scipy's full distance matrix (docs/spec.md §3)."""
+    d = cdist(np.asarray(P, np.float64), np.asarray(Q, np.float64))   # Euclidean, (N, M)
+    to_q, to_p = d.min(axis=1), d.min(axis=0)
+    return {"released": to_q.sum() + to_p.sum(),
+            "squared": (to_q ** 2).sum() + (to_p ** 2).sum(),
+            "paper": ((to_q ** 2).sum() + (to_p ** 2).sum()) / len(P)}[variant]
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("n,m", [(30, 30), (30, 7), (4, 45), (1, 9)])
+def test_each_reading_matches_scipy_cdist_brute_force(variant, n, m):
+    """Each named reading equals its formula on scipy's distance matrix, for |P| != |Q| too,
+    for the position error, the shape error (sets centred first) and a batch."""
+    rng = np.random.default_rng(100 * n + m)
+    P = rng.random((3, n, 2))
+    Q = rng.normal(0.4, 0.3, (3, m, 2))
+    got = position_error(P, Q, variant)
+    want = [cdist_reading(P[b], Q[b], variant) for b in range(3)]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    got_s = shape_error(P, Q, variant)
+    want_s = [cdist_reading(P[b] - P[b].mean(0), Q[b] - Q[b].mean(0), variant) for b in range(3)]
+    np.testing.assert_allclose(got_s, want_s, rtol=1e-12, atol=1e-15)
+
+
+def test_readings_differ_as_specified():
+    """Two points at distance 3 and 4 from a one-point set: released 3+4+(nearest back: 3),
+    squared 9+16+9, paper (9+16+9)/2; the loss of "squared" equals that of "paper"."""
+    P = np.array([[3.0, 0.0], [0.0, 4.0]])
+    Q = np.array([[0.0, 0.0]])
+    assert position_error(P, Q, "released") == pytest.approx(10.0)
+    assert position_error(P, Q, "squared") == pytest.approx(34.0)
+    assert position_error(P, Q, "paper") == pytest.approx(17.0)
+    assert position_error(P, Q) == pytest.approx(17.0)                 # default: "paper"
+    assert chamfer_loss(P, Q, "squared") == chamfer_loss(P, Q, "paper") == pytest.approx(34.0)
 
 
 # ---------------------------------------------------------------- values
@@ -237,7 +279,7 @@ def test_invalid_options_and_shapes():
     with pytest.raises(ValueError, match="P and Q: leading dimensions"):
         position_error(P, np.zeros((3, 5, 2)))
     with pytest.raises(ValueError, match="variant"):
-        position_error(P, P, "squared")
+        position_error(P, P, "euclidean")
     with pytest.raises(ValueError, match="method"):
         shape_error(P, P, method="octree")
     with pytest.raises(ValueError, match="reduction"):

@@ -1,20 +1,26 @@
-"""Chamfer metrics of TP-Net: position error, shape error and training loss (SPEC §3).
+"""Chamfer metrics of TP-Net: position error, shape error and training loss (docs/spec.md §3).
 
-Two variants, named by ``variant``:
+Three readings of the same sums, named by ``variant`` (docs/spec.md §3 says which one the paper's
+table can physically be: ``"squared"``):
 
-``"paper"``     (paper, eq. "position error")  squared Euclidean distances, divided by |P|::
+``"paper"``     the paper's equation: squared Euclidean distances, both directions, divided by |P|::
 
                     E_p(P, Q) = (1/|P|) (Σ_{x∈P} min_{y∈Q} ||x−y||² + Σ_{y∈Q} min_{x∈P} ||x−y||²)
 
                 P is the FIRST argument, the ground truth; |P| is its number of points.
-``"released"``  (authors' released code, which produced the paper's table) Euclidean distances,
-                not squared, summed over both directions, no division::
+``"squared"``   the same squared sums without the 1/|P| (the released ``get_squared_cd_loss_func``,
+                the training-loss scale)::
+
+                    E_p(P, Q) = Σ_{x∈P} min_{y∈Q} ||x−y||² + Σ_{y∈Q} min_{x∈P} ||x−y||²
+
+``"released"``  the released evaluation script (``get_cd_loss_func``): Euclidean distances, NOT
+                squared, summed over both directions, no division::
 
                     E_p(P, Q) = Σ_{x∈P} min_{y∈Q} ||x−y|| + Σ_{y∈Q} min_{x∈P} ||x−y||
 
 Shape error is the position error after centring each set on its own centroid. The loss is the
-two sums without any division (the paper's L_CD for ``"paper"``; for ``"released"`` it equals
-the position error).
+two sums without any division (the paper's L_CD for ``"paper"`` and ``"squared"``; for
+``"released"`` it equals the position error). The default variant stays ``"paper"``.
 
 Shapes: ``P`` is ``(..., N, 2)``, ``Q`` is ``(..., M, 2)``; N ≠ M is allowed and the leading
 dimensions broadcast. A single pair (both inputs 2-D) gives a Python ``float``; otherwise a
@@ -24,7 +30,8 @@ summed in float64, so the value does not depend on the input precision beyond th
 own rounding. Units are those of the inputs (normalized coordinates for the paper's table).
 
 Nearest neighbours are exact. Small pairs use brute force; large ones a uniform grid in numba
-(see ``docs/metrics.md``). numba is imported on first use, not by ``import tpnet_ref.metrics``.
+(see ``docs/metrics.md``). numba (the ``metrics`` extra) is imported on first use, not by
+``import tpnet_ref.metrics``.
 """
 from __future__ import annotations
 
@@ -33,12 +40,14 @@ from typing import Any, Literal
 import numpy as np
 
 from .checks import NonFiniteResultError, as_point_sets
+from .extras import require
 
-__all__ = ["position_error", "shape_error", "chamfer_loss"]
+__all__ = ["position_error", "shape_error", "chamfer_loss", "VARIANTS"]
 
-Variant = Literal["paper", "released"]
+Variant = Literal["paper", "squared", "released"]
 Method = Literal["auto", "brute", "grid", "kdtree"]
-_VARIANTS = ("paper", "released")
+VARIANTS: tuple[str, ...] = ("paper", "squared", "released")
+_VARIANTS = VARIANTS
 _METHODS = ("auto", "brute", "grid", "kdtree")
 _REDUCTIONS = ("none", "sum", "mean")
 
@@ -56,6 +65,7 @@ _HUGE = 1e150
 
 
 def _kernels():
+    require("numba", "metrics")   # one line naming the extra when numba is missing
     from . import _chamfer_kernels  # imports numba; compiled code is cached on disk
     return _chamfer_kernels
 
@@ -151,6 +161,8 @@ def _error(P: Any, Q: Any, variant: str, method: str, centre: bool, what: str):
     dP, _, dQ, _ = _nearest(Pf, Qf, ip, iq, method)
     if variant == "paper":
         values = (dP.sum(axis=1) + dQ.sum(axis=1)) / Pf.shape[1]
+    elif variant == "squared":
+        values = dP.sum(axis=1) + dQ.sum(axis=1)
     else:
         values = np.sqrt(dP).sum(axis=1) + np.sqrt(dQ).sum(axis=1)
     return _finish(values, lead, what)
@@ -161,7 +173,10 @@ def position_error(P: Any, Q: Any, variant: Variant = "paper", *,
     """Position error E_p between ground truth ``P`` (..., N, 2) and prediction ``Q`` (..., M, 2).
 
     ``variant="paper"``: squared distances, both directions, divided by N = |P|.
-    ``variant="released"``: Euclidean distances, both directions, no division (the paper's table).
+    ``variant="squared"``: squared distances, both directions, no division (the reading the
+    paper's table fits, docs/spec.md §3).
+    ``variant="released"``: Euclidean distances, both directions, no division (the released
+    evaluation script).
     Returns a float for one pair, else a float64 array of the broadcast leading shape.
     ``method``: ``"auto"`` (default), or force ``"brute"``, ``"grid"`` (numba) or ``"kdtree"``
     (scipy); all are exact.
@@ -184,7 +199,8 @@ def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
     """Chamfer training loss between target ``P`` (..., N, 2) and prediction ``Q`` (..., M, 2).
 
     Per pair: ``Σ_x min_y d(x, y) + Σ_y min_x d(x, y)`` with d the squared distance
-    (``"paper"``, L_CD) or the Euclidean distance (``"released"``); no division by |P|.
+    (``"paper"`` and ``"squared"``, L_CD: the two are the same loss) or the Euclidean distance
+    (``"released"``); no division by |P|.
     ``reduction``: ``"mean"`` over the leading (batch) dimensions as the released code does,
     ``"sum"``, or ``"none"`` (per pair, shaped like the leading dimensions; a float for one pair).
     Weighted sums such as the paper's ``9·L(t+1) + Σ L(t+i)`` are formed from ``"none"``.
@@ -201,7 +217,7 @@ def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
         raise TypeError(f"return_grad: expected a bool, got {type(return_grad).__name__}")
     Pf, Qf, ip, iq, lead = _prepare(P, Q, False)
     dP, iP, dQ, iQ = _nearest(Pf, Qf, ip, iq, method, bool(return_grad))
-    if variant == "paper":
+    if variant in ("paper", "squared"):
         values = dP.sum(axis=1) + dQ.sum(axis=1)
     else:
         values = np.sqrt(dP).sum(axis=1) + np.sqrt(dQ).sum(axis=1)
@@ -217,7 +233,7 @@ def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
     Pb, Qb = Pf[ip], Qf[iq]                                        # (B, N, 2), (B, M, 2)
     diffP = Pb - np.take_along_axis(Qb, iP[..., None], axis=1)     # x − nearest y
     diffQ = Qb - np.take_along_axis(Pb, iQ[..., None], axis=1)     # y − nearest x
-    if variant == "paper":
+    if variant in ("paper", "squared"):
         wP = np.full_like(dP, 2.0 * scale)
         wQ = np.full_like(dQ, 2.0 * scale)
     else:
