@@ -5,24 +5,25 @@
     >>> nxt = tpnet_ref.predict(window)             # window (m, N, 2), world units -> (30, 2)
     >>> future = tpnet_ref.rollout(window, 80)      # (80, 30, 2)
 
-``import tpnet_ref`` loads NumPy only; the metrics (numba), the simulator (pymunk) and the
-weights reader (h5py) are imported when first used.
+``import tpnet_ref`` loads NumPy only; the weights reader (h5py), the metrics (numba, extra
+``metrics``), the simulator (pymunk, extra ``sim``) and the rest are imported when first used.
 """
 from __future__ import annotations
 
-import importlib
-from typing import Any
+import importlib as _importlib
+from typing import Any as _Any
 
-import numpy as np
+import numpy as _np
 
-from .model import TPNet, TPNetConfig, init_random
+from .config import TPNetConfig
+from .model import TPNet, init_random
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 _default_model: TPNet | None = None
 
 
-def load(path: Any = None, dtype: str = "float32") -> TPNet:
+def load(path: _Any = None, dtype: str = "float32") -> TPNet:
     """Load a native weights file; ``path=None`` loads the shipped m = 4 model."""
     from .weights import load as _load
     return _load(path, dtype)
@@ -39,30 +40,69 @@ def _model(model: TPNet | None) -> TPNet:
     return _default_model
 
 
-def predict(window: Any, model: TPNet | None = None, normalized: bool = False) -> np.ndarray:
-    """Next point set ``(n_out, 2)`` from a window ``(m, N, 2)`` or m arrays ``(N_i, 2)``."""
-    return _model(model).predict(window, normalized=normalized)
+def _range_check(net: TPNet, windows: _Any, normalized: bool, name: str) -> None:
+    """One-line warning for (already validated) input outside the training range."""
+    from .checks import warn_outside_training_range
+    c = net.config
+    if isinstance(windows, _np.ndarray):
+        frames = list(_np.asarray(windows, dtype=_np.float64).reshape(-1, *windows.shape[-2:]))
+    else:
+        frames = [_np.asarray(f, dtype=_np.float64) for w in windows for f in w]
+    if not normalized:
+        frames = [(f - c.norm_lo) / (c.norm_hi - c.norm_lo) for f in frames]
+    warn_outside_training_range(frames, c.norm_lo, c.norm_hi, name, normalized)
 
 
-def predict_batch(windows: Any, model: TPNet | None = None, normalized: bool = False) -> np.ndarray:
+def predict(window: _Any, model: TPNet | None = None, normalized: bool = False) -> _np.ndarray:
+    """Next point set ``(n_out, 2)`` from a window ``(m, N, 2)`` or m arrays ``(N_i, 2)``.
+    Input outside the training range gives a one-line ``OutsideTrainingRangeWarning``."""
+    net = _model(model)
+    out = net.predict(window, normalized=normalized)
+    _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized, "window")
+    return out
+
+
+def predict_batch(windows: _Any, model: TPNet | None = None,
+                  normalized: bool = False) -> _np.ndarray:
     """Next point set of each window: ``(B, m, N, 2)`` or a list of windows -> ``(B, n_out, 2)``."""
-    return _model(model).predict_batch(windows, normalized=normalized)
+    net = _model(model)
+    out = net.predict_batch(windows, normalized=normalized)
+    _range_check(net, windows, normalized, "windows")
+    return out
 
 
-def rollout(window: Any, steps: int, model: TPNet | None = None,
-            normalized: bool = False) -> np.ndarray:
+def rollout(window: _Any, steps: int, model: TPNet | None = None,
+            normalized: bool = False) -> _np.ndarray:
     """``steps`` recursive predictions ``(steps, n_out, 2)``; the window slides by one frame."""
-    return _model(model).rollout(window, steps, normalized=normalized)
+    net = _model(model)
+    out = net.rollout(window, steps, normalized=normalized)
+    _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized, "window")
+    return out
 
 
-_LAZY = ("metrics", "sim", "weights", "data", "evaluation", "layers", "model", "checks", "config", "blas")
+def rollout_batch(windows: _Any, steps: int, model: TPNet | None = None,
+                  normalized: bool = False) -> _np.ndarray:
+    """:func:`rollout` of every window, stepped together: ``(B, m, N, 2)`` -> ``(B, steps, n_out, 2)``."""
+    net = _model(model)
+    out = net.rollout_batch(windows, steps, normalized=normalized)
+    _range_check(net, windows, normalized, "windows")
+    return out
 
 
-def __getattr__(name: str) -> Any:
+#: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
+_LAZY = ("config", "checks", "layers", "model", "blas", "extras", "weights", "metrics", "sim",
+         "data", "protocol", "evaluation", "training", "onnx_peer", "specialize")
+
+
+def __getattr__(name: str) -> _Any:
     if name in _LAZY:
-        return importlib.import_module(f".{name}", __name__)
+        return _importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'tpnet_ref' has no attribute {name!r}")
 
 
-__all__ = ["load", "predict", "predict_batch", "rollout", "TPNet", "TPNetConfig", "init_random",
-           "__version__"]
+__all__ = ["load", "predict", "predict_batch", "rollout", "rollout_batch", "TPNet", "TPNetConfig",
+           "init_random", "__version__"]
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__ + list(_LAZY))

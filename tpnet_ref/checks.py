@@ -6,6 +6,7 @@ wrong shape or value (rank, last dimension, empty, NaN/Inf).
 """
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -63,3 +64,59 @@ def as_point_sets(x: Any, name: str, dim: int = 2, dtype: np.dtype | type | None
     if arr.shape[-2] == 0:
         raise ValueError(f"{name}: is empty (0 points per set, shape {arr.shape})")
     return check_finite(arr, name)
+
+
+class OutsideTrainingRangeWarning(UserWarning):
+    """An input lies outside what the shipped models were trained on; the result is computed
+    unchanged but is an extrapolation."""
+
+
+#: the training scene in model coordinates: particle centres inside the box's free area
+#: [1.15, 43.85] world units map to [0, 1]; a margin of 5 % is still accepted
+RANGE_LO, RANGE_HI = -0.05, 1.05
+#: the body's mean distance from its centroid, world units: a ring of radius 2, deformed
+RADIUS_RANGE = (1.0, 3.0)
+
+
+def training_range_problem(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
+                           normalized: bool = False) -> str | None:
+    """Why ``frames`` (each ``(N_i, 2)``, model coordinates) lie outside the training range, or
+    ``None``. ``norm_lo``, ``norm_hi``: the model's world-unit normalisation; ``normalized``:
+    whether the caller passed model coordinates (for the hint)."""
+    scale = norm_hi - norm_lo
+    lo = min(float(f.min()) for f in frames)
+    hi = max(float(f.max()) for f in frames)
+    if lo < RANGE_LO or hi > RANGE_HI:
+        if normalized:
+            hint = (" (world units passed as normalized=True / --normalized?)" if hi > 2.0
+                    else "")
+            return (f"coordinates span [{lo:.3g}, {hi:.3g}] in model units, outside the training "
+                    f"box [0, 1]{hint}")
+        return (f"coordinates span [{lo * scale + norm_lo:.3g}, {hi * scale + norm_lo:.3g}] world "
+                f"units, outside the training box [{norm_lo:g}, {norm_hi:g}]"
+                )
+    sizes = {f.shape[0] for f in frames}
+    groups = ([np.stack(frames)] if len(sizes) == 1
+              else [f[None] for f in frames])           # (F, N, 2) at once when N is shared
+    for g in groups:
+        if g.shape[1] < 3:
+            continue
+        r = np.sqrt(((g - g.mean(axis=1, keepdims=True)) ** 2).sum(axis=2)).mean(axis=1) * scale
+        bad = r[(r < RADIUS_RANGE[0]) | (r > RADIUS_RANGE[1])]
+        if bad.size:
+            hint = (" (model coordinates given as world units? pass normalized=True)"
+                    if not normalized and float(bad[0]) < 0.1 else "")
+            return (f"a frame's mean radius is {float(bad[0]):.3g} world units; the trained body "
+                    f"is a ring of radius 2 (accepted {RADIUS_RANGE[0]:g}..{RADIUS_RANGE[1]:g})"
+                    + hint)
+    return None
+
+
+def warn_outside_training_range(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
+                                name: str, normalized: bool = False,
+                                stacklevel: int = 4) -> None:
+    """One-line :class:`OutsideTrainingRangeWarning` if :func:`training_range_problem` finds one."""
+    problem = training_range_problem(frames, norm_lo, norm_hi, normalized)
+    if problem:
+        warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
+                      "extrapolation", OutsideTrainingRangeWarning, stacklevel=stacklevel)

@@ -25,8 +25,15 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (``tpnet predict: error: ...``), for every sub-parser."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="tpnet",
         description="TP-Net reference implementation: predict, simulate, evaluate, convert weights.",
     )
@@ -51,6 +58,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         msg = str(msg).strip().replace("\n", " ") or type(exc).__name__
         print(f"tpnet {args.command}: error: {msg}", file=sys.stderr)
         return 2
+    except BrokenPipeError:              # `tpnet ... | head`: the reader left, nothing to report
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print(f"tpnet {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -1,9 +1,13 @@
 """``tpnet info`` and ``tpnet predict``: describe a weights file, predict from a window file."""
 from __future__ import annotations
 
+import sys
+import warnings
 from typing import Any
 
 import numpy as np
+
+from ..checks import OutsideTrainingRangeWarning
 
 
 def add_cli(sub: Any) -> None:
@@ -13,12 +17,13 @@ def add_cli(sub: Any) -> None:
     p.set_defaults(func=_cli_info)
 
     p = sub.add_parser("predict", help="predict the next point set(s) from a window in a .npy file")
-    p.add_argument("window", help=".npy file holding an (m, N, 2) window in world units")
+    p.add_argument("window", help=".npy file holding an (m, N, 2) window in world units: m frames "
+                                  "4 simulation steps apart (every 4th row of `tpnet sim run`)")
     p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
     p.add_argument("--steps", type=int, default=1, help="frames to roll out (default 1)")
     p.add_argument("--normalized", action="store_true", help="window is in model coordinates")
     p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
-    p.add_argument("-o", "--output", default=None, help=".npy file for the (steps, n_out, 2) result")
+    p.add_argument("-o", "--output", default=None, help="file for the (steps, n_out, 2) result, .npy format, written to exactly this path")
     p.set_defaults(func=_cli_predict)
 
 
@@ -34,20 +39,21 @@ def _cli_info(args: Any) -> int:
 
 
 def _cli_predict(args: Any) -> int:
-    from ..weights import load
-    model = load(args.weights, dtype=args.dtype)
-    try:
-        window = np.load(args.window, allow_pickle=False)
-    except (ValueError, EOFError, OSError) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise FileNotFoundError(f"window file not found: {args.window}") from None
-        raise ValueError(f"window file {args.window}: not a numeric .npy array ({exc})") from None
-    if not isinstance(window, np.ndarray):
-        raise ValueError(f"window file {args.window}: holds an archive, not one .npy array")
-    out = model.rollout(window, args.steps, normalized=args.normalized)
+    import tpnet_ref
+
+    from .files import load_npy, output_path, save_npy
     if args.output:
-        np.save(args.output, out)
-        print(f"wrote {out.shape} to {args.output}")
+        output_path(args.output)                # a bad directory fails before any work
+    model = tpnet_ref.load(args.weights, dtype=args.dtype)
+    window = load_npy(args.window)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", OutsideTrainingRangeWarning)
+        out = tpnet_ref.rollout(window, args.steps, model=model, normalized=args.normalized)
+    for w in caught:
+        print(f"tpnet predict: warning: {w.message}", file=sys.stderr)
+    if args.output:
+        p = save_npy(args.output, out)
+        print(f"wrote {out.shape} to {p}")
     else:
         np.set_printoptions(precision=4, suppress=True)
         print(out)
