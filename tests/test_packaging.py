@@ -1,0 +1,82 @@
+"""The built wheel on its own: it installs NumPy, h5py and threadpoolctl only, holds the default
+m = 4 weights, predicts out of the box, and names the extra a command needs.
+
+Builds the wheel from this checkout and installs it into a fresh virtual environment (about a
+minute, mostly pip fetching NumPy and h5py), so it is marked slow; CI runs it.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+OPTIONAL = ("numba", "llvmlite", "scipy", "pymunk", "torch", "matplotlib", "tqdm", "onnxruntime")
+
+
+def _run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "TPNET_WEIGHTS_DIR")}
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, **kw)
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    r = _run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps",
+              "--no-build-isolation", "-q", "-w", str(out)])
+    assert r.returncode == 0, r.stderr[-2000:]
+    (whl,) = out.glob("tpnet_ref-*.whl")
+    return whl
+
+
+def test_wheel_holds_the_default_weights_and_no_other(wheel):
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "tpnet_ref/shipped/tpnet-m4.h5" in names
+    assert not [n for n in names if n.endswith(".h5") and n != "tpnet_ref/shipped/tpnet-m4.h5"]
+    info = zipfile.ZipFile(wheel).getinfo("tpnet_ref/shipped/tpnet-m4.h5")
+    assert info.file_size == (ROOT / "weights" / "tpnet-m4.h5").stat().st_size  # the file, not a link
+    meta = zipfile.ZipFile(wheel).read(
+        next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+    core = [ln.split(":", 1)[1].strip() for ln in meta.splitlines()
+            if ln.startswith("Requires-Dist:") and "extra ==" not in ln]
+    assert sorted(c.split(">")[0].split("=")[0].strip() for c in core) == \
+        ["h5py", "numpy", "threadpoolctl"]
+
+
+@pytest.mark.slow
+def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tmp_path):
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    py = str(env_dir / "bin" / "python")
+    r = _run([py, "-m", "pip", "install", "-q", str(wheel)])
+    assert r.returncode == 0, r.stderr[-2000:]
+
+    # the README's deployment snippet, run away from the checkout
+    code = ("import sys, numpy as np, tpnet_ref; "
+            "y = tpnet_ref.predict(np.random.default_rng(0).random((4, 30, 2)) * 30 + 5); "
+            "assert y.shape == (30, 2) and np.isfinite(y).all(), y; "
+            "print(tpnet_ref.load().meta['path']); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            f"{OPTIONAL!r}))")
+    r = _run([py, "-c", code], cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    path, imported = r.stdout.strip().splitlines()[-2:]
+    assert "site-packages/tpnet_ref/shipped/tpnet-m4.h5" in path
+    assert imported == "[]"
+
+    r = _run([py, "-m", "pip", "list", "--format=freeze"])
+    installed = {ln.split("==")[0].lower() for ln in r.stdout.splitlines()}
+    assert not installed & set(OPTIONAL), installed & set(OPTIONAL)
+
+    tpnet = str(env_dir / "bin" / "tpnet")
+    r = _run([tpnet, "demo"], cwd=tmp_path)
+    assert r.returncode == 2
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "tpnet-ref[eval]" in r.stderr or "tpnet-ref[sim]" in r.stderr, r.stderr
+    r = _run([tpnet, "--help"], cwd=tmp_path)
+    assert r.returncode == 0 and "demo" in r.stdout
