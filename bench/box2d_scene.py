@@ -28,11 +28,12 @@ def simulate_box2d(force: float, angle_deg: float, x: float, y: float, steps: in
                    dt: float = 1.0 / 45.0, velocity_iterations: int = 10,
                    position_iterations: int = 10, box_size: float = 45.0,
                    wall_thickness: float = 1.0, walls: bool = True,
+                   impulse_point: str = "ring_centre", sleep: bool = False,
                    include_initial: bool = False) -> np.ndarray:
     """Positions ``(steps, n_particles, 2)`` in world units of the Box2D scene."""
     import Box2D as B
 
-    world = B.b2World(gravity=gravity, doSleep=True)
+    world = B.b2World(gravity=gravity, doSleep=sleep)
     if walls:
         ht = wall_thickness / 2.0
         hs = box_size / 2.0
@@ -62,13 +63,17 @@ def simulate_box2d(force: float, angle_deg: float, x: float, y: float, steps: in
                                       collideConnected=False)
     ix = force * math.cos(math.radians(angle_deg))
     iy = force * math.sin(math.radians(angle_deg))
+    if impulse_point not in ("ring_centre", "particle_centre"):
+        raise ValueError(f"impulse_point: 'ring_centre' or 'particle_centre', got {impulse_point!r}")
     for body in bodies:
-        body.ApplyLinearImpulse((ix, iy), body.worldCenter, True)
+        # released code: ApplyLinearImpulse(impulse, point=soft_body_center, wake=True)
+        point = (x, y) if impulse_point == "ring_centre" else body.worldCenter
+        body.ApplyLinearImpulse((ix, iy), point, True)
     out = np.empty((steps, n_particles, 2))
     for k in range(steps):
         if k or not include_initial:
             world.Step(dt, velocity_iterations, position_iterations)
-        out[k] = [tuple(b.position) for b in bodies]
+        out[k] = [tuple(b.worldCenter) for b in bodies]
     return out
 
 

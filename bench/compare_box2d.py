@@ -47,7 +47,7 @@ def chamfer_released(p: np.ndarray, q: np.ndarray) -> float:
 
 def released_pair(p: np.ndarray, q: np.ndarray) -> tuple[float, float]:
     """(E_p, E_s) of the released variant on normalised coordinates."""
-    from tpnet_ref.data import normalize
+    from tpnet_ref.config import normalize
     p, q = normalize(p), normalize(q)
     return chamfer_released(p, q), chamfer_released(p - p.mean(0), q - q.mean(0))
 

@@ -32,7 +32,7 @@ import numpy as np
 
 import tpnet_ref
 from tpnet_ref import evaluation as ev
-from tpnet_ref.cases import TEST_CASES
+from tpnet_ref.sim.cases import TEST_CASES
 from tpnet_ref.metrics import shape_error
 
 HS = (1, 10, 40, 80)

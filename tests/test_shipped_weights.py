@@ -10,7 +10,7 @@ import pytest
 
 import tpnet_ref
 from tpnet_ref import evaluation as E
-from tpnet_ref.cases import TEST_CASES
+from tpnet_ref.sim.cases import TEST_CASES
 from tpnet_ref.model import TPNetConfig
 from tpnet_ref.weights import default_weights_path, shipped_weights_path
 

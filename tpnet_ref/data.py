@@ -1,4 +1,4 @@
-"""Synthetic dataset (SPEC section 5): trajectories of the soft-body scene and training windows.
+"""Synthetic dataset (docs/spec.md §5): trajectories of the soft-body scene and training windows.
 
 File layout (HDF5, written by ``tpnet data generate``)::
 
@@ -28,24 +28,16 @@ from typing import Any
 
 import numpy as np
 
-from .cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
-from .config import NORM_HI, NORM_LO
-from .sim import SceneParams, simulate, validate_params
+from .checks import as_real_array, check_finite
+from .config import NORM_HI, NORM_LO, normalize
+from .extras import require
+from .protocol import FRAME_EVERY, SIM_ROWS
+from .sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+from .sim.scene import SceneParams, simulate, validate_params
 
 FORMAT = "tpnet_ref.data/2"
-FRAME_EVERY = 4
 N_TARGETS = 8
 KIND_NORMAL, KIND_COLLISION, KIND_WHOLE = 0, 1, 2
-
-
-def normalize(x: np.ndarray) -> np.ndarray:
-    """World units -> model coordinates, ``(x - NORM_LO) / (NORM_HI - NORM_LO)``."""
-    return (np.asarray(x) - NORM_LO) / (NORM_HI - NORM_LO)
-
-
-def denormalize(x: np.ndarray) -> np.ndarray:
-    """Model coordinates -> world units."""
-    return np.asarray(x) * (NORM_HI - NORM_LO) + NORM_LO
 
 
 def train_grid(forces: Sequence[float] = TRAIN_FORCES, angles: Sequence[float] = TRAIN_ANGLES_DEG,
@@ -130,7 +122,7 @@ def _simulate_one(job: tuple[int, tuple[float, float, float, float], int, dict])
 
 
 def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, *, m: int = 4,
-             steps: int = 600, seed: int = 0, workers: int = 1, whole: int = 0,
+             steps: int = SIM_ROWS, seed: int = 0, workers: int = 1, whole: int = 0,
              params: SceneParams | None = None, progress: bool = True) -> dict:
     """Simulate ``grid`` (``(T, 4)`` force, angle, x, y) and ``test_cases`` into HDF5 ``path``.
 
@@ -216,7 +208,6 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
 
 def _cases(a: Any, name: str) -> np.ndarray:
     """``(T, 4)`` finite float cases (force, angle, x, y)."""
-    from .checks import as_real_array, check_finite
     arr = as_real_array(a, name)
     if arr.ndim == 1 and arr.size == 4:
         arr = arr[None]
@@ -236,11 +227,8 @@ def _run(g: Any, cases: np.ndarray, todo: list[int], steps: int, scene: dict, wo
     jobs = [(i, tuple(cases[i]), steps, scene) for i in todo]
     bar = None
     if progress:
-        try:
-            from tqdm import tqdm
-            bar = tqdm(total=len(jobs), desc=f"simulate {split}", unit="traj")
-        except ImportError:  # pragma: no cover - tqdm is optional
-            bar = None
+        tqdm = require("tqdm", "eval", "the progress bar (pass progress=False / --quiet)")
+        bar = tqdm.tqdm(total=len(jobs), desc=f"simulate {split}", unit="traj")
 
     def store(idx: int, frames: np.ndarray) -> None:
         g["positions"][idx] = frames.astype(np.float32)
@@ -321,42 +309,5 @@ def load_trajectories(path: str, split: str = "test", *,
         return g["normalized" if normalized else "positions"][...], g["params"][...]
 
 
-# --------------------------------------------------------------------------- CLI
-def add_cli(sub: Any) -> None:
-    p = sub.add_parser("data", help="generate the synthetic dataset (HDF5)")
-    dsub = p.add_subparsers(dest="data_command", metavar="DATA_COMMAND")
-    dsub.required = True
-    q = dsub.add_parser("generate", help="simulate the training grid and the 60 test cases")
-    q.add_argument("-o", "--output", required=True, help="HDF5 file (resumed if it exists)")
-    q.add_argument("--forces", type=float, nargs="+", default=list(TRAIN_FORCES))
-    q.add_argument("--angles", type=float, nargs="+", default=list(TRAIN_ANGLES_DEG),
-                   help="degrees")
-    q.add_argument("--positions", type=int, default=None,
-                   help="use the first N of the 75 start positions")
-    q.add_argument("--limit", type=int, default=None, help="only the first N trajectories")
-    q.add_argument("--m", type=int, default=4, help="input frames per window (3, 4, 5)")
-    q.add_argument("--steps", type=int, default=600, help="simulation steps per trajectory")
-    q.add_argument("--seed", type=int, default=0, help="window sampling seed")
-    q.add_argument("--whole", type=int, default=240,
-                   help="trajectories that give every window (paper: 240)")
-    q.add_argument("--workers", type=int, default=1, help="processes")
-    q.add_argument("--no-test", action="store_true", help="skip the 60 test cases")
-    q.add_argument("--quiet", action="store_true", help="no progress bar")
-    q.set_defaults(func=_cli_generate)
-
-
-def _cli_generate(args: Any) -> int:
-    grid = train_grid(args.forces, args.angles, args.positions)
-    if args.limit is not None:
-        if args.limit < 1:
-            raise ValueError(f"--limit: must be >= 1, got {args.limit}")
-        grid = grid[: args.limit]
-    counts = generate(args.output, grid, None if args.no_test else np.asarray(TEST_CASES),
-                      m=args.m, steps=args.steps, seed=args.seed, workers=args.workers,
-                      whole=args.whole, progress=not args.quiet)
-    print(f"wrote {args.output}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-    return 0
-
-
 __all__ = ["generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
-           "collision_frames", "sample_windows", "normalize", "denormalize"]
+           "collision_frames", "sample_windows", "FORMAT", "N_TARGETS"]

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from .cases import TEST_CASES, TRAIN_POSITIONS
+from .sim.cases import TEST_CASES, TRAIN_POSITIONS
 from .config import NORM_HI, NORM_LO
 from .model import TPNet
 

@@ -1,9 +1,72 @@
-"""Temporary shim: registers the ``tpnet`` sub-commands still defined in tpnet_ref.sim (being moved here)."""
+"""``tpnet sim run`` and ``tpnet sim show``: one trajectory of the scene to a .npy file or a PNG."""
 from __future__ import annotations
 
+import os
 from typing import Any
 
 
 def add_cli(sub: Any) -> None:
-    from ..sim import add_cli as _add
-    _add(sub)
+    p = sub.add_parser("sim", help="simulate the paper's soft-body scene")
+    ssub = p.add_subparsers(dest="sim_command", metavar="SIM_COMMAND")
+    ssub.required = True
+    for name, helptext in (("show", "write a PNG of one trajectory"),
+                           ("run", "write one trajectory, (steps, 30, 2) world units, to .npy")):
+        q = ssub.add_parser(name, help=helptext)
+        q.add_argument("--force", type=float, default=1.3, help="impulse per particle (1.3)")
+        q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees")
+        q.add_argument("--x", type=float, default=30.0, help="start centre x (30)")
+        q.add_argument("--y", type=float, default=35.0, help="start centre y (35)")
+        q.add_argument("--steps", type=int, default=600, help="simulation steps (600)")
+        q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
+        q.add_argument("--damping-ratio", type=float, default=0.0)
+        q.add_argument("--wall-restitution", type=float, default=0.0)
+        if name == "show":
+            q.add_argument("-o", "--output", required=True, help=".png file to write")
+            q.add_argument("--every", type=int, default=4,
+                           help="draw every k-th row (4 = one model frame)")
+            q.set_defaults(func=_cli_show)
+        else:
+            q.add_argument("-o", "--output", required=True,
+                           help=".npy file to write (exactly this path); row k is the state "
+                                "after k + 1 steps, a model frame is every 4th row")
+            q.set_defaults(func=_cli_run)
+
+
+def output_path(path: str, suffix: str, flag: str = "--output") -> str:
+    """``path`` if it ends in ``suffix`` and its directory exists, else a one-line ValueError."""
+    if not path.lower().endswith(suffix):
+        raise ValueError(f"{flag}: {path!r} must end in {suffix} (the file is written as "
+                         f"{suffix}, exactly at the path given)")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ValueError(f"{flag}: directory {folder!r} does not exist")
+    return path
+
+
+def _trajectory(args: Any, include_initial: bool = False) -> Any:
+    from ..sim.scene import simulate
+    return simulate(args.force, args.angle, args.x, args.y, args.steps,
+                    include_initial=include_initial, frequency=args.frequency,
+                    damping_ratio=args.damping_ratio, wall_restitution=args.wall_restitution)
+
+
+def _cli_run(args: Any) -> int:
+    import numpy as np
+    path = output_path(args.output, ".npy")
+    traj = _trajectory(args)
+    with open(path, "wb") as f:      # np.save(str) would append .npy to another suffix
+        np.save(f, traj)
+    print(f"wrote {traj.shape} to {path}")
+    return 0
+
+
+def _cli_show(args: Any) -> int:
+    if args.every < 1:
+        raise ValueError(f"--every: must be >= 1, got {args.every}")
+    path = output_path(args.output, ".png")
+    from ..sim.plot import show
+    traj = _trajectory(args, include_initial=True)
+    show(traj, path, every=args.every,
+         title=f"F={args.force:g} angle={args.angle:g} start=({args.x:g}, {args.y:g})")
+    print(f"wrote {path}")
+    return 0

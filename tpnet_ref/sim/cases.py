@@ -1,4 +1,4 @@
-"""The paper's training grid and held-out test cases (SPEC section 5), as constants.
+"""The paper's training grid and held-out test cases (docs/spec.md §5), as constants.
 
 Copied from ``data/train_grid.csv`` and ``data/test_cases.csv`` of the project brief so that the
 package needs no data files. Units: force per particle, angle in degrees, centre in world units.

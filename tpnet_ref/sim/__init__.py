@@ -1,0 +1,20 @@
+"""The paper's soft-body scene (docs/spec.md §5), as Box2D 2.3 ran it, and its test cases.
+
+* :mod:`~tpnet_ref.sim.scene`  ``SceneParams`` (every parameter, validated), ``build_scene``,
+  ``Scene`` (step by hand) and ``simulate`` (one trajectory, ``(steps, 30, 2)`` world units).
+* :mod:`~tpnet_ref.sim.kernel` the Numba step kernel (springs, walls, clamps, time of impact).
+* :mod:`~tpnet_ref.sim.cases`  the training grid and the 60 held-out test cases.
+* :mod:`~tpnet_ref.sim.plot`   ``show``: a PNG of one trajectory.
+
+pymunk and numba (the ``sim`` extra) and matplotlib (``plot``) are imported on first use.
+"""
+from __future__ import annotations
+
+from .cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+from .plot import show
+from .scene import (Scene, SceneParams, build_scene, connected_matrix, ring_positions, simulate,
+                    spring_energy_k, spring_pairs, validate_params)
+
+__all__ = ["SceneParams", "Scene", "simulate", "build_scene", "ring_positions", "spring_pairs",
+           "connected_matrix", "validate_params", "spring_energy_k", "show", "TEST_CASES",
+           "TRAIN_POSITIONS", "TRAIN_FORCES", "TRAIN_ANGLES_DEG"]
