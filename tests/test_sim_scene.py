@@ -116,10 +116,25 @@ def test_stiff_springs_stay_finite_in_box_and_do_not_gain_energy(frequency):
 
 @pytest.mark.parametrize("angle", [0.0, 45.0, 100.0, 180.0, 225.0, 270.0, 315.0])
 @pytest.mark.parametrize("clamp", [True, False])
-def test_extreme_impulse_never_leaves_box(angle, clamp):
+@pytest.mark.parametrize("impulse_point", ["ring_centre", "particle_centre"])
+def test_extreme_impulse_never_leaves_box(angle, clamp, impulse_point):
     traj = simulate(16.0, angle, 41.0, 41.0, steps=300,
-                    max_translation=2.0 if clamp else None)
+                    max_translation=2.0 if clamp else None, impulse_point=impulse_point)
     assert inside_box(traj)
+
+
+@pytest.mark.parametrize("case", [(1.6, 200.0, 41.9, 41.2), (1.6, 270.0, 41.9, 31.7),
+                                  (16.0, 225.0, 30.0, 30.0)])
+def test_particles_spinning_at_the_clamp_stay_finite_inside_and_lose_energy(case):
+    # every particle spins at Box2D's limit (pi/2 per step) against walls with friction 1
+    traj, e = simulate(*case, steps=3000, return_energy=True)
+    assert inside_box(traj)
+    assert traj[1:].min() >= P.free_lo + P.toi_distance - 1e-9
+    assert traj[1:].max() <= P.free_hi - P.toi_distance + 1e-9
+    assert np.isfinite(e).all() and e.max() <= e[0] * (1 + 1e-9)
+    assert e[-1] < 0.5 * e[0]                     # wall friction takes the spin's energy
+    unclamped = simulate(*case[:4], steps=300, max_rotation=None)
+    assert inside_box(unclamped)
 
 
 def test_very_extreme_impulse_without_clamp():
@@ -144,7 +159,7 @@ def test_free_flight_conserves_energy_and_shape():
 
 def test_sleeping_freezes_the_body():
     # dropped from rest onto the floor: Box2D's island falls asleep at row 928
-    traj = simulate(0.0, 270.0, 22.0, 3.3, steps=1200)
+    traj = simulate(0.0, 270.0, 22.0, 3.3, steps=1200, sleep=True)
     assert np.array_equal(traj[-1], traj[-2])
     moving = np.nonzero(np.abs(np.diff(traj, axis=0)).max(axis=(1, 2)) > 0)[0]
     assert 800 < moving.max() < 1100
@@ -216,15 +231,53 @@ def test_no_walls_allows_any_start():
 
 
 # ----------------------------------------------------------------- against Box2D
-def test_matches_box2d_on_test_cases():
+@pytest.mark.parametrize("impulse_point", ["ring_centre", "particle_centre"])
+def test_matches_box2d_on_test_cases(impulse_point):
     pytest.importorskip("Box2D")
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "bench"))
     from box2d_scene import simulate_box2d
-    cases = [(1.3, 195, 39.5, 29.5), (1.0, 205, 34.6, 42.0), (1.6, 270, 41.9, 31.7)]
+    cases = [(1.3, 195, 39.5, 29.5), (1.0, 205, 34.6, 42.0), (1.6, 270, 41.9, 31.7),
+             (1.3, 225.0, 39.5, 29.5)]
     for f, a, x, y in cases:
-        b = simulate_box2d(f, a, x, y, 161, impulse_point="particle_centre", sleep=True)
-        p = simulate(f, a, x, y, 161)
-        assert np.linalg.norm(b[160].mean(0) - p[160].mean(0)) < 0.5
+        b = simulate_box2d(f, a, x, y, 161, impulse_point=impulse_point)
+        p = simulate(f, a, x, y, 161, impulse_point=impulse_point)
+        assert np.linalg.norm(b[160].mean(0) - p[160].mean(0)) < 0.05
+
+
+def test_released_and_centre_of_mass_conventions_differ_after_the_first_bounce():
+    a = simulate(1.3, 225.0, 39.5, 29.5, 300)
+    b = simulate(1.3, 225.0, 39.5, 29.5, 300, impulse_point="particle_centre")
+    np.testing.assert_allclose(a[:5], b[:5], atol=1e-9)      # free flight: spin moves nothing
+    assert np.linalg.norm(a[-1].mean(0) - b[-1].mean(0)) > 0.05
+
+
+# ----------------------------------------------------------------- the released start impulse
+def test_defaults_are_the_released_scene():
+    assert P.impulse_point == "ring_centre" and P.sleep is False
+
+
+def test_ring_centre_impulse_spins_each_particle_by_its_lever_arm():
+    f, a, x, y = 1.3, 225.0, 22.0, 22.0
+    sc = build_scene(x, y, f, a)
+    w0 = sc.read()[:30, 4]
+    ring = sim.ring_positions(x, y)
+    j = f * np.array([math.cos(math.radians(a)), math.sin(math.radians(a))])
+    lever = np.array([x, y]) - ring
+    np.testing.assert_allclose(w0 * P.inertia, lever[:, 0] * j[1] - lever[:, 1] * j[0],
+                               rtol=1e-12, atol=1e-15)
+    assert np.abs(w0).max() > 3000.0                    # thousands of rad/s before the clamp
+    sc.step()
+    w1 = sc.read()[:30, 4]
+    limit = P.max_rotation / P.dt                       # pi/2 per step: 70.7 rad/s
+    np.testing.assert_allclose(np.abs(w1), np.minimum(np.abs(w0), limit), rtol=1e-12)
+    assert np.array_equal(np.sign(w1), np.sign(w0))
+    still = build_scene(x, y, f, a, SceneParams(impulse_point="particle_centre"))
+    assert not still.read()[:30, 4].any()
+
+
+def test_unknown_impulse_point_is_a_one_line_error():
+    with pytest.raises(ValueError, match="impulse_point"):
+        simulate(1.0, 200.0, 30.0, 30.0, 5, impulse_point="centre")
 
 
 def test_restitution_settings_stay_sane():

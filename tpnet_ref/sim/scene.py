@@ -21,7 +21,13 @@ Division of labour per step (see docs/simulator.md for why each piece is there):
   position correction. The four walls are axis-aligned half-planes in the kernel, not pymunk
   shapes, so no particle can leave the box at any speed.
 * Box2D's island sleeping (all bodies slower than 0.01 units/s and 2 deg/s for 0.5 s) freezes the
-  body, as it does in Box2D.
+  body when ``sleep=True``; the released world runs with ``doSleep=False``, the default here.
+
+The start impulse acts where the released code applies it, at the ring centre
+(``impulse_point="ring_centre"``): each particle also receives the angular impulse
+``(c - p) x J`` (thousands of rad/s), which Box2D's solver clamps to ``max_rotation`` (pi/2)
+per step; the spinning particles then roll and slide at every wall contact (friction 1).
+``impulse_point="particle_centre"`` is the centre-of-mass convention (no spin).
 """
 from __future__ import annotations
 
@@ -76,7 +82,8 @@ class SceneParams:
     max_translation: float | None = B2_MAX_TRANSLATION   # per step; None: no clamp
     max_rotation: float | None = B2_MAX_ROTATION         # radians per step; None: no clamp
     continuous: bool = True              # time-of-impact handling against the walls
-    sleep: bool = True                   # Box2D island sleeping
+    sleep: bool = False                  # Box2D island sleeping (the released world: off)
+    impulse_point: str = "ring_centre"   # where the start impulse acts (see IMPULSE_POINTS)
 
     @property
     def mass(self) -> float:
@@ -117,6 +124,11 @@ class SceneParams:
         return touch + sep
 
 
+#: where each particle's start impulse is applied: "ring_centre" (the released code,
+#: ``ApplyLinearImpulse(J, point=soft_body_center)``: the particle also gets the angular impulse
+#: ``(c - p) x J``, clamped by Box2D to ``max_rotation`` per step) or "particle_centre" (the
+#: centre of mass: no spin; this project's convention before the released code was read)
+IMPULSE_POINTS = ("ring_centre", "particle_centre")
 _INT_FIELDS = ("n_particles", "spring_reach", "iterations")
 _BOOL_FIELDS = ("walls", "continuous", "sleep")
 #: pymunk stores the iteration count in a C int
@@ -150,6 +162,9 @@ def validate_params(p: SceneParams) -> None:
     for name in _BOOL_FIELDS:
         if not isinstance(getattr(p, name), (bool, np.bool_)):
             raise TypeError(f"{name}: expected a bool, got {type(getattr(p, name)).__name__}")
+    if not isinstance(p.impulse_point, str) or p.impulse_point not in IMPULSE_POINTS:
+        raise ValueError(f"impulse_point: must be one of {', '.join(IMPULSE_POINTS)}, got "
+                         f"{p.impulse_point!r}")
     if p.iterations > _MAX_ITERATIONS:
         raise ValueError(f"iterations: must be <= {_MAX_ITERATIONS}, got {p.iterations}")
     if p.n_particles < 3:
@@ -421,12 +436,14 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     # pymunk's stored velocity after a step already holds gravity for the next one (it
     # integrates positions first): the first step of Box2D sees v0 + g dt
     v0 = v0 + p.dt * np.asarray(p.gravity, dtype=float)
+    w0 = start_spin(start, x, y, force, angle_deg, p)
     bodies = []
     index: dict[Any, int] = {}
     for i in range(p.n_particles):
         body = pymunk.Body()
         body.position = (float(start[i, 0]), float(start[i, 1]))
         body.velocity = (float(v0[0]), float(v0[1]))
+        body.angular_velocity = float(w0[i])
         shape = pymunk.Circle(body, p.particle_radius)
         shape.density = p.density
         shape.friction = math.sqrt(p.particle_friction)
@@ -467,6 +484,22 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
     return scene
 
 
+def start_spin(start: np.ndarray, x: float, y: float, force: float, angle_deg: float,
+                params: SceneParams) -> np.ndarray:
+    """``(N,)`` angular velocity (rad/s) each particle starts with: ``(c - p_i) x J / I`` for an
+    impulse ``J = force (cos a, sin a)`` applied at the ring centre ``c = (x, y)`` (Box2D's
+    ``ApplyLinearImpulse``), zero for ``impulse_point="particle_centre"``. With the paper's values
+    the lever arm is the ring radius, so up to ~3,300 rad/s; Box2D's solver then limits the
+    rotation to ``max_rotation`` per step (pi/2, i.e. 70.7 rad/s at dt = 1/45) after the first
+    step's velocity solve."""
+    if params.impulse_point == "particle_centre":
+        return np.zeros(len(start))
+    a = math.radians(angle_deg)
+    jx, jy = force * math.cos(a), force * math.sin(a)
+    rx, ry = x - start[:, 0], y - start[:, 1]
+    return (rx * jy - ry * jx) / params.inertia
+
+
 def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 600, *,
              params: SceneParams | None = None, include_initial: bool = False,
              return_energy: bool = False,
@@ -474,7 +507,9 @@ def simulate(force: float, angle_deg: float, x: float, y: float, steps: int = 60
     """Particle centres ``(steps, n_particles, 2)`` (float64, world units) of one trajectory.
 
     ``force``: impulse magnitude per particle; ``angle_deg``: its direction (0 = +x, 90 = +y);
-    ``(x, y)``: start centre of the ring. Row ``k`` is the state after ``k + 1`` steps of ``dt``
+    ``(x, y)``: start centre of the ring; the impulse acts at the ring centre (``impulse_point=
+    "ring_centre"``, the released code: every particle also spins) or at each particle's centre
+    (``impulse_point="particle_centre"``). Row ``k`` is the state after ``k + 1`` steps of ``dt``
     (row 0: after the first step), the paper's convention (docs/simulator.md); with
     ``include_initial`` row 0 is the initial state and row ``k`` the state after ``k`` steps.
     Any ``SceneParams`` field can be given as a keyword (e.g. ``frequency=4``,
@@ -536,4 +571,5 @@ def spring_energy_k(params: SceneParams) -> float:
 
 
 __all__ = ["SceneParams", "Scene", "simulate", "build_scene", "ring_positions", "spring_pairs",
-           "connected_matrix", "validate_params", "spring_energy_k"]
+           "connected_matrix", "validate_params", "spring_energy_k", "start_spin",
+           "IMPULSE_POINTS"]
