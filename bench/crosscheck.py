@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-from tpnet_ref.weights import import_keras_h5, import_torch  # noqa: E402
+from tpnet_ref.weights.keras import import_keras_h5  # noqa: E402
+from tpnet_ref.weights.torch import import_torch  # noqa: E402
 
 
 def ring_windows(b: int, m: int = 4, n: int = 30, seed: int = 0) -> np.ndarray:
@@ -43,7 +44,7 @@ def ring_windows(b: int, m: int = 4, n: int = 30, seed: int = 0) -> np.ndarray:
 def torch_check(steps: int = 80) -> None:
     import torch
 
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
 
     torch.set_num_threads(2)
     for trained in (False, True):

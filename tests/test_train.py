@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch")
 from tpnet_ref import cli  # noqa: E402
 from tpnet_ref import data as D  # noqa: E402
 from tpnet_ref import train as T  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
 from tpnet_ref.weights import load_native  # noqa: E402
 
 
@@ -322,7 +322,7 @@ def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_pa
     term equals tpnet_ref.metrics.shape_error, is invariant to translating either set, and the
     run logs val_es1 / val_esK."""
     from tpnet_ref.metrics import shape_error
-    from tpnet_ref.torch_model import chamfer_shape
+    from tpnet_ref.training.torch_model import chamfer_shape
 
     rng = np.random.default_rng(0)
     p, q = rng.uniform(0, 1, (5, 3, 30, 2)), rng.uniform(0, 1, (5, 3, 27, 2))
@@ -420,7 +420,7 @@ def test_budget_minutes_sets_the_run_length_from_measured_throughput(dataset, tm
 def test_matched_distance_is_the_optimal_bijection_and_penalises_clumping():
     import itertools
 
-    from tpnet_ref.torch_model import chamfer_released, matched_distance
+    from tpnet_ref.training.torch_model import chamfer_released, matched_distance
 
     g = torch.Generator().manual_seed(0)
     p = torch.rand(4, 2, 6, 2, generator=g, dtype=torch.float64)

@@ -1,7 +1,8 @@
-"""Untrusted weight files (issue 9): the native loader, the Keras importer and the torch importer
+"""Untrusted weight files: the native loader, the Keras importer and the torch importer
 refuse damaged, oversized, linked or code-carrying files with a clear error, run no code and
-allocate nothing absurd. Existing tests already cover: a foreign HDF5 (test_model), Keras soft /
-external links and unknown layouts (test_import), a plain pickle with ``exec`` (test_import_torch).
+allocate nothing absurd (the guards of tpnet_ref.weights.hdf5). Also covered elsewhere: a foreign
+HDF5 (test_model), Keras soft / external links and unknown layouts (test_weights_keras), a plain
+pickle with ``exec`` (test_weights_torch).
 """
 from __future__ import annotations
 
@@ -18,7 +19,9 @@ import pytest
 
 from tpnet_ref.cli import main
 from tpnet_ref.model import TPNetConfig, init_random
-from tpnet_ref.weights import import_checkpoint, import_keras_h5, load_native
+from tpnet_ref import load
+from tpnet_ref.weights import import_checkpoint
+from tpnet_ref.weights.keras import import_keras_h5
 
 FIX = Path(__file__).parent / "fixtures"
 SMALL = dict(input_tnet_mlp=(8,), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
@@ -49,7 +52,7 @@ def test_native_truncated(native):
     for n in (0, 8, 100, 2000, len(data) // 2, len(data) - 1):
         native.write_bytes(data[:n])
         with pytest.raises(ValueError, match="not a readable HDF5"):
-            load_native(native)
+            load(native)
 
 
 def test_native_byte_corruption_fuzz(native, tmp_path):
@@ -65,7 +68,7 @@ def test_native_byte_corruption_fuzz(native, tmp_path):
         b[off:off + n] = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
         bad.write_bytes(bytes(b))
         try:
-            model = load_native(bad)
+            model = load(bad)
         except DOCUMENTED:
             continue
         assert all(np.isfinite(p).all() for p in model.params.values())
@@ -76,16 +79,16 @@ def test_native_nonfinite_weights(native, value):
     with h5py.File(native, "r+") as f:
         f["params/lstm1.fwd.recurrent"][0, 0] = value
     with pytest.raises(ValueError, match="'lstm1.fwd.recurrent' contains NaN or infinite"):
-        load_native(native)
+        load(native)
 
 
 def test_native_wrong_shape_and_dtype(native):
     _replace(native, "params/head.w", data=np.zeros((12, 11), np.float32))
     with pytest.raises(ValueError, match=r"'head.w' has shape \(12, 11\), expected \(12, 10\)"):
-        load_native(native)
+        load(native)
     _replace(native, "params/head.w", data=np.zeros((12, 10), np.int32))
     with pytest.raises(ValueError, match="'head.w' has dtype int32"):
-        load_native(native)
+        load(native)
 
 
 def test_native_absurd_declared_size_refused_before_allocation(native):
@@ -94,7 +97,7 @@ def test_native_absurd_declared_size_refused_before_allocation(native):
     assert native.stat().st_size < 1 << 20
     before = _peak_mb()
     with pytest.raises(ValueError, match=r"'head.b' has shape \(1000000000000,\)"):
-        load_native(native)
+        load(native)
     assert _peak_mb() - before < 100
 
 
@@ -102,22 +105,22 @@ def test_native_absurd_config_refused(native):
     with h5py.File(native, "r+") as f:
         f["config"].attrs["n_out"] = 10**9
     with pytest.raises(ValueError, match="parameters .*limit"):
-        load_native(native)
+        load(native)
     with h5py.File(native, "r+") as f:
         f["config"].attrs["n_out"] = "many"
     with pytest.raises(ValueError):
-        load_native(native)
+        load(native)
 
 
 def test_native_oversized_attribute_refused(native, monkeypatch):
     """Attribute sizes are checked before reading (limit lowered: HDF5 keeps attributes in the
     64 KiB object header unless written with dense storage)."""
-    import tpnet_ref.weights as W
+    import tpnet_ref.weights.hdf5 as W
     monkeypatch.setattr(W, "MAX_ATTR_ELEMENTS", 1000)
     with h5py.File(native, "r+") as f:
         f.attrs.create("note", data=np.zeros(5000, np.uint8))
     with pytest.raises(ValueError, match="attribute 'note' .* declares 5,000 elements"):
-        load_native(native)
+        load(native)
 
 
 def test_native_links_external_storage_virtual(native, tmp_path):
@@ -145,7 +148,7 @@ def test_native_links_external_storage_virtual(native, tmp_path):
             del f["params/head.w"]
             make(f)
         with pytest.raises(ValueError, match=msg.strip()):
-            load_native(p)
+            load(p)
     p = tmp_path / "case.h5"
     shutil.copy(native, p)
     with h5py.File(p, "r+") as f:  # a whole group replaced by a link
@@ -154,7 +157,7 @@ def test_native_links_external_storage_virtual(native, tmp_path):
         f["params"] = h5py.SoftLink("/params_real")
         del g
     with pytest.raises(ValueError, match="'params' is a link"):
-        load_native(p)
+        load(p)
 
 
 # ------------------------------------------------------------------------ Keras importer
@@ -245,7 +248,7 @@ def _keras_zip(tmp_path, members, name="m.keras", method=zipfile.ZIP_DEFLATED):
 
 
 def test_keras_archives(tmp_path, monkeypatch):
-    import tpnet_ref.weights as W
+    import tpnet_ref.weights.hdf5 as W
 
     good = (FIX / "k3_trained.keras").read_bytes()
     with zipfile.ZipFile(io.BytesIO(good)) as z:
@@ -302,7 +305,7 @@ class _Payload:
 
 def test_torch_pickle_payload_never_runs(tmp_path, capsys):
     """A real torch.save zip whose pickle calls os.system: refused by every entry point."""
-    from tpnet_ref.weights import import_torch
+    from tpnet_ref.weights.torch import import_torch
 
     marker = tmp_path / "PWNED"
     p = tmp_path / "evil.pt"
@@ -325,8 +328,9 @@ def test_torch_pickle_payload_never_runs(tmp_path, capsys):
 
 
 def test_torch_damaged_and_oversized(tmp_path, monkeypatch):
-    import tpnet_ref.weights as W
-    from tpnet_ref.torch_model import TorchTPNet
+    import tpnet_ref.weights.hdf5 as H
+    from tpnet_ref.training.torch_model import TorchTPNet
+    from tpnet_ref.weights.torch import import_torch
 
     p = tmp_path / "a.pt"
     torch.save(TorchTPNet(TPNetConfig(**SMALL)).state_dict(), p)
@@ -335,17 +339,17 @@ def test_torch_damaged_and_oversized(tmp_path, monkeypatch):
     for n in (10, len(data) // 2, len(data) - 30):
         q.write_bytes(data[:n])
         with pytest.raises(ValueError, match="weights-only|damaged"):
-            W.import_torch(q)
+            import_torch(q)
     # NaN weights
     sd = TorchTPNet(TPNetConfig(**SMALL)).state_dict()
     sd["head.weight"][0, 0] = float("inf")
     torch.save(sd, q)
     with pytest.raises(ValueError, match="'head.w' contains NaN or infinite"):
-        W.import_torch(q)
+        import_torch(q)
     # a member declaring more than the limit is refused before torch.load
-    monkeypatch.setattr(W, "MAX_MEMBER_BYTES", 1024)
+    monkeypatch.setattr(H, "MAX_MEMBER_BYTES", 1024)
     called = []
     monkeypatch.setattr(torch, "load", lambda *a, **k: called.append(1))
     with pytest.raises(ValueError, match="refused before reading"):
-        W.import_torch(p)
+        import_torch(p)
     assert not called

@@ -302,7 +302,7 @@ def evaluate(net: Any, data: WindowData, wins: np.ndarray, r: Recipe, device: st
     last predictions (``val_cd1``, ``val_cdK``) and their shape errors (``val_es1``,
     ``val_esK``), averaged over ``wins``."""
     torch = _torch()
-    from .torch_model import chamfer_released, chamfer_shape
+    from .training.torch_model import chamfer_released, chamfer_shape
 
     if len(wins) == 0:
         return {}
@@ -333,7 +333,7 @@ def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_S
     """Two model-free references on ``wins`` (default: the validation windows), scored like
     :func:`evaluate`: ``copy_last`` (the last input frame, repeated) and ``const_velocity``
     (points matched by index, the last two frames' displacement continued)."""
-    from .evaluation import constant_velocity, copy_last
+    from .protocol import constant_velocity, copy_last
     from .metrics import position_error
 
     wins = data.val_win if wins is None else wins
@@ -415,7 +415,7 @@ def load_parent(source: str | os.PathLike) -> tuple[dict, dict, TPNetConfig]:
     p = Path(source)
     if p.suffix in (".h5", ".hdf5") and p.is_file():
         from . import load
-        from .torch_model import TorchTPNet
+        from .training.torch_model import TorchTPNet
         model = load(p, dtype="float32")
         meta = model.meta
         cfg = model.config
@@ -470,7 +470,7 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     random windows and the run's length (hence its learning-rate schedule) is set to 90 % of
     what that rate allows; ``max_minutes`` defaults to the budget as a hard stop."""
     torch = _torch()
-    from .torch_model import TorchTPNet
+    from .training.torch_model import TorchTPNet
 
     run_dir = Path(run_dir)
     t_start = time.perf_counter()
@@ -692,8 +692,8 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
     the NumPy model's forward pass equals the torch module's (max abs difference <= check_bound
     on random windows) and records the difference."""
     torch = _torch()
-    from .torch_model import TorchTPNet
-    from .weights import import_torch
+    from .training.torch_model import TorchTPNet
+    from .weights.torch import import_torch
 
     payload, state = load_checkpoint(source)
     model = import_torch(payload["model"], dtype=dtype)
@@ -734,7 +734,7 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
     """Training throughput, windows per second, of a full step (loss, backward, clip, Adam) for
     each rollout length, on random windows."""
     torch = _torch()
-    from .torch_model import TorchTPNet
+    from .training.torch_model import TorchTPNet
 
     if threads:
         torch.set_num_threads(int(threads))

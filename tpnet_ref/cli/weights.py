@@ -1,9 +1,40 @@
-"""Temporary shim: registers the ``tpnet`` sub-commands still defined in tpnet_ref.weights (being moved here)."""
+"""``tpnet import``: convert a Keras or PyTorch checkpoint to the native weights file."""
 from __future__ import annotations
 
+import argparse
 from typing import Any
 
 
 def add_cli(sub: Any) -> None:
-    from ..weights import add_cli as _add
-    _add(sub)
+    p = sub.add_parser("import", help="convert a Keras (.h5, .weights.h5, .keras) or PyTorch "
+                                      "(.pt) checkpoint to the native weights file")
+    p.add_argument("src", help="checkpoint to read (kind told by content)")
+    p.add_argument("dst", help="native HDF5 weights file to write")
+    p.add_argument("--m", type=int, default=None,
+                   help="input frames, where the file does not say (default 4)")
+    p.add_argument("--layer-norm-eps", type=float, default=None,
+                   help="LayerNorm eps, where the file does not say (default 1e-3)")
+    p.add_argument("--lstm-activation", choices=("relu", "tanh"), default=None,
+                   help="LSTM activation, where the file does not say (default relu)")
+    p.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                   help="dtype of the written parameters (default float32, as trained)")
+    p.set_defaults(func=_cli_import)
+
+
+def _cli_import(args: argparse.Namespace) -> int:
+    from ..weights import import_checkpoint
+
+    model = import_checkpoint(args.src, dtype=args.dtype, m=args.m,
+                              layer_norm_eps=args.layer_norm_eps,
+                              lstm_activation=args.lstm_activation)
+    c = model.config
+    print(f"read {args.src}: {model.meta.get('import_report', '')}")
+    print(f"  {model}")
+    print(f"  m={c.m} N={c.n_out} lstm_units={c.lstm_units} activation={c.lstm_activation} "
+          f"layer_norm_eps={c.layer_norm_eps}")
+    print(f"  transforms: input {'trained' if c.input_transform_trained else 'identity'}, "
+          f"feature {'trained' if c.feature_transform_trained else 'identity'}")
+    meta = {k: v for k, v in model.meta.items() if k in ("source", "source_format", "import_report")}
+    model.save(args.dst, **meta)
+    print(f"wrote {args.dst}")
+    return 0

@@ -1,23 +1,18 @@
 """TP-Net in PyTorch, with the Keras semantics of the released code (optional ``train`` extra).
 
-Exactly the network of SPEC §2 and :mod:`tpnet_ref.model`: per-point MLPs as ``nn.Linear``,
-identity or trained transform nets per :class:`~tpnet_ref.model.TPNetConfig`, bidirectional
-LSTMs with a hand-written cell (``relu`` or ``tanh``; ``nn.LSTM`` is tanh-only), LayerNorm with
-the config's eps (Keras: 1e-3), a sigmoid head. No canonical point sort (max-pooling is
-permutation invariant up to rounding).
+Exactly the network of docs/spec.md §2 and :mod:`tpnet_ref.model`: per-point MLPs as
+``nn.Linear``, identity or trained transform nets per :class:`~tpnet_ref.config.TPNetConfig`,
+bidirectional LSTMs with a hand-written cell (``relu`` or ``tanh``; ``nn.LSTM`` is tanh-only),
+LayerNorm with the config's eps (Keras: 1e-3), a sigmoid head. No canonical point sort
+(max-pooling is permutation invariant up to rounding). Every layer's size is read from
+:func:`~tpnet_ref.config.param_shapes`, the one list of the network's parameters.
 
-Parameter names follow PyTorch conventions, so a state dict reads like a PyTorch model's:
-
-    mlp1.0.weight (64, 2)            <-> native mlp1.0.w (2, 64)          (transposed)
-    lstm1.weight_ih_l0 (4u, in)      <-> native lstm1.fwd.kernel (in, 4u) (transposed; i,f,g,o
-    lstm1.bias_ih_l0 + bias_hh_l0    <-> native lstm1.fwd.bias             == Keras i,f,c,o)
-    lstm1.*_l0_reverse               <-> native lstm1.bwd.*
-    ln1.weight / ln1.bias            <-> native ln1.gamma / ln1.beta
-
-The bidirectional LSTM's parameters have exactly ``nn.LSTM(bidirectional=True)``'s names and
-layout. ``state_dict()`` carries the config (hence the LayerNorm eps) as ``_extra_state``, so
+Parameter names follow PyTorch conventions (:func:`tpnet_ref.weights.torch.torch_name` maps
+them to the native ones), so a state dict reads like a PyTorch model's; the bidirectional LSTM's
+parameters have exactly ``nn.LSTM(bidirectional=True)``'s names and layout. ``state_dict()``
+carries the config (hence the LayerNorm eps) as ``_extra_state``, so
 ``torch.save(net.state_dict(), path)`` is a checkpoint that
-:func:`tpnet_ref.weights.import_torch` reads without further arguments.
+:func:`tpnet_ref.weights.torch.import_torch` reads without further arguments.
 
 This module is never imported by ``predict``.
 """
@@ -26,15 +21,15 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import torch
-import torch.nn.functional as F
-from torch import nn
 
-from .config import TPNetConfig
-from .model import TPNet
+from ..config import TPNetConfig, param_shapes
+from ..extras import require
+from ..model import TPNet
+from ..weights.torch import TORCH_FORMAT, native_to_torch_state, torch_state_to_native
 
-#: tag stored in ``_extra_state`` so importers recognise our checkpoints
-TORCH_FORMAT = "tpnet_ref-torch"
+torch = require("torch", "train")
+nn = torch.nn
+F = torch.nn.functional
 
 
 def _act(name: str):
@@ -103,11 +98,12 @@ class BiLSTM(nn.Module):
         return torch.cat([hf[:, -1], hb[:, 0]], dim=-1)
 
 
-def _linear_stack(cin: int, widths: tuple[int, ...]) -> nn.ModuleList:
+def _linear_stack(shapes: dict[str, tuple[int, ...]], prefix: str) -> nn.ModuleList:
+    """``nn.Linear`` layers for the native stack ``prefix.0``, ``prefix.1``, ... of ``shapes``."""
     layers = nn.ModuleList()
-    for cout in widths:
+    while f"{prefix}.{len(layers)}.w" in shapes:
+        cin, cout = shapes[f"{prefix}.{len(layers)}.w"]
         layers.append(nn.Linear(cin, cout))
-        cin = cout
     return layers
 
 
@@ -115,15 +111,16 @@ class TNet(nn.Module):
     """PointNet transform net: per-point MLP, max over points, FC stack, linear FC to K*K.
     Initialised as the released code does: output weights zero, bias the flattened identity."""
 
-    def __init__(self, k: int, mlp: tuple[int, ...], fc: tuple[int, ...]) -> None:
+    def __init__(self, shapes: dict[str, tuple[int, ...]], prefix: str) -> None:
         super().__init__()
-        self.k = k
-        self.mlp = _linear_stack(k, mlp)
-        self.fc = _linear_stack(mlp[-1], fc)
-        self.out = nn.Linear(fc[-1], k * k)
+        self.mlp = _linear_stack(shapes, f"{prefix}.mlp")
+        self.fc = _linear_stack(shapes, f"{prefix}.fc")
+        cin, kk = shapes[f"{prefix}.out.w"]
+        self.k = self.mlp[0].in_features
+        self.out = nn.Linear(cin, kk)
         nn.init.zeros_(self.out.weight)
         with torch.no_grad():
-            self.out.bias.copy_(torch.eye(k).flatten())
+            self.out.bias.copy_(torch.eye(self.k).flatten())
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``(F, N, K)`` -> ``(F, K, K)``."""
@@ -136,28 +133,28 @@ class TNet(nn.Module):
 
 
 class TorchTPNet(nn.Module):
-    """TP-Net (SPEC §2) built from a :class:`TPNetConfig`; forward ``(B, m, N, dim)`` normalised
+    """TP-Net (docs/spec.md §2) built from a :class:`TPNetConfig`; forward ``(B, m, N, dim)`` normalised
     windows -> ``(B, n_out, dim)``."""
 
     def __init__(self, config: TPNetConfig | None = None) -> None:
         super().__init__()
         cfg = config or TPNetConfig()
         self.config = cfg
-        self.input_tnet = (TNet(cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
-                           if cfg.input_transform_trained else None)
-        self.mlp1 = _linear_stack(cfg.dim, cfg.mlp1)
-        c = cfg.mlp1[-1]
-        self.feature_tnet = (TNet(c, cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
-                             if cfg.feature_transform_trained else None)
-        self.mlp2 = _linear_stack(c, cfg.mlp2)
-        self.global_fc = nn.Linear(cfg.mlp2[-1], cfg.global_features)
-        c = cfg.global_features
+        shapes = param_shapes(cfg)
+        self.input_tnet = TNet(shapes, "input_tnet") if cfg.input_transform_trained else None
+        self.mlp1 = _linear_stack(shapes, "mlp1")
+        self.feature_tnet = (TNet(shapes, "feature_tnet") if cfg.feature_transform_trained
+                             else None)
+        self.mlp2 = _linear_stack(shapes, "mlp2")
+        self.global_fc = nn.Linear(*shapes["global.w"])
         n = len(cfg.lstm_units)
-        for i, u in enumerate(cfg.lstm_units, start=1):
-            self.add_module(f"lstm{i}", BiLSTM(c, u, cfg.lstm_activation, return_sequences=i < n))
-            c = 2 * u
-            self.add_module(f"ln{i}", nn.LayerNorm(c, eps=cfg.layer_norm_eps))
-        self.head = nn.Linear(c, cfg.n_out * cfg.dim)
+        for i in range(1, n + 1):
+            cin, u4 = shapes[f"lstm{i}.fwd.kernel"]
+            self.add_module(f"lstm{i}", BiLSTM(cin, u4 // 4, cfg.lstm_activation,
+                                               return_sequences=i < n))
+            self.add_module(f"ln{i}", nn.LayerNorm(shapes[f"ln{i}.gamma"][0],
+                                                   eps=cfg.layer_norm_eps))
+        self.head = nn.Linear(*shapes["head.w"])
 
     # ---------------------------------------------------------------- config in the state dict
     def get_extra_state(self) -> dict[str, Any]:
@@ -233,19 +230,17 @@ class TorchTPNet(nn.Module):
     # ---------------------------------------------------------------- conversion
     def native_state(self) -> dict[str, np.ndarray]:
         """Parameters under their native names and Keras layout (float64 NumPy arrays)."""
-        from .weights import torch_state_to_native
         sd = {k: v.detach().cpu().double().numpy() for k, v in self.state_dict().items()
               if k != "_extra_state"}
         return torch_state_to_native(sd, self.config)
 
     def to_numpy(self, dtype: Any = "float32") -> TPNet:
         """The same network as a NumPy :class:`TPNet`."""
-        return TPNet(self.config, self.native_state(), dtype, {"producer": "tpnet_ref.torch_model"})
+        return TPNet(self.config, self.native_state(), dtype, {"producer": "tpnet_ref.training.torch_model"})
 
     @classmethod
     def from_numpy(cls, model: TPNet) -> "TorchTPNet":
         """A module with ``model``'s config and parameters (in ``model``'s dtype)."""
-        from .weights import native_to_torch_state
         net = cls(model.config)
         dt = torch.float64 if model.dtype == np.float64 else torch.float32
         sd = {k: torch.from_numpy(np.ascontiguousarray(v))
@@ -278,7 +273,7 @@ def matched_distance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     and leave another uncovered, the local minimum a Chamfer-trained head falls into. σ comes
     from ``scipy.optimize.linear_sum_assignment`` on the CPU (no gradient through it); the
     gradient is that of the distances of the matched pairs."""
-    from scipy.optimize import linear_sum_assignment
+    linear_sum_assignment = require("scipy.optimize", "train").linear_sum_assignment
 
     if p.shape != q.shape:
         raise ValueError(f"matched_distance needs sets of equal shape, got {tuple(p.shape)} "

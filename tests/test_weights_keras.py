@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from tpnet_ref.cli import main
-from tpnet_ref.weights import import_checkpoint, import_keras_h5, load_native
+from tpnet_ref import load
+from tpnet_ref.weights import import_checkpoint
+from tpnet_ref.weights.keras import import_keras_h5
 
 FIX = Path(__file__).parent / "fixtures"
 BOUND = 1e-5
@@ -48,7 +50,7 @@ def test_cli_import_keras(tmp_path, capsys):
     assert main(["import", str(FIX / "k3_trained.keras"), str(tmp_path / "n.h5")]) == 0
     out = capsys.readouterr().out
     assert "Keras 3 .keras archive" in out and "m=4" in out and "trained" in out
-    model = load_native(tmp_path / "n.h5")
+    model = load(tmp_path / "n.h5")
     data = np.load(FIX / "k3_trained.npz")
     assert np.abs(model.predict_batch(data["windows"], normalized=True) - data["step"]).max() <= BOUND
     assert import_checkpoint(tmp_path / "n.h5").config == model.config  # native passes through

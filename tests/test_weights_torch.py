@@ -10,8 +10,9 @@ torch = pytest.importorskip("torch")
 
 from tpnet_ref import layers as L  # noqa: E402
 from tpnet_ref.model import TPNetConfig, init_random, param_shapes  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
-from tpnet_ref.weights import import_torch, load_native  # noqa: E402
+from tpnet_ref import load  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.weights.torch import import_torch  # noqa: E402
 
 SMALL = dict(input_tnet_mlp=(8, 16, 32), input_tnet_fc=(16, 8), mlp1=(16, 16),
              feature_tnet_mlp=(16, 16, 32), feature_tnet_fc=(16, 8), mlp2=(16, 32, 64),
@@ -129,6 +130,22 @@ def test_training_step_and_cli_roundtrip(tmp_path):
     assert torch.isfinite(loss) and net.lstm1.weight_hh_l0.grad is not None
     torch.save(net.state_dict(), tmp_path / "a.pt")
     assert main(["import", str(tmp_path / "a.pt"), str(tmp_path / "a.h5")]) == 0
-    model = load_native(tmp_path / "a.h5")
+    model = load(tmp_path / "a.h5")
     with torch.no_grad():
         assert np.abs(model.predict_batch(w.numpy(), normalized=True) - net(w).numpy()).max() <= BOUND
+
+
+@pytest.mark.parametrize("trained", [False, True])
+def test_torch_names_are_derived_from_param_shapes(trained):
+    """The torch key map follows param_shapes one to one, in order, and covers exactly the
+    module's state dict (plus the hh biases folded into the native LSTM bias)."""
+    from tpnet_ref.weights.torch import infer_torch_config, torch_key_map
+
+    cfg = TPNetConfig(input_transform_trained=trained, feature_transform_trained=trained, **SMALL)
+    rows = torch_key_map(cfg)
+    assert [n for _, n, _ in rows] == list(param_shapes(cfg))
+    sd = TorchTPNet(cfg).state_dict()
+    hh = {t.replace("bias_ih", "bias_hh") for t, _, how in rows if how == "+"}
+    assert {t for t, _, _ in rows} | hh | {"_extra_state"} == set(sd)
+    bare = {k: v.numpy() for k, v in sd.items() if k != "_extra_state"}
+    assert param_shapes(infer_torch_config(bare, 4, 1e-3, "relu")) == param_shapes(cfg)

@@ -1,0 +1,191 @@
+"""Guards for reading untrusted HDF5 (and zip) weight files.
+
+Every reader in :mod:`tpnet_ref.weights` goes through these: links (soft, external), external
+storage and virtual datasets are refused, the declared size of an attribute or dataset is checked
+*before* its data is read (a file cannot make us allocate an absurd amount), NaN and Inf values
+are refused, and h5py's low-level errors on a damaged file become one ``ValueError`` naming it.
+Nothing here unpickles anything. h5py is imported at first use, so that ``import tpnet_ref``
+stays NumPy-only.
+
+The ``MAX_*`` limits are read at call time, so a test may lower them with ``monkeypatch``.
+"""
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+#: a config larger than this many parameters is refused as implausible (the paper's is ~8.1M)
+MAX_PARAMS = 200_000_000
+#: one imported tensor larger than this many elements is refused before it is read (the
+#: released network's largest is 1M; a Keras 3 or torch file's declared sizes are checked too)
+MAX_TENSOR = 1 << 25
+#: an HDF5 attribute declaring more elements than this is refused before it is read
+MAX_ATTR_ELEMENTS = 1 << 16
+#: bytes: the largest member of a ``.keras`` archive or torch zip that is decompressed
+MAX_MEMBER_BYTES = 1 << 30
+#: bytes: the largest ``config.json`` of a ``.keras`` archive
+MAX_CONFIG_BYTES = 16 << 20
+
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+def py_value(v: Any) -> Any:
+    """An HDF5 attribute value as a plain Python value (arrays become tuples of ints)."""
+    if isinstance(v, bytes):
+        return v.decode()
+    if isinstance(v, np.ndarray):
+        return tuple(int(x) for x in v.tolist())
+    if isinstance(v, np.bool_):
+        return bool(v)
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.floating):
+        return float(v)
+    return v
+
+
+def py_str(x: Any) -> str:
+    return x.decode() if isinstance(x, bytes) else str(x)
+
+
+def attr(obj: Any, name: str, where: str, default: Any = None) -> Any:
+    """Attribute ``name`` of an HDF5 object, its declared size checked before it is read."""
+    if name not in obj.attrs:
+        return default
+    shape = obj.attrs.get_id(name).shape
+    n = int(np.prod(shape)) if shape else 1
+    if n > MAX_ATTR_ELEMENTS:
+        raise ValueError(f"{where}: attribute {name!r} of {obj.name} declares {n:,} elements "
+                         f"(limit {MAX_ATTR_ELEMENTS:,}); refused")
+    try:
+        return obj.attrs[name]
+    except (OSError, RuntimeError) as exc:
+        raise ValueError(f"{where}: attribute {name!r} of {obj.name} cannot be read ({exc})") from None
+
+
+def attrs(obj: Any, where: str) -> dict[str, Any]:
+    """Every attribute of an HDF5 object, each checked by :func:`attr`."""
+    names = list(obj.attrs.keys())
+    if len(names) > MAX_ATTR_ELEMENTS:
+        raise ValueError(f"{where}: {obj.name} has {len(names):,} attributes; refused")
+    return {k: attr(obj, k, where) for k in names}
+
+
+def read(ds: Any, what: str) -> np.ndarray:
+    """The data of a checked dataset; a corrupted file gives ``ValueError`` naming it."""
+    try:
+        return ds[()]
+    except (OSError, RuntimeError) as exc:
+        raise ValueError(f"{what}: cannot be read, the file is damaged ({exc})") from None
+
+
+def damaged_file_is_value_error(fn: Callable) -> Callable:
+    """Decorator: a reader's ``RuntimeError``/``OSError`` from h5py parsing a damaged file (other
+    than a missing file) becomes ``ValueError`` naming the file, so that callers see only the
+    documented exceptions (ValueError, TypeError, KeyError, FileNotFoundError)."""
+
+    @functools.wraps(fn)
+    def wrapper(path: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(path, *args, **kwargs)
+        except FileNotFoundError:
+            raise
+        except (RuntimeError, OSError) as exc:
+            raise ValueError(f"{path}: damaged or unreadable file ({type(exc).__name__}: "
+                             f"{str(exc)[:160]})") from None
+    return wrapper
+
+
+def safe_dataset(group: Any, name: str, where: str) -> Any:
+    """The dataset ``group[name]`` if it is a plain, internal, non-virtual dataset."""
+    import h5py
+
+    link = group.get(name, getlink=True)
+    if link is None:
+        raise KeyError(f"{where}: missing dataset {name!r}")
+    if not isinstance(link, h5py.HardLink):
+        raise ValueError(f"{where}: {name!r} is a {type(link).__name__}; links are not accepted")
+    ds = group[name]
+    if not isinstance(ds, h5py.Dataset):
+        raise ValueError(f"{where}: {name!r} is not a dataset")
+    if ds.is_virtual or ds.external:
+        raise ValueError(f"{where}: {name!r} stores its data outside the file; refused")
+    return ds
+
+
+def safe_group(parent: Any, name: str, where: str) -> Any:
+    """The group ``parent[name]`` if it is reached by a hard link."""
+    import h5py
+
+    link = parent.get(name, getlink=True)
+    if link is None:
+        raise ValueError(f"{where}: missing group {name!r}")
+    if not isinstance(link, h5py.HardLink):
+        raise ValueError(f"{where}: {name!r} is a link; links are not accepted")
+    if not isinstance(parent[name], h5py.Group):
+        raise ValueError(f"{where}: {name!r} is not a group")
+    return parent[name]
+
+
+def safe_child(group: Any, name: str, where: str) -> Any:
+    """``group[name]`` for a path ``a/b/c``, refusing any soft or external link on the way."""
+    import h5py
+
+    obj = group
+    for part in name.split("/"):
+        if not part:
+            continue
+        link = obj.get(part, getlink=True)
+        if link is None:
+            raise ValueError(f"{where}: missing {name!r} (no {part!r} in {obj.name})")
+        if not isinstance(link, h5py.HardLink):
+            raise ValueError(f"{where}: {obj.name}/{part} is a {type(link).__name__}; "
+                             "links are not accepted")
+        obj = obj[part]
+    if isinstance(obj, h5py.Dataset) and (obj.is_virtual or obj.external):
+        raise ValueError(f"{where}: {name!r} stores its data outside the file; refused")
+    return obj
+
+
+def read_array(group: Any, name: str, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """Read ``group[name]`` after checking it is a safe float dataset of exactly ``shape``."""
+    ds = safe_dataset(group, name, where)
+    if ds.dtype.kind != "f":
+        raise ValueError(f"{where}: {name!r} has dtype {ds.dtype}, expected floating point")
+    if tuple(ds.shape) != tuple(shape):
+        raise ValueError(f"{where}: {name!r} has shape {tuple(ds.shape)}, expected {tuple(shape)}")
+    arr = read(ds, f"{where}: {name!r}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{where}: {name!r} contains NaN or infinite values")
+    return arr
+
+
+def open_h5(path: str | os.PathLike) -> Any:
+    """``h5py.File(path, "r")``; a missing file is ``FileNotFoundError``, anything unreadable
+    ``ValueError``."""
+    import h5py
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"weights file not found: {p}")
+    try:
+        return h5py.File(p, "r")
+    except OSError as exc:
+        raise ValueError(f"{p}: not a readable HDF5 file ({exc})") from None
+
+
+def check_shape(arr: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """``arr`` if its shape is ``shape``, else ``ValueError`` naming ``what``."""
+    if tuple(arr.shape) != tuple(shape):
+        raise ValueError(f"{what}: shape {tuple(arr.shape)}, expected {tuple(shape)}")
+    return arr
+
+
+__all__ = ["MAX_PARAMS", "MAX_TENSOR", "MAX_ATTR_ELEMENTS", "MAX_MEMBER_BYTES",
+           "MAX_CONFIG_BYTES", "HDF5_MAGIC", "attr", "attrs", "read", "read_array",
+           "safe_dataset", "safe_group", "safe_child", "open_h5", "damaged_file_is_value_error",
+           "py_value", "py_str", "check_shape"]

@@ -1,0 +1,249 @@
+"""The native weights file: one HDF5 file holding a TP-Net's config, parameters and provenance.
+
+Format (``format = "tpnet_ref-weights"``, ``format_version = 1``):
+
+    /                 attrs: format, format_version, dtype, created (UTC ISO time), producer,
+                             plus any provenance given when writing (source, recipe, ...)
+    /config           attrs: every field of :class:`~tpnet_ref.config.TPNetConfig`
+                             (including norm_lo / norm_hi, the world-unit normalisation)
+    /params/<name>    one dataset per tensor, names and shapes from
+                      :func:`~tpnet_ref.config.param_shapes`
+
+:func:`write_native` / :func:`read_native` work on plain ``(config, {name: array}, meta)``;
+:class:`tpnet_ref.model.TPNet` is built on them (``TPNet.save``, ``tpnet_ref.load``). A file is
+untrusted input: it is read through the guards of :mod:`tpnet_ref.weights.hdf5` (no links, sizes
+checked before reading, no NaN/Inf, nothing unpickled).
+
+Shipped models (``weights/MODEL_CARD.md``): ``tpnet-m{3,4,5}.h5``, looked up by
+:func:`shipped_weights_path` in ``$TPNET_WEIGHTS_DIR``, then in the installed wheel
+(``tpnet_ref/shipped/``, which carries the default m = 4 file only), then in the repository
+checkout's ``weights/``.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import TPNetConfig, param_shapes
+from . import hdf5
+
+FORMAT = "tpnet_ref-weights"
+FORMAT_VERSION = 1
+#: root attributes that describe the file itself, not the model's provenance
+_FILE_ATTRS = ("format", "format_version", "dtype")
+
+_PACKAGE_DIR = Path(__file__).resolve().parent.parent       # tpnet_ref/
+SHIPPED_DIR = _PACKAGE_DIR / "shipped"                       # inside an installed wheel
+REPO_WEIGHTS_DIR = _PACKAGE_DIR.parent / "weights"           # in a repository checkout
+SHIPPED_M = (3, 4, 5)
+
+
+# ------------------------------------------------------------------------ shipped models
+def weights_dir() -> Path:
+    """Where the default model is read from: ``$TPNET_WEIGHTS_DIR``, else the installed wheel's
+    ``tpnet_ref/shipped/`` if it exists, else the repository's ``weights/``."""
+    env = os.environ.get("TPNET_WEIGHTS_DIR")
+    if env:
+        return Path(env)
+    return SHIPPED_DIR if SHIPPED_DIR.is_dir() else REPO_WEIGHTS_DIR
+
+
+def shipped_weights_path(m: int = 4) -> Path:
+    """The shipped model for windows of ``m`` frames, ``tpnet-m{m}.h5`` (m = 4 is the default
+    model; m = 3 and 5 are fine-tuned from it, ``weights/MODEL_CARD.md``).
+
+    Looked up in ``$TPNET_WEIGHTS_DIR`` when set (and only there), else in the installed wheel's
+    ``tpnet_ref/shipped/``, else in the repository's ``weights/``. Raises a one-line
+    ``FileNotFoundError`` when the file is in none of them (a wheel carries m = 4 only).
+    """
+    if m not in SHIPPED_M:
+        raise ValueError(f"no model is shipped for m={m!r}: there are m = 3, 4 and 5")
+    name = f"tpnet-m{m}.h5"
+    env = os.environ.get("TPNET_WEIGHTS_DIR")
+    places = [Path(env)] if env else [SHIPPED_DIR, REPO_WEIGHTS_DIR]
+    for d in places:
+        if (d / name).is_file():
+            return d / name
+    looked = " or ".join(str(d) for d in places)
+    raise FileNotFoundError(f"no shipped weights {name} in {looked}: pass the path of a weights "
+                            f"file, or set TPNET_WEIGHTS_DIR to a folder that holds {name}")
+
+
+def default_weights_path() -> Path:
+    """The file ``tpnet_ref.load()`` reads when called without a path (the m = 4 model)."""
+    return shipped_weights_path(4)
+
+
+# ------------------------------------------------------------------------------ write
+def _attr_value(v: Any) -> Any:
+    if isinstance(v, (str, int, float, bool, np.generic)):
+        return v
+    return str(v)
+
+
+def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str, np.ndarray],
+                 dtype: Any = "float32", meta: dict[str, Any] | None = None) -> None:
+    """Write a native weights file: ``params`` (``{name: array}``, exactly the names and shapes
+    of ``param_shapes(config)``) stored in ``dtype`` (float32 or float64; bit-exact for arrays
+    already in it), ``meta`` as root attributes (strings, numbers; anything else as ``str``),
+    plus ``producer`` (default ``tpnet_ref``) and ``created``."""
+    import h5py
+
+    dt = np.dtype(dtype)
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    shapes = param_shapes(config)
+    if set(params) != set(shapes):
+        raise ValueError(f"params do not fit the config: missing {sorted(set(shapes) - set(params))}, "
+                         f"unexpected {sorted(set(params) - set(shapes))}")
+    for name, shape in shapes.items():
+        hdf5.check_shape(np.asarray(params[name]), shape, f"parameter {name!r}")
+    info = {k: v for k, v in (meta or {}).items() if k not in _FILE_ATTRS and k != "path"}
+    info.setdefault("producer", "tpnet_ref")
+    info["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["dtype"] = dt.name
+        for k, v in info.items():
+            f.attrs[k] = _attr_value(v)
+        g = f.create_group("config")
+        for k, v in config.to_dict().items():
+            g.attrs[k] = np.asarray(v) if isinstance(v, tuple) else v
+        pg = f.create_group("params")
+        for name in shapes:                                   # forward order
+            pg.create_dataset(name, data=np.asarray(params[name], dtype=dt))
+
+
+# ------------------------------------------------------------------------------- read
+def is_native(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is an HDF5 file whose ``format`` attribute says it is a native file."""
+    with hdf5.open_h5(path) as f:
+        return hdf5.py_value(hdf5.attr(f, "format", str(path), "")) == FORMAT
+
+
+@hdf5.damaged_file_is_value_error
+def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndarray], dict[str, Any]]:
+    """Read a native weights file -> ``(config, {name: array in the stored dtype}, meta)``.
+
+    ``meta``: the root attributes (provenance) as plain Python values, plus ``path``. Raises
+    ``FileNotFoundError`` for a missing file and ``ValueError`` (or ``KeyError`` for a missing
+    parameter) naming what is wrong for anything else.
+    """
+    where = str(path)
+    with hdf5.open_h5(path) as f:
+        fmt = hdf5.py_value(hdf5.attr(f, "format", where, ""))
+        if fmt != FORMAT:
+            raise ValueError(f"{where}: not a tpnet_ref weights file (format attribute {fmt!r}); "
+                             "convert framework checkpoints with `tpnet import SRC DST`")
+        version = hdf5.py_value(hdf5.attr(f, "format_version", where, -1))
+        if version != FORMAT_VERSION:
+            raise ValueError(f"{where}: unsupported format_version {version!r} "
+                             f"(this reader knows {FORMAT_VERSION})")
+        if "config" not in f or "params" not in f:
+            raise ValueError(f"{where}: missing group 'config' or 'params'")
+        cfg_group = hdf5.safe_group(f, "config", where)
+        group = hdf5.safe_group(f, "params", where)
+        try:
+            cfg = TPNetConfig.from_dict({k: hdf5.py_value(v)
+                                         for k, v in hdf5.attrs(cfg_group, where).items()})
+        except (TypeError, OverflowError) as exc:
+            raise ValueError(f"{where}: bad config ({exc})") from None
+        shapes = param_shapes(cfg)
+        total = sum(int(np.prod(s)) for s in shapes.values())
+        if total > hdf5.MAX_PARAMS:
+            raise ValueError(f"{where}: config declares {total:,} parameters "
+                             f"(limit {hdf5.MAX_PARAMS:,})")
+        extra = sorted(set(group.keys()) - set(shapes))
+        if extra:
+            raise ValueError(f"{where}: unexpected parameter(s) {extra} for this config")
+        params = {name: hdf5.read_array(group, name, shape, where) for name, shape in shapes.items()}
+        meta = {k: hdf5.py_value(v) for k, v in hdf5.attrs(f, where).items()
+                if k not in _FILE_ATTRS}
+    meta["path"] = where
+    return cfg, params, meta
+
+
+# --------------------------------------------------------------------------- describe
+def _runs(runs: Any) -> list[str]:
+    """Short lines for a ``parent_runs`` list, oldest first: a training run with its recipe and
+    counters, or a weights file it started from (whose own runs are listed before it)."""
+    lines: list[str] = []
+    for run in runs if isinstance(runs, list) else []:
+        if not isinstance(run, dict):
+            continue
+        rec = run.get("recipe") if isinstance(run.get("recipe"), dict) else {}
+        name = run.get("run", "?")
+        if "weights_file" in rec:
+            lines.extend(_runs(rec.get("parent_runs")))
+            inner = rec.get("recipe") if isinstance(rec.get("recipe"), dict) else {}
+            lines.append(f"{name}: written by {rec.get('source') or '?'} "
+                         f"({inner.get('recipe', '?')} recipe, lr {inner.get('lr', '?')}); chain "
+                         f"total {int(run.get('steps', 0)):,} steps, "
+                         f"{float(run.get('epochs', 0.0)):.2f} epochs, "
+                         f"{float(run.get('wall_s', 0.0)) / 3600:.2f} h")
+        else:
+            lines.append(f"{name}: {rec.get('recipe', '?')} recipe, lr {rec.get('lr', '?')}, "
+                         f"{int(run.get('steps', 0)):,} steps, {float(run.get('epochs', 0.0)):.2f} "
+                         f"epochs, {float(run.get('wall_s', 0.0)) / 3600:.2f} h on {run.get('data', '?')}")
+    return lines
+
+
+def _chain(meta: dict[str, Any]) -> list[str]:
+    """The training runs that made the weights, one short line each, oldest first, ending with
+    the run that wrote this file."""
+    try:
+        lines = _runs(json.loads(meta.get("parent_runs", "[]") or "[]"))
+    except (TypeError, ValueError):
+        lines = ["(parent_runs is not valid JSON)"]
+    if "training_steps" in meta:
+        lines.append(f"{meta.get('source', '?')}: this file, total {int(meta['training_steps']):,} "
+                     f"steps, {float(meta.get('epochs', 0.0)):.2f} epochs, "
+                     f"{float(meta.get('wall_time_s', 0.0)) / 3600:.2f} h")
+    return [f"{i}. {line}" for i, line in enumerate(lines, start=1)]
+
+
+def describe(path: str | os.PathLike) -> str:
+    """A readable multi-line summary of a native weights file: the network, the parameter count,
+    the stored dtype, the normalisation, what produced it and when, validation figures, and the
+    chain of training runs that made the weights, one short line each. (The full provenance is
+    in the file's root attributes: ``tpnet info --json``.)"""
+    cfg, params, meta = read_native(path)
+    dtypes = sorted({a.dtype.name for a in params.values()})
+    n = sum(int(a.size) for a in params.values())
+    tr = {True: "trained", False: "identity"}
+    out = [f"{meta['path']}: native tpnet_ref weights, {n:,} parameters stored as "
+           f"{'/'.join(dtypes)}",
+           f"  network      m={cfg.m} frames in, N={cfg.n_out} points out, lstm {cfg.lstm_units} "
+           f"({cfg.lstm_activation}), global features {cfg.global_features}, "
+           f"layer_norm_eps {cfg.layer_norm_eps:g}",
+           f"  transforms   input {tr[cfg.input_transform_trained]}, feature "
+           f"{tr[cfg.feature_transform_trained]}",
+           f"  coordinates  world units -> (x - {cfg.norm_lo}) / ({cfg.norm_hi} - {cfg.norm_lo})"]
+    for key, label in (("producer", "producer"), ("created", "created"), ("hardware", "hardware"),
+                       ("data", "data"), ("source", "source"), ("source_format", "source kind"),
+                       ("import_report", "import")):
+        if meta.get(key) not in (None, ""):
+            out.append(f"  {label:13s}{meta[key]}")
+    try:
+        val = json.loads(meta.get("val", "{}") or "{}")
+    except (TypeError, ValueError):
+        val = {}
+    if isinstance(val, dict) and val:
+        out.append("  validation   " + ", ".join(
+            f"{k} {v:.4g}" if isinstance(v, (int, float)) else f"{k} {v}"
+            for k, v in sorted(val.items())))
+    chain = _chain(meta)
+    if chain:
+        out.append("  training runs (oldest first):")
+        out.extend(f"    {line}" for line in chain)
+    return "\n".join(out)
+
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "write_native", "read_native", "is_native", "describe",
+           "weights_dir", "shipped_weights_path", "default_weights_path", "SHIPPED_M"]
