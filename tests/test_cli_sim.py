@@ -39,3 +39,14 @@ def test_run_reports_the_path_it_wrote(tmp_path, capsys):
     assert str(out) in capsys.readouterr().out
     assert [p.name for p in tmp_path.iterdir()] == ["T.NPY"]
     assert np.load(out).shape == (3, 30, 2)
+
+
+def test_impulse_point_flag_selects_the_convention(tmp_path):
+    from tpnet_ref.sim import simulate
+    out = tmp_path / "c.npy"
+    args = ["sim", "run", "--steps", "200", "--x", "39.5", "--y", "29.5", "-o", str(out)]
+    assert main(args + ["--impulse-point", "particle_centre"]) == 0
+    np.testing.assert_array_equal(
+        np.load(out), simulate(1.3, 225.0, 39.5, 29.5, 200, impulse_point="particle_centre"))
+    assert main(args) == 0
+    np.testing.assert_array_equal(np.load(out), simulate(1.3, 225.0, 39.5, 29.5, 200))

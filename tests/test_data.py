@@ -112,6 +112,13 @@ def test_cli_generate(tmp_path):
     with h5py.File(out, "r") as h:
         assert h["train/positions"].shape == (1, 21, 30, 2)
         assert "test" not in h
+        assert D.scene_convention(h) == {"impulse_point": "ring_centre", "sleep": False}
+    com = tmp_path / "com.h5"
+    assert main(["data", "generate", "-o", str(com), "--forces", "1.0", "--angles", "225",
+                 "--positions", "1", "--steps", "81", "--no-test", "--quiet", "--whole", "0",
+                 "--impulse-point", "particle_centre"]) == 0
+    with h5py.File(com, "r") as h:
+        assert D.scene_convention(h)["impulse_point"] == "particle_centre"
 
 
 def test_contact_onset_per_wall():
@@ -146,3 +153,49 @@ def test_sample_windows_properties(contact, m, seed):
         assert has == (kind == D.KIND_COLLISION)
     again = D.sample_windows(c, np.random.default_rng(seed), m=m)
     assert np.array_equal(w, again)
+
+
+# ----------------------------------------------------------------- the scene convention
+def _tiny(path, **scene):
+    from tpnet_ref.sim import SceneParams
+    grid = D.train_grid([1.3], [225.0], positions=1)
+    D.generate(str(path), grid, m=3, steps=81, whole=0, progress=False,
+               params=SceneParams(**scene))
+    return str(path)
+
+
+def test_file_records_the_scene_convention_and_loaders_refuse_another(tmp_path):
+    from tpnet_ref.sim import SceneParams
+    released = _tiny(tmp_path / "r.h5")
+    with h5py.File(released, "r") as h:
+        assert D.scene_convention(h) == {"impulse_point": "ring_centre", "sleep": False}
+    D.load_windows(released)
+    com = _tiny(tmp_path / "c.h5", impulse_point="particle_centre")
+    with pytest.raises(ValueError, match="impulse_point='particle_centre'.*allow_other_scene"):
+        D.load_windows(com)
+    with pytest.raises(ValueError, match="allow_other_scene") as exc:
+        D.load_trajectories(com, "train")
+    assert "\n" not in str(exc.value)
+    x, _ = D.load_windows(com, allow_other_scene=True)
+    frames, _ = D.load_trajectories(com, "train", scene=SceneParams(impulse_point="particle_centre"))
+    assert len(x) == 20 and frames.shape == (1, 21, 30, 2)
+    with pytest.raises(ValueError, match="sleep"):
+        D.load_windows(_tiny(tmp_path / "s.h5", sleep=True))
+
+
+def test_file_without_the_attributes_is_the_old_centre_of_mass_convention(tmp_path):
+    from tpnet_ref.sim import SceneParams
+    path = _tiny(tmp_path / "old.h5", impulse_point="particle_centre", sleep=True)
+    with h5py.File(path, "a") as h:                 # as written before the convention was kept
+        del h.attrs["impulse_point"], h.attrs["sleep"]
+        assert D.scene_convention(h) == {"impulse_point": "particle_centre", "sleep": True}
+    with pytest.raises(ValueError, match="particle_centre"):
+        D.load_trajectories(path, "train")
+    old = SceneParams(impulse_point="particle_centre", sleep=True)
+    assert D.load_trajectories(path, "train", scene=old)[0].shape == (1, 21, 30, 2)
+
+
+def test_default_dataset_follows_the_simulator_default(tmp_path):
+    path = _tiny(tmp_path / "d.h5")
+    frames, params = D.load_trajectories(path, "train")
+    np.testing.assert_allclose(frames[0], simulate(*params[0], steps=81)[::4], atol=1e-4)

@@ -3,7 +3,9 @@
 File layout (HDF5, written by ``tpnet data generate``)::
 
     /                       attrs: m, n_targets, frame_every, steps, seed, norm_lo, norm_hi,
-                                   scene (JSON of SceneParams), format
+                                   scene (JSON of SceneParams), format, and the scene
+                                   convention: impulse_point ("ring_centre" or
+                                   "particle_centre"), sleep (bool)
     /train/params           (T, 4) float64   force, angle_deg, x, y per trajectory
     /train/positions        (T, F, N, 2) float32  world units, model frames (every 4th row)
     /train/normalized       (T, F, N, 2) float32  (x - NORM_LO) / (NORM_HI - NORM_LO)
@@ -17,6 +19,13 @@ Model frame ``j`` is simulation row ``4 j``, the state after ``4 j + 1`` steps (
 convention, which is the paper's: see docs/simulator.md), so a 600-step trajectory has
 ``F = 150`` frames, and a test window's inputs are frames ``0..m-1`` (rows 0, 4, ..., 4(m-1)).
 A training window is ``m`` input frames followed by 8 target frames.
+
+The scene convention (where the start impulse acts, whether bodies may sleep) changes every
+trajectory after the first wall contact, so :func:`load_windows` and :func:`load_trajectories`
+refuse (one-line ``ValueError``) a file made with another convention than the one asked for
+(default: the simulator's default, ``SceneParams()``) unless ``allow_other_scene=True``. A file
+without the attributes was made before they existed, with ``impulse_point="particle_centre"``
+and the ``sleep`` recorded in its ``scene`` JSON.
 """
 from __future__ import annotations
 
@@ -35,7 +44,9 @@ from .protocol import FRAME_EVERY, SIM_ROWS
 from .sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
 from .sim.scene import SceneParams, simulate, validate_params
 
-FORMAT = "tpnet_ref.data/2"
+FORMAT = "tpnet_ref.data/3"
+#: the convention of files written before it was recorded
+LEGACY_IMPULSE_POINT = "particle_centre"
 N_TARGETS = 8
 KIND_NORMAL, KIND_COLLISION, KIND_WHOLE = 0, 1, 2
 
@@ -151,7 +162,8 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     settings = {"format": FORMAT, "m": int(m), "n_targets": N_TARGETS,
                 "frame_every": FRAME_EVERY, "steps": int(steps), "seed": int(seed),
                 "whole": int(whole), "norm_lo": NORM_LO, "norm_hi": NORM_HI,
-                "scene": json.dumps(scene, sort_keys=True)}
+                "scene": json.dumps(scene, sort_keys=True),
+                "impulse_point": p.impulse_point, "sleep": bool(p.sleep)}
     splits = {"train": _cases(grid, "grid")}
     if test_cases is not None:
         splits["test"] = _cases(test_cases, "test_cases")
@@ -275,14 +287,45 @@ def _write_windows(g: Any, m: int, seed: int, whole: int) -> int:
 
 
 # --------------------------------------------------------------------------- reading
+def scene_convention(h: Any) -> dict[str, Any]:
+    """``{"impulse_point": ..., "sleep": ...}`` a dataset file (open ``h5py.File``) was made with."""
+    a = h.attrs
+    point = _attr(a["impulse_point"]) if "impulse_point" in a else LEGACY_IMPULSE_POINT
+    if "sleep" in a:
+        sleep = bool(_attr(a["sleep"]))
+    else:
+        scene = json.loads(_attr(a["scene"])) if "scene" in a else {}
+        sleep = bool(scene.get("sleep", True))      # the old default
+    return {"impulse_point": point, "sleep": sleep}
+
+
+def check_scene(h: Any, path: str, expected: SceneParams | None = None,
+                allow_other_scene: bool = False) -> dict[str, Any]:
+    """The file's scene convention; a one-line ``ValueError`` when it is not ``expected``'s
+    (default ``SceneParams()``) unless ``allow_other_scene``."""
+    got = scene_convention(h)
+    want = expected or SceneParams()
+    if not allow_other_scene:
+        for k in ("impulse_point", "sleep"):
+            if got[k] != getattr(want, k):
+                raise ValueError(
+                    f"{path}: made with the scene convention {k}={got[k]!r}, not {k}="
+                    f"{getattr(want, k)!r}; regenerate it (tpnet data generate) or pass "
+                    "allow_other_scene=True (--allow-other-scene)")
+    return got
+
+
 def load_windows(path: str, split: str = "train", *, normalized: bool = True,
-                 kinds: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 kinds: Sequence[int] | None = None, scene: SceneParams | None = None,
+                 allow_other_scene: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Training windows as arrays: inputs ``(W, m, N, 2)`` and targets ``(W, 8, N, 2)``
     (float32; model coordinates unless ``normalized=False``). ``kinds`` filters by window kind
-    (0 normal, 1 wall collision, 2 whole trajectory)."""
+    (0 normal, 1 wall collision, 2 whole trajectory). The file must have been made with
+    ``scene``'s convention (default ``SceneParams()``) unless ``allow_other_scene``."""
     import h5py
 
     with h5py.File(path, "r") as h:
+        check_scene(h, path, scene, allow_other_scene)
         m = int(h.attrs["m"])
         nt = int(h.attrs["n_targets"])
         g = h[split]
@@ -299,15 +342,20 @@ def load_windows(path: str, split: str = "train", *, normalized: bool = True,
     return frames[:, :m], frames[:, m:]
 
 
-def load_trajectories(path: str, split: str = "test", *,
-                      normalized: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """All frames of a split: ``(T, F, N, 2)`` float32 and their ``(T, 4)`` parameters."""
+def load_trajectories(path: str, split: str = "test", *, normalized: bool = False,
+                      scene: SceneParams | None = None,
+                      allow_other_scene: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """All frames of a split: ``(T, F, N, 2)`` float32 and their ``(T, 4)`` parameters. The
+    file must have been made with ``scene``'s convention (default ``SceneParams()``) unless
+    ``allow_other_scene``."""
     import h5py
 
     with h5py.File(path, "r") as h:
+        check_scene(h, path, scene, allow_other_scene)
         g = h[split]
         return g["normalized" if normalized else "positions"][...], g["params"][...]
 
 
 __all__ = ["generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
-           "collision_frames", "sample_windows", "FORMAT", "N_TARGETS"]
+           "collision_frames", "sample_windows", "scene_convention", "check_scene", "FORMAT",
+           "N_TARGETS"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES
+from .sim import _scene_flags
 
 
 def add_cli(sub: Any) -> None:
@@ -26,6 +27,7 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--workers", type=int, default=1, help="processes")
     q.add_argument("--no-test", action="store_true", help="skip the 60 test cases")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
+    _scene_flags(q)
     q.set_defaults(func=_cli_generate)
 
 
@@ -34,6 +36,7 @@ def _cli_generate(args: Any) -> int:
 
     from ..data import generate, train_grid
     from ..sim.cases import TEST_CASES
+    from ..sim.scene import SceneParams
     grid = train_grid(args.forces, args.angles, args.positions)
     if args.limit is not None:
         if args.limit < 1:
@@ -41,6 +44,7 @@ def _cli_generate(args: Any) -> int:
         grid = grid[: args.limit]
     counts = generate(args.output, grid, None if args.no_test else np.asarray(TEST_CASES),
                       m=args.m, steps=args.steps, seed=args.seed, workers=args.workers,
-                      whole=args.whole, progress=not args.quiet)
+                      whole=args.whole, progress=not args.quiet,
+                      params=SceneParams(impulse_point=args.impulse_point, sleep=args.sleep))
     print(f"wrote {args.output}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     return 0

@@ -20,6 +20,7 @@ def add_cli(sub: Any) -> None:
         q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
         q.add_argument("--damping-ratio", type=float, default=0.0)
         q.add_argument("--wall-restitution", type=float, default=0.0)
+        _scene_flags(q)
         if name == "show":
             q.add_argument("-o", "--output", required=True, help=".png file to write")
             q.add_argument("--every", type=int, default=4,
@@ -30,6 +31,16 @@ def add_cli(sub: Any) -> None:
                            help=".npy file to write (exactly this path); row k is the state "
                                 "after k + 1 steps, a model frame is every 4th row")
             q.set_defaults(func=_cli_run)
+
+
+def _scene_flags(q: Any) -> None:
+    """``--impulse-point`` and ``--sleep``: the scene convention (default: the released code's)."""
+    q.add_argument("--impulse-point", default="ring_centre",
+                   choices=("ring_centre", "particle_centre"),
+                   help="where the start impulse acts: ring_centre (released code: particles "
+                        "spin) or particle_centre (centre of mass)")
+    q.add_argument("--sleep", action="store_true",
+                   help="allow Box2D island sleeping (the released world: off)")
 
 
 def output_path(path: str, suffix: str, flag: str = "--output") -> str:
@@ -47,7 +58,8 @@ def _trajectory(args: Any, include_initial: bool = False) -> Any:
     from ..sim.scene import simulate
     return simulate(args.force, args.angle, args.x, args.y, args.steps,
                     include_initial=include_initial, frequency=args.frequency,
-                    damping_ratio=args.damping_ratio, wall_restitution=args.wall_restitution)
+                    damping_ratio=args.damping_ratio, wall_restitution=args.wall_restitution,
+                    impulse_point=args.impulse_point, sleep=args.sleep)
 
 
 def _cli_run(args: Any) -> int:
