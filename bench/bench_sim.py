@@ -1,9 +1,10 @@
 """Speed of one 600-step trajectory: tpnet_ref.sim (pymunk + Numba springs) vs Box2D 2.3.
 
-    PYTHONPATH=. /work/venv-sim/bin/python bench/bench_sim.py [--repeats 7]
+    PYTHONPATH=. python bench/bench_sim.py [--repeats 7]
 
-Both build the scene from scratch and return the (600, 30, 2) positions; the best and the
-median of the repeats are printed, and the ratio Box2D / ours (> 1: ours is faster). Numba's
+Both run the released convention (impulse at the ring centre, no sleeping), build the scene
+from scratch and return the (600, 30, 2) positions; the best and the median of the repeats are
+printed, and the ratio Box2D / ours (> 1: ours is faster). Numba's
 compilation is excluded (one warm-up run each).
 """
 from __future__ import annotations

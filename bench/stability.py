@@ -1,6 +1,7 @@
 """Stability figures for docs/stability.md (stiff springs, extreme impulses, long runs).
 
     PYTHONPATH=. python bench/stability.py          # Box2D / naive rows when importable
+    PYTHONPATH=. python bench/stability.py --spin   # only the spinning-particles table
 
 Energies: E_motion = kinetic (linear + rotational) + gravitational, E_total adds the springs'
 potential energy as ideal springs of stiffness mu (2 pi f)^2. Positions in world units; the free
@@ -42,7 +43,45 @@ def stretch(traj):
     return np.abs(L - L[0]).max()
 
 
+def spin_table() -> None:
+    """Particles spinning at the rotation clamp (released start impulse, every particle at
+    pi/2 per step) against walls with friction 1: 3,000 steps per case."""
+    print("## spinning particles: impulse at the ring centre, 3,000 steps, sleep off")
+    print("| case | finite | min / max centre | max abs(w) dt / (pi/2) | max E_total / E0 | "
+          "E_total end / E0 | spinning particles at the end |")
+    limit = 0.5 * math.pi
+    for name, args, kw in (("F=1.6, 200 deg, start (41.9, 41.2) (corner)", (1.6, 200, 41.9, 41.2), {}),
+                           ("F=1.6, 270 deg, start (41.9, 31.7) (floor)", (1.6, 270, 41.9, 31.7), {}),
+                           ("F=1.0, 180 deg, start (2.9, 2.9) (corner)", (1.0, 180, 2.9, 2.9), {}),
+                           ("F=16, 225 deg, start (30, 30)", (16.0, 225, 30, 30), {}),
+                           ("F=16, 225 deg, no rotation clamp", (16.0, 225, 30, 30),
+                            {"max_rotation": None}),
+                           ("F=1.6, 225 deg, 20 Hz springs", (1.6, 225, 30, 30),
+                            {"frequency": 20.0})):
+        p = SceneParams(**kw)
+        sc = build_scene(args[2], args[3], args[0], args[1], p)
+        lo, hi, wmax = 99.0, -99.0, 0.0
+        e = np.empty(3000)
+        finite = True
+        for k in range(3000):
+            sc.step()
+            b = sc.read()
+            e[k] = sc.energy(springs=p.frequency <= 1.0)   # stiff: E_motion, as above
+            finite &= bool(np.isfinite(b[:30]).all())
+            lo, hi = min(lo, b[:30, :2].min()), max(hi, b[:30, :2].max())
+            wmax = max(wmax, np.abs(b[:30, 4]).max() * p.dt / limit)
+        spinning = int((np.abs(b[:30, 4]) > 1.0).sum())
+        print(f"| {name} | {finite} | {lo:.4f} / {hi:.4f} | {wmax:.4f} | {e.max() / e[0]:.4f} | "
+              f"{e[-1] / e[0]:.4f} | {spinning} |")
+    print("(w: angular velocity in rad/s, read between steps: particle-pair contacts and the "
+          "walls' time of impact act after the clamp, the next step clamps again; E0: energy "
+          "after the first step, with the clamped spin; 20 Hz: E_motion)")
+
+
 def main() -> int:
+    if "--spin" in sys.argv[1:]:
+        spin_table()
+        return 0
     try:
         from box2d_scene import simulate_box2d
     except ImportError:
@@ -89,6 +128,8 @@ def main() -> int:
             lo, hi = min(lo, tr[1:].min()), max(hi, tr[1:].max())
     print(f"\nwithout continuous collision (continuous=False), force 16, no clamp: "
           f"min / max centre {lo:.2f} / {hi:.2f}")
+    print()
+    spin_table()
     print()
     print("## long runs: 10,000 steps, damping ratio 0, sleep off")
     print("| case | max E_total / E0 | largest one-step rise of E_total | E_total end / E0 | "
