@@ -1,9 +1,78 @@
-"""Temporary shim: registers the ``tpnet`` sub-commands still defined in tpnet_ref.evaluation (being moved here)."""
+"""``tpnet eval`` and ``tpnet demo`` (argparse only; the work is in tpnet_ref.evaluation)."""
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
+
+# the defaults shown in --help, spelled here so that the parser imports no library module
+_DEMO_HORIZONS = (1, 10, 20, 40, 80, 140)
+_ORDERINGS = ("given", "ascending_x", "descending_y", "shuffle")
 
 
 def add_cli(sub: Any) -> None:
-    from ..evaluation import add_cli as _add
-    _add(sub)
+    p = sub.add_parser("demo", help="simulate a held-out scene, predict it from shuffled frames, "
+                                    "print errors beside copy-last and constant velocity, "
+                                    "write a PNG")
+    p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
+    p.add_argument("--case", type=float, nargs=4, default=None,
+                   metavar=("FORCE", "ANGLE", "X", "Y"), help="scene (default: test case 1)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="predictions (default: to the end of the 600-step trajectory)")
+    p.add_argument("--horizons", type=int, nargs="+", default=list(_DEMO_HORIZONS),
+                   help="prediction steps at which errors are printed")
+    p.add_argument("-o", "--output", default="tpnet_demo.png", help="PNG to write")
+    p.add_argument("--no-png", action="store_true", help="do not write a PNG")
+    p.add_argument("--seed", type=int, default=0, help="point shuffling seed")
+    p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
+    p.set_defaults(func=_cli_demo)
+
+    p = sub.add_parser("eval", help="evaluation on the 60 held-out cases: the paper's table in "
+                                    "the squared reading, the other readings, orderings, "
+                                    "timings, plots -> results.md")
+    p.add_argument("--weights", action="append", default=[],
+                   help="native weights file; repeat for several models (m = 3/4/5)")
+    p.add_argument("--baselines-only", action="store_true",
+                   help="no model: baselines and simulator rows only")
+    p.add_argument("--m", type=int, nargs="+", default=None,
+                   help="window lengths for the baselines (default: the models' m, else 4)")
+    p.add_argument("--data", default=None,
+                   help="HDF5 dataset (tpnet data generate): use its /test trajectories "
+                        "instead of simulating")
+    p.add_argument("--allow-other-scene", action="store_true",
+                   help="accept a --data file made with another scene convention")
+    p.add_argument("--cases", type=int, default=None, help="only the first N cases")
+    p.add_argument("--horizon", type=int, default=None,
+                   help="predictions per case (default: to the end of the trajectories)")
+    p.add_argument("--orderings", nargs="+", default=list(_ORDERINGS), choices=_ORDERINGS)
+    p.add_argument("--no-timing", action="store_true", help="skip the error-vs-time table")
+    p.add_argument("--no-peers", action="store_true", help="timing without PyTorch/onnxruntime")
+    p.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")
+    p.add_argument("--generalisation", action="store_true",
+                   help="also scenes outside the training ranges")
+    p.add_argument("--gen-cases", type=int, default=20, help="generalisation cases per group")
+    p.add_argument("--workers", type=int, default=0, help="simulation processes (0: auto)")
+    p.add_argument("--seed", type=int, default=0, help="shuffle seed")
+    p.add_argument("--out", default=None,
+                   help="directory for results.md, eval_curves.csv and the PNGs (default: a new "
+                        "./tpnet-eval-<timestamp>/; give --out docs to update the repository's)")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cli_eval)
+
+
+def _cli_demo(args: Any) -> int:
+    from ..evaluation import DEMO_CASE, demo
+    demo(args.weights, case=args.case or DEMO_CASE, steps=args.steps, horizons=args.horizons,
+         png=None if args.no_png else args.output, seed=args.seed, dtype=args.dtype)
+    return 0
+
+
+def _cli_eval(args: Any) -> int:
+    from ..evaluation import run_eval
+    path = run_eval(args)
+    text = Path(path).read_text()
+    start = text.index("## The paper's table")
+    end = text.index("## Protocol")
+    print(text[start:end].rstrip())
+    print(f"\nwrote {path} (and eval_curves.csv, figures) in {Path(path).parent}/")
+    return 0

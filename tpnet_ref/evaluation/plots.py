@@ -1,0 +1,253 @@
+"""Figures of an evaluation run and of the demo (matplotlib: the ``plot`` extra).
+
+Errors are drawn in the headline reading (``"squared"``, docs/spec.md §3); coordinates in world
+units.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..extras import require
+from ..protocol import HORIZONS
+from .run import HEADLINE, Curve, table_horizons
+from .timing import TimingRow
+
+WALLS = (1.0, 44.0)          # inner faces of the walls, world units (docs/spec.md §5)
+BOX = (0.0, 45.0)            # the whole box, walls included
+
+
+def _plt() -> Any:
+    matplotlib = require("matplotlib", "plot", "figures")
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
+    """Error against prediction step, one column per window length m (each model with the two
+    baselines of its m, ordering ``given``), E_p on top and E_s below; reading ``squared``,
+    the paper's TP-Net at 40 and 80 as stars."""
+    from .run import PAPER_TABLE
+    plt = _plt()
+    ms = sorted({c.m for c in curves})
+    fig, axes = plt.subplots(2, len(ms), figsize=(4.6 * len(ms), 7), sharex=True, sharey="row",
+                             squeeze=False)
+    style = {"copy last": ("0.55", "--"), "constant velocity": ("tab:orange", ":")}
+    for j, m in enumerate(ms):
+        for c in curves:
+            if c.m != m or c.ordering != "given":
+                continue
+            col, ls = style.get(c.name, ("tab:blue", "-"))
+            h = np.arange(1, c.err[f"Ep_{HEADLINE}"].shape[1] + 1)
+            for i, k in enumerate(("Ep", "Es")):
+                axes[i, j].plot(h, c.mean(f"{k}_{HEADLINE}"), color=col, ls=ls, lw=1.5,
+                                label=c.name)
+        if m in PAPER_TABLE:
+            p = PAPER_TABLE[m]
+            for i, vals in enumerate(((p[0], p[2]), (p[1], p[3]))):
+                axes[i, j].scatter(HORIZONS, vals, marker="*", s=120, color="tab:red",
+                                   zorder=5, label="TP-Net, paper")
+        axes[0, j].set_title(f"m = {m} input frames")
+        axes[1, j].set_xlabel("prediction step h (frame m - 1 + h)")
+        for i in range(2):
+            axes[i, j].set_yscale("log")
+            axes[i, j].grid(True, which="both", alpha=0.3)
+            axes[i, j].legend(fontsize=7, loc="lower right")
+    axes[0, 0].set_ylabel(f"position error E_p ({HEADLINE})")
+    axes[1, 0].set_ylabel(f"shape error E_s ({HEADLINE})")
+    fig.suptitle("Rollout error on the held-out cases (mean over cases, normalised coordinates)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_groups(groups: dict[str, Sequence[Curve]], path: str | os.PathLike) -> Path:
+    """Generalisation: E_p vs prediction step, one panel per group of scenes (ordering given)."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(groups), figsize=(4 * len(groups), 3.5), squeeze=False)
+    for j, (g, cs) in enumerate(groups.items()):
+        ax = axes[0, j]
+        for c in cs:
+            if c.ordering == "given":
+                ax.plot(np.arange(1, c.err[f"Ep_{HEADLINE}"].shape[1] + 1), c.mean(), lw=1.2,
+                        label=f"{c.name} (m={c.m})")
+        ax.set_title(g)
+        ax.set_yscale("log")
+        ax.set_xlabel("prediction step h")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].set_ylabel(f"E_p ({HEADLINE})")
+    axes[0, -1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
+    """E_p at 40 (hollow) and 80 (filled) predictions against ms per predicted frame."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for i, r in enumerate(rows):
+        ms = r.ms_single if r.ms_single is not None else r.ms_batch
+        e = r.err.get(f"Ep_{HEADLINE}")
+        if ms is None or e is None:
+            continue
+        c = plt.cm.tab10(i % 10)
+        if not e.any():        # the reference itself: no error to draw on a log axis
+            ax.axvline(ms, color=c, ls="--", lw=1, label=f"{r.name} (reference, error 0)")
+            continue
+        hs = table_horizons(e.shape[1])
+        pts = [(h, float(e[:, h - 1].mean())) for h in hs]
+        for h, v in pts:
+            ax.scatter(ms, max(v, 1e-6), color=c, s=40,
+                       facecolors="none" if h == hs[0] and len(hs) > 1 else c,
+                       label=r.name if h == pts[-1][0] else None)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("ms per predicted frame (one rollout)")
+    ax.set_ylabel(f"E_p ({HEADLINE}), hollow @{HORIZONS[0]}, filled @{HORIZONS[1]}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np.ndarray],
+                 horizons: Sequence[int], case_labels: Sequence[str] | None = None,
+                 m: int | None = None) -> Path:
+    """Predicted vs true shapes: one row per case, one column per prediction step.
+
+    ``truth (C, H, N, 2)`` and each ``preds[name] (C, H, N, 2)`` in world units."""
+    plt = _plt()
+    C = truth.shape[0]
+    hs = [h for h in horizons if h <= truth.shape[1]]
+    fig, axes = plt.subplots(C, len(hs), figsize=(2.6 * len(hs), 2.6 * C), squeeze=False)
+    for i in range(C):
+        for j, h in enumerate(hs):
+            ax = axes[i, j]
+            t = truth[i, h - 1]
+            sets = [t] + [p[i, h - 1] for p in preds.values()]
+            allp = np.clip(np.concatenate(sets), -1.0, 46.0)   # far-off predictions: at the edge
+            c = 0.5 * (allp.min(0) + allp.max(0))
+            r = max(3.0, 0.55 * float((allp.max(0) - allp.min(0)).max()))
+            ax.scatter(t[:, 0], t[:, 1], s=8, color="k", label="simulator")
+            for k, (name, p) in enumerate(preds.items()):
+                q = p[i, h - 1]
+                col = plt.cm.tab10((k + 1) % 10)
+                ax.scatter(q[:, 0], q[:, 1], s=8, marker="x", color=col, label=name)
+                cq = q.mean(0)
+                if (cq < -1.0).any() or (cq > 46.0).any():      # left the box: say where
+                    ax.text(0.03, 0.97 - 0.08 * k, f"{name}: off panel at ({cq[0]:.0f}, "
+                            f"{cq[1]:.0f})", transform=ax.transAxes, fontsize=6, color=col,
+                            va="top")
+            for w in (1.0, 44.0):   # walls (inner faces)
+                ax.axvline(w, color="0.4", lw=2)
+                ax.axhline(w, color="0.4", lw=2)
+            ax.set_xlim(c[0] - r, c[0] + r)
+            ax.set_ylim(c[1] - r, c[1] + r)
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=6)
+            if i == 0:
+                ax.set_title(f"prediction {h}" + (f" (frame {m - 1 + h})" if m else ""),
+                             fontsize=8)
+            if j == 0 and case_labels is not None:
+                ax.set_ylabel(case_labels[i], fontsize=7)
+    axes[0, -1].legend(fontsize=6, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def _walls(ax: Any) -> None:
+    """The four walls (thickness 1 around the free area [1, 44]²) as grey rectangles."""
+    from matplotlib.patches import Rectangle
+    lo, hi = BOX
+    t = WALLS[0] - lo
+    for xy, w, h in (((lo, lo), hi - lo, t), ((lo, hi - t), hi - lo, t),
+                     ((lo, lo), t, hi - lo), ((hi - t, lo), t, hi - lo)):
+        ax.add_patch(Rectangle(xy, w, h, color="0.45", zorder=0, lw=0))
+
+
+def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: int,
+              horizons: Sequence[int], titles: dict[int, str], *, label: str = "TP-Net",
+              suptitle: str = "") -> Path:
+    """The demo's figure: the whole box (walls, the true and predicted centroid paths, the
+    input frames, true and predicted rings at ``horizons``) and one zoomed panel per horizon,
+    all zoomed panels on one scale, equal aspect, world units, one legend.
+
+    ``truth (F, N, 2)``: the simulated frames 0..F-1; ``pred (H, N', 2)``: the predictions of
+    frames m..m+H-1; ``titles[h]``: the errors printed above the panel of horizon ``h``."""
+    plt = _plt()
+    hs = [h for h in horizons if 1 <= h <= pred.shape[0]][:4]
+    fig = plt.figure(figsize=(17, 8.5))
+    gs = fig.add_gridspec(2, 4, width_ratios=(1, 1, 0.78, 0.78), wspace=0.28, hspace=0.42)
+    box = fig.add_subplot(gs[:, 0:2])
+    c_true, c_pred = "black", "tab:red"
+    last = m - 1 + pred.shape[0]
+    tc = truth[: last + 1].mean(axis=1)
+    pc = np.concatenate([truth[m - 1: m].mean(axis=1), pred.mean(axis=1)])
+    _walls(box)
+    box.plot(tc[:, 0], tc[:, 1], color=c_true, lw=1.4, label="simulator: centroid path")
+    box.plot(pc[:, 0], pc[:, 1], color=c_pred, lw=1.4, ls="--",
+             label=f"{label}: predicted centroid path")
+    for j in range(m):
+        box.scatter(truth[j, :, 0], truth[j, :, 1], s=9, color="tab:blue",
+                    label=f"input frames 0..{m - 1}" if j == 0 else None, zorder=3)
+    for k, h in enumerate(hs):
+        t, q = truth[m - 1 + h], pred[h - 1]
+        box.plot(*np.vstack([t, t[:1]]).T, color=c_true, lw=1.0, zorder=3,
+                 label="simulator: ring" if k == 0 else None)
+        box.scatter(q[:, 0], q[:, 1], s=14, marker="x", color=c_pred, zorder=4,
+                    label=f"{label}: predicted points" if k == 0 else None)
+        tcen, qcen = t.mean(0), q.mean(0)
+        box.plot([tcen[0], qcen[0]], [tcen[1], qcen[1]], color="0.5", lw=0.8, ls=":", zorder=2)
+        for cen, dy in ((tcen, 1), (qcen, -1)):
+            box.annotate(f"h={h}", cen, xytext=(0, 22 * dy), textcoords="offset points",
+                         ha="center", va="center", fontsize=9, weight="bold",
+                         bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
+    box.set_xlim(*BOX)
+    box.set_ylim(*BOX)
+    box.set_aspect("equal")
+    box.set_xlabel("x (world units)")
+    box.set_ylabel("y (world units)")
+    box.set_title(f"The whole box: inputs (frames 0..{m - 1}), centroid paths to frame {last}, "
+                  f"rings at predictions h = {', '.join(map(str, hs))}", fontsize=10)
+    # one scale for every zoomed panel: the widest extent any of them needs, at least 7 units
+    need = [np.ptp(np.vstack([truth[m - 1 + h], pred[h - 1]]), axis=0).max() for h in hs]
+    half = 0.5 * max([7.0] + [n + 1.5 for n in need])
+    for k, h in enumerate(hs):
+        ax = fig.add_subplot(gs[k // 2, 2 + k % 2])
+        t, q = truth[m - 1 + h], pred[h - 1]
+        _walls(ax)
+        ax.plot(*np.vstack([t, t[:1]]).T, color=c_true, lw=1.0)
+        ax.scatter(t[:, 0], t[:, 1], s=12, color=c_true)
+        ax.scatter(q[:, 0], q[:, 1], s=22, marker="x", color=c_pred)
+        c = 0.5 * (t.mean(0) + q.mean(0))
+        ax.set_xlim(c[0] - half, c[0] + half)
+        ax.set_ylim(c[1] - half, c[1] + half)
+        ax.set_aspect("equal")
+        ax.set_title(titles.get(h, f"prediction {h}"), fontsize=9)
+        ax.tick_params(labelsize=8)
+        ax.set_xlabel("x (world units)", fontsize=8)
+        ax.set_ylabel("y (world units)", fontsize=8)
+    handles, labels = box.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=10,
+               frameon=False)
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=12)
+    fig.subplots_adjust(left=0.05, right=0.98, top=0.86, bottom=0.1)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)
+
+
+__all__ = ["plot_models", "plot_groups", "plot_timing", "plot_gallery", "plot_demo"]
