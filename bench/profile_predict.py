@@ -51,10 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     h = g
     last = len(model._lstms) - 1
     for i, (fused, gamma, beta) in enumerate(model._lstms):
-        k, r, b = fused
+        k, r = fused.kernel, fused.recurrent
         rows = h.reshape(4, -1)
         stages.append((f"BiLSTM {i + 1}: input projection {k.shape[0]}->{k.shape[1]} (4 steps)",
-                       med(lambda: rows @ k), k.nbytes))
+                       med(lambda: L.project(rows, k, fused.blocks)), k.nbytes))
         full = med(lambda: L.bilstm_fused(h, *fused, return_sequences=i < last))
         proj = stages[-1][1]
         stages.append((f"BiLSTM {i + 1}: recurrence, gates (3 products of {r.shape[1]}x{r.shape[2]} x2)",
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     t_mm = 0.0
     h = gb_tm
     for i, (fused, gamma, beta) in enumerate(model._lstms):
-        k, r, b = fused
+        k, r = fused.kernel, fused.recurrent
         rows = h.reshape(-1, k.shape[0])
         hb = np.random.default_rng(i).standard_normal((2, 256, r.shape[1])).astype(np.float32)
         t_mm += med(lambda: rows @ k, 10) + 3 * med(lambda: np.matmul(hb, r), 10)

@@ -270,22 +270,6 @@ def test_import_is_light():
     assert out.stdout.strip() == "", f"predict imported {out.stdout.strip()}"
 
 
-def test_mlp_max_equals_pool_after_the_last_layer_bit_for_bit():
-    """Bias and ReLU moved after the max-pool give the very same bits (monotone rounding)."""
-    from tpnet_ref import layers as L
-    rng = np.random.default_rng(0)
-    for dtype in (np.float32, np.float64):
-        x = rng.normal(size=(7 * 13, 5)).astype(dtype)
-        layers = [(rng.normal(size=(5, 8)).astype(dtype), rng.normal(size=8).astype(dtype)),
-                  (rng.normal(size=(8, 6)).astype(dtype), rng.normal(size=6).astype(dtype))]
-        counts = np.full(7, 13)
-        want = L.segment_max(L.pointwise_mlp(x, layers), counts)
-        assert np.array_equal(L.mlp_max(x, layers, counts), want)
-        ragged = np.array([1, 20, 30, 40])
-        assert np.array_equal(L.mlp_max(x, layers, ragged),
-                              L.segment_max(L.pointwise_mlp(x, layers), ragged))
-
-
 def test_rollout_batch_equals_rollout_per_window(model64):
     rng = np.random.default_rng(12)
     windows = [_window(rng), [rng.uniform(5, 40, size=(n, 2)) for n in (3, 30, 9, 1)]]

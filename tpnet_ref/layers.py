@@ -9,8 +9,11 @@ that it does not return.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
+
+from .blas import SMALL_PRODUCT
 
 
 def relu(x: np.ndarray) -> np.ndarray:
@@ -149,16 +152,28 @@ def lstm(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndar
     return out
 
 
+class FusedBiLSTM(NamedTuple):
+    """A bidirectional LSTM's weights laid out for :func:`bilstm_fused` (see :func:`fuse_bilstm`)."""
+
+    kernel: np.ndarray                  # (C, 8u): [forward | backward], gates i, f, o, c
+    recurrent: np.ndarray               # (2, u, 4u)
+    bias: np.ndarray                    # (8u,)
+    blocks: np.ndarray | None = None    # (8u / nb, C, nb): the kernel's columns in blocks
+
+
 def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
-                bwd: tuple[np.ndarray, np.ndarray, np.ndarray]
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                bwd: tuple[np.ndarray, np.ndarray, np.ndarray],
+                block_rows: int | None = None) -> FusedBiLSTM:
     """Lay out a bidirectional LSTM's Keras weights for :func:`bilstm_fused`.
 
     ``fwd``/``bwd``: (kernel ``(C, 4u)``, recurrent ``(u, 4u)``, bias ``(4u,)``), gates i, f, c, o.
     Returns the contiguous kernel ``(C, 8u)`` = [forward | backward], recurrent ``(2, u, 4u)``
     and bias ``(8u,)``. Each direction's gates are reordered to i, f, o, c so the three sigmoid
     gates are adjacent, and their columns are negated (exact) so that the step loop gets ``-x``
-    and computes sigmoid(x) = 1 / (1 + exp(-x)) in three in-place passes.
+    and computes sigmoid(x) = 1 / (1 + exp(-x)) in three in-place passes. With ``block_rows``
+    (the rows of the input projection of one window, ``m``), also the kernel's columns cut
+    into equal contiguous blocks ``(8u / nb, C, nb)`` with ``block_rows * C * nb`` at most
+    :data:`SMALL_PRODUCT`, for :func:`project`.
     """
     def reorder(a: np.ndarray) -> np.ndarray:
         u = a.shape[-1] // 4
@@ -169,44 +184,66 @@ def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
     kernel = np.ascontiguousarray(np.concatenate([reorder(fwd[0]), reorder(bwd[0])], axis=-1))
     recurrent = np.ascontiguousarray(np.stack([reorder(fwd[1]), reorder(bwd[1])]))
     bias = np.concatenate([reorder(fwd[2]), reorder(bwd[2])])
-    return kernel, recurrent, bias
+    blocks = None
+    if block_rows:
+        c_in, n = kernel.shape
+        fits = [nb for nb in range(1, n + 1)
+                if n % nb == 0 and block_rows * c_in * nb <= SMALL_PRODUCT]
+        if fits and fits[-1] < n:
+            nb = fits[-1]
+            blocks = np.ascontiguousarray(kernel.reshape(c_in, n // nb, nb).transpose(1, 0, 2))
+    return FusedBiLSTM(kernel, recurrent, bias, blocks)
+
+
+def project(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None = None,
+            small: bool = True) -> np.ndarray:
+    """``x (R, C) @ kernel (C, N)`` -> ``(R, N)``. With ``blocks`` (the kernel's columns in
+    blocks, from :func:`fuse_bilstm`), ``small`` and ``R * C * nb <= SMALL_PRODUCT``, the same
+    product as one stacked product over the blocks, each small enough for the BLAS to skip
+    packing the weights (measured 2-4x faster for R = 4; :func:`tpnet_ref.blas.small_products_pay`
+    decides ``small`` once per process)."""
+    if blocks is None or not small or x.shape[0] * blocks.shape[1] * blocks.shape[2] > SMALL_PRODUCT:
+        return x @ kernel
+    y = np.matmul(x, blocks)                        # (N / nb, R, nb)
+    return y.transpose(1, 0, 2).reshape(x.shape[0], -1)
 
 
 def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
-                 activation: str = "relu", return_sequences: bool = True) -> np.ndarray:
+                 blocks: np.ndarray | None = None, activation: str = "relu",
+                 return_sequences: bool = True, small: bool = True) -> np.ndarray:
     """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`,
     time-major: ``x (T, B, C)`` -> ``(T, B, 2u)`` or, with ``return_sequences=False``, ``(B, 2u)``.
 
-    Same result as two :func:`lstm` calls, computed faster: one GEMM projects every step of both
-    directions, both directions advance together (step ``s`` is forward time ``s`` and backward
-    time ``T-1-s``; one batched product per step written straight into the gate buffer, none at
-    step 0 where h = 0), and the gates are updated in place. Time-major layout keeps every step's
-    slice contiguous, so nothing is re-laid-out between layers.
+    The fused kernel the model runs. Its documented specification is :func:`lstm` (one
+    direction, written for reading) and :func:`bidirectional_lstm`; ``tests/test_layers.py``
+    checks that this function equals them. It computes the same thing faster: one product
+    projects every step of both directions (:func:`project`), the projections are laid out
+    once in step order (step ``s`` is forward time ``s`` and backward time ``T-1-s``), both
+    directions advance together with one batched product per step into the gate buffer (none
+    at step 0, where h = c = 0), and the gates are updated in place. Time-major layout keeps
+    every step's slice contiguous, so nothing is re-laid-out between layers.
     """
     steps, bsz, _ = x.shape
     u = recurrent.shape[1]
-    xp = x.reshape(steps * bsz, -1) @ kernel
-    xp += bias
-    xp = xp.reshape(steps, bsz, 2, 4 * u)
     relu_act = activation == "relu"
     if not relu_act and activation != "tanh":
         _activation(activation)  # raises the error naming the activation
     dt = x.dtype
-    z = np.empty((2, bsz, 4 * u), dtype=dt)
-    c = np.zeros((2, bsz, u), dtype=dt)
+    xp = project(x.reshape(steps * bsz, -1), kernel, blocks, small).reshape(steps, bsz, 2, 4 * u)
+    xs = np.empty((steps, 2, bsz, 4 * u), dtype=dt)     # input projections in step order
+    np.add(xp[:, :, 0], bias[:4 * u], out=xs[:, 0])
+    np.add(xp[::-1, :, 1], bias[4 * u:], out=xs[:, 1])
+    c = np.empty((2, bsz, u), dtype=dt)
     tmp = np.empty((2, bsz, u), dtype=dt)
-    hs = np.empty((steps, 2, bsz, u), dtype=dt)     # h after each step
+    hs = np.empty((steps, 2, bsz, u), dtype=dt)         # h after each step
     one = dt.type(1.0)
     with np.errstate(over="ignore"):
         for s in range(steps):
-            tf, tb = s, steps - 1 - s
             if s == 0:
-                z[0] = xp[tf, :, 0]
-                z[1] = xp[tb, :, 1]
+                z = xs[0]
             else:
-                np.matmul(hs[s - 1], recurrent, out=z)
-                z[0] += xp[tf, :, 0]
-                z[1] += xp[tb, :, 1]
+                z = np.matmul(hs[s - 1], recurrent, out=xs[s - 1])  # reuse the spent buffer
+                z += xs[s]
             gates = z[..., :3 * u]                  # -x for i, f, o (negated weights)
             np.exp(gates, out=gates)                # may overflow to inf: 1/(1+inf) = 0
             gates += one
@@ -216,9 +253,12 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
                 np.maximum(g, 0, out=g)
             else:
                 np.tanh(g, out=g)
-            c *= z[..., u:2 * u]                    # c = f*c + i*g
-            np.multiply(z[..., :u], g, out=tmp)
-            c += tmp
+            if s == 0:                              # c = i*g
+                np.multiply(z[..., :u], g, out=c)
+            else:                                   # c = f*c + i*g
+                c *= z[..., u:2 * u]
+                np.multiply(z[..., :u], g, out=tmp)
+                c += tmp
             h = hs[s]                               # h = o * act(c)
             if relu_act:
                 np.maximum(c, 0, out=h)
@@ -240,10 +280,13 @@ def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndar
     ``return_sequences=True`` -> ``(B, T, 2u)``, each step ``[forward_t, backward_t]``.
     ``return_sequences=False`` -> ``(B, 2u)``: the forward state after the last step and the
     backward state after it has consumed the whole reversed sequence (its row ``t = 0``).
+    Written for reading: the model runs :func:`bilstm_fused`, which must equal this.
     """
-    y = bilstm_fused(x.transpose(1, 0, 2), *fuse_bilstm(fwd, bwd), activation=activation,
-                     return_sequences=return_sequences)
-    return y.transpose(1, 0, 2) if return_sequences else y
+    f = lstm(x, *fwd, activation=activation)
+    b = lstm(x, *bwd, activation=activation, reverse=True)
+    if return_sequences:
+        return np.concatenate([f, b], axis=-1)
+    return np.concatenate([f[:, -1], b[:, 0]], axis=-1)
 
 
 def layer_norm(x: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: float) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import layers as L
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
-from .blas import cpu_count, single_threaded
+from .blas import cpu_count, one_thread, small_products_pay
 from .checks import NonFiniteResultError, as_point_set, as_real_array
 
 #: points per block of the feature extractor (activations of a block stay in cache)
@@ -96,10 +96,11 @@ class TPNet:
         self._mlp2 = stack("mlp2", len(cfg.mlp2))
         self._lstms = [
             (L.fuse_bilstm(*(tuple(p[f"lstm{i}.{d}.{k}"] for k in ("kernel", "recurrent", "bias"))
-                             for d in ("fwd", "bwd"))),
+                             for d in ("fwd", "bwd")), block_rows=cfg.m),
              p[f"ln{i}.gamma"], p[f"ln{i}.beta"])
             for i in range(1, len(cfg.lstm_units) + 1)
         ]
+        self._small: bool | None = None     # small_products_pay(dtype), asked at first use
         self._lo = self.dtype.type(cfg.norm_lo)
         self._scale = self.dtype.type(cfg.norm_hi - cfg.norm_lo)
 
@@ -177,9 +178,12 @@ class TPNet:
         # overflow the variance to inf and silently turn the layer's output into beta
         # (finite but wrong), so every LSTM output is checked against that bound.
         limit = np.sqrt(np.finfo(self.dtype).max) / 4
+        if self._small is None:
+            self._small = small_products_pay(self.dtype)
         with np.errstate(over="ignore", invalid="ignore"):
             for i, (fused, gamma, beta) in enumerate(self._lstms):
-                h = L.bilstm_fused(h, *fused, activation=act, return_sequences=i < last)
+                h = L.bilstm_fused(h, *fused, activation=act, return_sequences=i < last,
+                                   small=self._small)
                 if act == "relu" and not h.max() < limit:   # also catches NaN
                     self._overflow(f"BiLSTM {i + 1}")
                 h = L.layer_norm(h, gamma, beta, eps)
@@ -230,7 +234,8 @@ class TPNet:
 
     def predict(self, window: Any, normalized: bool = False) -> np.ndarray:
         """Next point set. ``window``: ``(m, N, dim)`` or m arrays ``(N_i, dim)`` -> ``(n_out, dim)``."""
-        return self._predict_frames(self._check_window(window, "window"), 1, normalized)[0]
+        return self._split(self._predict_frames, self._check_window(window, "window"), 1,
+                           normalized)[0]
 
     def predict_batch(self, windows: Any, normalized: bool = False) -> np.ndarray:
         """Next point set of each window: ``(B, m, N, dim)`` or B windows -> ``(B, n_out, dim)``."""
@@ -256,17 +261,19 @@ class TPNet:
         return frames, len(windows)
 
     def _split(self, fn: Any, frames: list[np.ndarray], batch: int, *args: Any) -> np.ndarray:
-        """``fn(frames, batch, *args)``, or, for a batch of ``SPLIT_MIN_BATCH`` windows or more
-        and ``self.threads`` > 1, the same on consecutive parts of the batch in threads, each
-        with a one-thread BLAS (NumPy's element-wise work then uses every core too), joined
-        along the batch axis. The parts depend on ``batch`` and ``self.threads`` only."""
+        """``fn(frames, batch, *args)`` with a one-thread BLAS (see :mod:`tpnet_ref.blas`), or,
+        for a batch of ``SPLIT_MIN_BATCH`` windows or more and ``self.threads`` > 1, the same
+        on consecutive parts of the batch in threads, each with a one-thread BLAS (NumPy's
+        element-wise work then uses every core too), joined along the batch axis. The parts
+        depend on ``batch`` and ``self.threads`` only."""
         n = min(self.threads or cpu_count(), batch // (SPLIT_MIN_BATCH // 2))
-        if batch < SPLIT_MIN_BATCH or n < 2:
-            return fn(frames, batch, *args)
-        m = self.config.m
-        bounds = np.linspace(0, batch, n + 1).round().astype(int)
-        parts = [(frames[b0 * m:b1 * m], int(b1 - b0)) for b0, b1 in zip(bounds[:-1], bounds[1:])]
-        with single_threaded():
+        with one_thread():
+            if batch < SPLIT_MIN_BATCH or n < 2:
+                return fn(frames, batch, *args)
+            m = self.config.m
+            bounds = np.linspace(0, batch, n + 1).round().astype(int)
+            parts = [(frames[b0 * m:b1 * m], int(b1 - b0))
+                     for b0, b1 in zip(bounds[:-1], bounds[1:])]
             return np.concatenate(list(_pool(n).map(lambda p: fn(p[0], p[1], *args), parts)))
 
     def _predict_frames(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
@@ -282,7 +289,7 @@ class TPNet:
         frame. Each frame's global feature is computed once and kept.
         """
         frames = self._check_window(window, "window")
-        return self._rollout_frames(frames, 1, steps, normalized)[0]
+        return self._split(self._rollout_frames, frames, 1, steps, normalized)[0]
 
     def rollout_batch(self, windows: Any, steps: int, normalized: bool = False) -> np.ndarray:
         """:meth:`rollout` of every window, the windows stepped together:

@@ -1,0 +1,102 @@
+"""The layers: the fused BiLSTM kernel the model runs equals the readable LSTM that specifies it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tpnet_ref import layers as L
+from tpnet_ref.blas import SMALL_PRODUCT, one_thread, small_products_pay
+
+
+def _direction(rng, c, u, dtype):
+    return (rng.normal(size=(c, 4 * u)).astype(dtype) / np.sqrt(c),
+            rng.normal(size=(u, 4 * u)).astype(dtype) / np.sqrt(u),
+            rng.normal(scale=0.3, size=4 * u).astype(dtype))
+
+
+@pytest.mark.parametrize("act", ["relu", "tanh"])
+@pytest.mark.parametrize("return_sequences", [True, False])
+@pytest.mark.parametrize("dtype, atol", [(np.float64, 1e-12), (np.float32, 2e-5)])
+@pytest.mark.parametrize("steps, batch", [(1, 1), (4, 1), (4, 3), (5, 2)])
+def test_fused_bilstm_equals_the_readable_lstm(act, return_sequences, dtype, atol, steps, batch):
+    """bilstm_fused (gates reordered and negated, both directions stepped together, input
+    projections in column blocks) gives the readable bidirectional_lstm's numbers."""
+    rng = np.random.default_rng(steps * 10 + batch)
+    c, u = 96, 40
+    fwd, bwd = _direction(rng, c, u, dtype), _direction(rng, c, u, dtype)
+    x = rng.normal(size=(batch, steps, c)).astype(dtype)
+    want = L.bidirectional_lstm(x, fwd, bwd, act, return_sequences)
+    for block_rows in (None, steps * batch):
+        fused = L.fuse_bilstm(fwd, bwd, block_rows=block_rows)
+        for small in (False, True):
+            got = L.bilstm_fused(x.transpose(1, 0, 2), *fused, activation=act,
+                                 return_sequences=return_sequences, small=small)
+            if return_sequences:
+                got = got.transpose(1, 0, 2)
+            assert got.dtype == dtype
+            np.testing.assert_allclose(got, want, rtol=0, atol=atol)
+
+
+def test_readable_bidirectional_lstm_is_two_lstm_directions():
+    """The spec itself: forward states, and backward states re-aligned to the input's time."""
+    rng = np.random.default_rng(1)
+    fwd, bwd = _direction(rng, 5, 3, np.float64), _direction(rng, 5, 3, np.float64)
+    x = rng.normal(size=(2, 4, 5))
+    y = L.bidirectional_lstm(x, fwd, bwd)
+    np.testing.assert_array_equal(y[..., :3], L.lstm(x, *fwd))
+    back = L.lstm(x[:, ::-1], *bwd)[:, ::-1]        # run on the reversed sequence, re-align
+    np.testing.assert_allclose(y[..., 3:], back, rtol=0, atol=1e-15)
+    last = L.bidirectional_lstm(x, fwd, bwd, return_sequences=False)
+    np.testing.assert_array_equal(last, np.concatenate([y[:, -1, :3], y[:, 0, 3:]], axis=-1))
+
+
+def test_column_blocks_fit_the_small_product_bound_and_give_the_product():
+    rng = np.random.default_rng(2)
+    c, u = 512, 256
+    fwd, bwd = _direction(rng, c, u, np.float32), _direction(rng, c, u, np.float32)
+    fused = L.fuse_bilstm(fwd, bwd, block_rows=4)
+    nblocks, c_in, nb = fused.blocks.shape
+    assert c_in == c and nblocks * nb == 8 * u and 4 * c * nb <= SMALL_PRODUCT
+    np.testing.assert_array_equal(fused.blocks.transpose(1, 0, 2).reshape(c, -1), fused.kernel)
+    x = rng.normal(size=(4, c)).astype(np.float32)
+    np.testing.assert_allclose(L.project(x, fused.kernel, fused.blocks), x @ fused.kernel,
+                               rtol=0, atol=1e-4)
+    big = rng.normal(size=(64, c)).astype(np.float32)     # too many rows: the plain product
+    np.testing.assert_array_equal(L.project(big, fused.kernel, fused.blocks), big @ fused.kernel)
+    assert isinstance(small_products_pay(np.float32), bool)
+
+
+def test_one_thread_restores_the_blas_threads_after_nesting():
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+
+    def blas_threads():
+        return [d["num_threads"] for d in threadpoolctl.threadpool_info() if d["user_api"] == "blas"]
+
+    before = blas_threads()
+    with one_thread():
+        assert all(n == 1 for n in blas_threads())
+        with one_thread():
+            assert all(n == 1 for n in blas_threads())
+        assert all(n == 1 for n in blas_threads())
+    assert blas_threads() == before
+
+
+def test_mlp_max_equals_pool_after_the_last_layer_bit_for_bit():
+    """Bias and ReLU moved after the max-pool give the very same bits (monotone rounding)."""
+    rng = np.random.default_rng(0)
+    for dtype in (np.float32, np.float64):
+        x = rng.normal(size=(7 * 13, 5)).astype(dtype)
+        layers = [(rng.normal(size=(5, 8)).astype(dtype), rng.normal(size=8).astype(dtype)),
+                  (rng.normal(size=(8, 6)).astype(dtype), rng.normal(size=6).astype(dtype))]
+        for counts in (np.full(7, 13), np.array([1, 20, 30, 40])):
+            want = L.segment_max(L.pointwise_mlp(x, layers), counts)
+            assert np.array_equal(L.mlp_max(x, layers, counts), want)
+
+
+def test_layer_norm_uses_biased_variance_and_eps_inside_the_sqrt():
+    x = np.array([[1.0, 2.0, 4.0]])
+    eps = 0.5
+    d = x - x.mean()
+    want = d / np.sqrt((d * d).mean() + eps) * 2.0 + 1.0
+    np.testing.assert_allclose(L.layer_norm(x.copy(), np.full(3, 2.0), np.ones(3), eps), want,
+                               rtol=0, atol=1e-15)
