@@ -26,7 +26,7 @@ import numpy as np
 
 import tpnet_ref
 from tpnet_ref import evaluation as ev
-from tpnet_ref.train import WindowData
+from tpnet_ref.training.recipe import WindowData
 
 HS = (1, 10, 40, 80)
 

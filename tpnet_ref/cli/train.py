@@ -1,9 +1,230 @@
-"""Temporary shim: registers the ``tpnet`` sub-commands still defined in tpnet_ref.train (being moved here)."""
+"""``tpnet train run|export|bench|score|baselines``: training in PyTorch (``train`` extra).
+
+argparse only: each handler imports the training modules when it runs, so ``tpnet --help`` and
+the other commands work without torch, and a missing torch is one line naming the extra.
+"""
 from __future__ import annotations
 
+import argparse
+import dataclasses
+import json
+from pathlib import Path
 from typing import Any
+
+from ..training.recipe import N_STEPS_MAX, OPTIMIZER_MODES, SIZES, Recipe
 
 
 def add_cli(sub: Any) -> None:
-    from ..train import add_cli as _add
-    _add(sub)
+    p = sub.add_parser("train", help="train TP-Net in PyTorch (train extra) and export weights")
+    tsub = p.add_subparsers(dest="train_command", metavar="TRAIN_COMMAND")
+    tsub.required = True
+
+    q = tsub.add_parser("run", help="train (or --resume) a run on a `tpnet data generate` file")
+    q.add_argument("data", help="HDF5 dataset from `tpnet data generate`")
+    q.add_argument("-o", "--run-dir", required=True,
+                   help="run directory: checkpoint.pt, checkpoint.json, log.jsonl")
+    q.add_argument("--resume", action="store_true",
+                   help="continue the run in --run-dir (its stored recipe is used)")
+    d = Recipe()
+    q.add_argument("--recipe", choices=("paper", "curriculum"), default=d.recipe)
+    q.add_argument("--size", choices=sorted(SIZES), default="full",
+                   help="network widths: full (released), small, tiny")
+    q.add_argument("--lstm-activation", choices=("relu", "tanh"), default="relu")
+    q.add_argument("--epochs", type=float, default=None,
+                   help=f"default {d.epochs}; may be fractional")
+    q.add_argument("--batch", type=int, default=d.batch)
+    q.add_argument("--lr", type=float, default=d.lr)
+    q.add_argument("--beta1", type=float, default=d.beta1)
+    q.add_argument("--beta2", type=float, default=d.beta2)
+    q.add_argument("--adam-eps", type=float, default=d.eps)
+    q.add_argument("--schedule", choices=("constant", "cosine"), default=d.schedule)
+    q.add_argument("--lr-min", type=float, default=d.lr_min)
+    q.add_argument("--warmup-steps", type=int, default=d.warmup_steps)
+    q.add_argument("--clip", type=float, default=d.clip, help="max grad norm (0: off)")
+    q.add_argument("--noise", type=float, default=d.noise,
+                   help="std of Gaussian noise on input coordinates (normalised units)")
+    q.add_argument("--shape-weight", type=float, default=d.shape_weight,
+                   help="λ: add λ × the same weighted sum of shape Chamfer distances (sets centred "
+                        "on their centroids; the released shape error E_s); 0 = published loss")
+    q.add_argument("--match-weight", type=float, default=d.match_weight,
+                   help="μ: add μ × the same weighted sum of matched (earth mover's) distances, "
+                        "optimal one-to-one pairs (scipy); stops predicted points from "
+                        "clumping on one target; 0 = published loss")
+    q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs)
+    q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
+    q.add_argument("--rollout", type=int, default=d.rollout,
+                   help=f"longest recursive loss (1..{N_STEPS_MAX}; published {N_STEPS_MAX})")
+    q.add_argument("--head-init", choices=("default", "template"), default=d.head_init,
+                   help="template: the untrained head outputs a ring of the body's size")
+    q.add_argument("--init-from", default=d.init_from, metavar="RUN_DIR|WEIGHTS.h5",
+                   help="fine-tune: start from this run's weights or a native weights file "
+                        "(fresh optimizer and schedule; its network is used, --size is ignored)")
+    q.add_argument("--val-windows", type=int, default=d.val_windows,
+                   help="validate on this many evenly spaced validation windows (0: all)")
+    q.add_argument("--val-fraction", type=float, default=d.val_fraction,
+                   help="fraction of training-grid trajectories held out for validation")
+    q.add_argument("--split-seed", type=int, default=d.split_seed,
+                   help="seed of the validation split (kept apart from --seed)")
+    q.add_argument("--seed", type=int, default=d.seed, help="initialisation, order and noise")
+    q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    q.add_argument("--max-steps", type=int, default=None, help="stop (with a checkpoint) at this step")
+    q.add_argument("--max-minutes", type=float, default=None,
+                   help="stop (with a checkpoint) after this many minutes")
+    q.add_argument("--budget-minutes", type=float, default=None,
+                   help="new runs: time a few steps here, then set --epochs so the run (and its "
+                        "cosine schedule) fits 90%% of this many minutes; also the hard stop")
+    q.add_argument("--checkpoint-minutes", type=float, default=5.0)
+    q.add_argument("--checkpoint-part-mib", type=float, default=None, metavar="MIB",
+                   help="write the checkpoint as checkpoint.pt.000, .001, ... of at most MIB MiB "
+                        "each (e.g. 16, for machines whose files travel in 16 MiB pieces); kept "
+                        "on --resume, which reads parts or one file alike; 0: one file again")
+    q.add_argument("--checkpoint-optimizer", choices=OPTIMIZER_MODES, default=None,
+                   help="Adam state in the checkpoint: full (exact resume; default), bf16 (moments "
+                        "in bfloat16, 2/3 of the size) or none (model only, 1/3; resume starts a "
+                        "fresh Adam); kept on --resume unless given")
+    q.add_argument("--allow-other-scene", action="store_true",
+                   help="train on a dataset made with another scene convention than the "
+                        "simulator's default (refused otherwise)")
+    q.add_argument("--log-every", type=int, default=50, help="steps between train-loss log lines")
+    q.add_argument("--val-every", type=int, default=None,
+                   help="also validate every N steps (default: at epoch ends only)")
+    q.add_argument("--export", default=None, metavar="OUT.h5",
+                   help="when the run completes, write the native weights file")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.set_defaults(func=_cli_run)
+
+    e = tsub.add_parser("export", help="native weights file from a checkpoint (with provenance)")
+    e.add_argument("checkpoint", help="run directory or checkpoint.pt")
+    e.add_argument("output", help="native HDF5 weights file to write")
+    e.add_argument("--dtype", choices=("float32", "float64"), default="float32")
+    e.set_defaults(func=_cli_export)
+
+    b = tsub.add_parser("bench", help="training throughput (windows/s) at a batch size")
+    b.add_argument("--size", choices=sorted(SIZES), default="full")
+    b.add_argument("--batch", type=int, default=128)
+    b.add_argument("--rollouts", type=int, nargs="+", default=[1, 8])
+    b.add_argument("--iters", type=int, default=5)
+    b.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    b.add_argument("--threads", type=int, default=2)
+    b.set_defaults(func=_cli_bench)
+
+    s = tsub.add_parser("score", help="model selection on validation trajectories (the test "
+                                      "protocol, never the test cases): E_p/E_s at 40/80")
+    s.add_argument("data")
+    s.add_argument("weights", nargs="+", help="native weights files to compare")
+    s.add_argument("--horizon", type=int, default=80)
+    s.add_argument("--spacing", action="store_true",
+                   help="also how evenly the one-step predictions cover the ring (world units: "
+                        "nearest-neighbour distance, smallest one per set, radius spread)")
+    s.add_argument("--val-fraction", type=float, default=d.val_fraction)
+    s.add_argument("--split-seed", type=int, default=d.split_seed)
+    s.add_argument("--allow-other-scene", action="store_true",
+                   help="score on a dataset made with another scene convention")
+    s.set_defaults(func=_cli_score)
+
+    c = tsub.add_parser("baselines", help="copy-last-frame and constant-velocity scores on the "
+                                          "validation windows")
+    c.add_argument("data")
+    c.add_argument("--val-fraction", type=float, default=d.val_fraction)
+    c.add_argument("--split-seed", type=int, default=d.split_seed)
+    c.add_argument("--allow-other-scene", action="store_true",
+                   help="score on a dataset made with another scene convention")
+    c.set_defaults(func=_cli_baselines)
+
+
+def _cli_run(args: argparse.Namespace) -> int:
+    import h5py
+
+    from ..training.checkpoint import load_parent
+    from ..training.loop import train
+    from ..training.recipe import Recipe, size_config
+
+    recipe = None
+    if not args.resume:
+        if not Path(args.data).is_file():
+            raise FileNotFoundError(f"dataset not found: {args.data}")
+        with h5py.File(args.data, "r") as h:
+            m = int(h.attrs["m"])
+        cfg = size_config(args.size, m=m, lstm_activation=args.lstm_activation)
+        if args.init_from:   # the parent's network, for this dataset's window length m
+            cfg = dataclasses.replace(load_parent(args.init_from)[2], m=m)
+        recipe = Recipe(recipe=args.recipe, epochs=args.epochs or Recipe.epochs,
+                        batch=args.batch, lr=args.lr, beta1=args.beta1, beta2=args.beta2,
+                        eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,
+                        warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
+                        shape_weight=args.shape_weight, match_weight=args.match_weight,
+                        pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
+                        rollout=args.rollout, head_init=args.head_init, init_from=args.init_from,
+                        val_windows=args.val_windows, val_fraction=args.val_fraction, split_seed=args.split_seed,
+                        seed=args.seed, config=cfg.to_dict())
+    st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,
+               device=args.device, threads=args.threads, max_steps=args.max_steps,
+               max_minutes=args.max_minutes, checkpoint_minutes=args.checkpoint_minutes,
+               log_every=args.log_every, val_every=args.val_every, progress=not args.quiet,
+               export_path=args.export, budget_minutes=args.budget_minutes,
+               checkpoint_part_mib=args.checkpoint_part_mib,
+               checkpoint_optimizer=args.checkpoint_optimizer,
+               allow_other_scene=args.allow_other_scene)
+    print(f"{args.run_dir}: step {st['step']}/{st['total_steps']} ({st['stopped']}), "
+          f"{st['windows_seen']} windows seen, {st['wall_s']:.0f} s, last validation "
+          + json.dumps(st.get("last_val", {})))
+    return 0
+
+
+def _cli_export(args: argparse.Namespace) -> int:
+    from ..training.loop import export
+
+    model = export(args.checkpoint, args.output, dtype=args.dtype)
+    print(f"wrote {args.output}: {model!r}")
+    return 0
+
+
+def _cli_bench(args: argparse.Namespace) -> int:
+    from ..training.loop import bench, hardware, resolve_device
+    from ..training.recipe import size_config
+
+    cfg = size_config(args.size)
+    res = bench(cfg, batch=args.batch, rollouts=tuple(args.rollouts), iters=args.iters,
+                device=args.device, threads=args.threads)
+    dev = resolve_device(args.device)
+    print(f"train step throughput, size {args.size}, batch {args.batch}, {hardware(dev)}:")
+    for k, v in res.items():
+        print(f"  {k}-step loss: {v:8.1f} windows/s")
+    return 0
+
+
+def _cli_score(args: argparse.Namespace) -> int:
+    from ..training.recipe import WindowData
+    from ..training.score import score_rollouts, spacing_report
+
+    data = WindowData(args.data, args.val_fraction, args.split_seed,
+                      allow_other_scene=args.allow_other_scene)
+    print(f"{data.describe()}\nvalidation trajectories from frame 0, {args.horizon} recursive "
+          f"predictions, released metric, mean over {len(data.val_traj)} trajectories:")
+    at = tuple(h for h in (1, 10, 40, 80) if h <= args.horizon)
+    res = score_rollouts(data, args.weights, args.horizon, at)
+    cols = [f"{k}@{h}" for h in at for k in ("Ep", "Es")]
+    print(f"  {'':40s}" + "".join(f"{c:>9s}" for c in cols))
+    for name, row in res.items():
+        print(f"  {name:40s}" + "".join(f"{row[c]:9.3f}" for c in cols))
+    if args.spacing:
+        sp = spacing_report(data, args.weights)
+        print("one-step predictions on every 8th validation window, world units:")
+        print(f"  {'':40s}{'nn_mean':>11s}{'nn_min':>11s}{'radius_std':>11s}")
+        for name, row in sp.items():
+            print(f"  {name:40s}" + "".join(f"{row[k]:11.3f}" for k in
+                                            ("nn_mean", "nn_min", "radius_std")))
+    return 0
+
+
+def _cli_baselines(args: argparse.Namespace) -> int:
+    from ..training.recipe import WindowData
+    from ..training.score import baselines
+
+    data = WindowData(args.data, args.val_fraction, args.split_seed,
+                      allow_other_scene=args.allow_other_scene)
+    print(data.describe())
+    for name, ev in baselines(data).items():
+        print(f"  {name:15s} " + " ".join(f"{k} {v:.4f}" for k, v in ev.items()))
+    return 0

@@ -1,1 +1,40 @@
-"""Training TP-Net in PyTorch (optional ``train`` extra): the torch model, the recipe, the loop."""
+"""Training TP-Net in PyTorch (optional ``train`` extra) and export to the native weights file.
+
+- :mod:`~tpnet_ref.training.recipe`: :class:`Recipe` (what a run computes), the network sizes,
+  :class:`WindowData` (the windows of a ``tpnet data generate`` file, split by trajectory).
+- :mod:`~tpnet_ref.training.torch_model`: :class:`TorchTPNet` (the network in PyTorch, Keras
+  semantics) and the Chamfer losses.
+- :mod:`~tpnet_ref.training.loop`: :func:`train` (resumable, budgeted), :func:`export`,
+  :func:`bench`.
+- :mod:`~tpnet_ref.training.checkpoint`: checkpoints in one file or in parts, fine-tuning
+  provenance.
+- :mod:`~tpnet_ref.training.score`: baselines and model selection on validation trajectories.
+
+The command line is ``tpnet train run|export|bench|score|baselines`` (:mod:`tpnet_ref.cli.train`);
+the recipe and the runs are in ``docs/training.md``. Importing this package needs nothing but
+NumPy: the names below are imported at first use, and those that need torch say so in one line
+when it is missing.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_NAMES = {
+    "Recipe": "recipe", "WindowData": "recipe", "SIZES": "recipe", "size_config": "recipe",
+    "N_STEPS_MAX": "recipe",
+    "TorchTPNet": "torch_model", "chamfer_released": "torch_model", "chamfer_shape": "torch_model",
+    "matched_distance": "torch_model",
+    "train": "loop", "export": "loop", "bench": "loop", "evaluate": "loop",
+    "save_checkpoint": "checkpoint", "load_checkpoint": "checkpoint", "load_parent": "checkpoint",
+    "baselines": "score", "score_rollouts": "score", "spacing_report": "score",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _NAMES:
+        return getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
+    raise AttributeError(f"module 'tpnet_ref.training' has no attribute {name!r}")
+
+
+__all__ = sorted(_NAMES)

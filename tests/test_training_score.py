@@ -1,0 +1,82 @@
+"""Model selection without the test cases: baselines, rollout scores and spacing on validation
+data; the train CLI."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import tpnet_ref  # noqa: E402
+from tpnet_ref import cli  # noqa: E402
+from tpnet_ref.cli import train as cli_train  # noqa: E402
+from tpnet_ref.training import loop as L  # noqa: E402
+from tpnet_ref.training import recipe as R  # noqa: E402
+from tpnet_ref.training import score as S  # noqa: E402
+from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
+
+
+def test_baselines_and_cli(dataset, tmp_path, capsys):
+    data = R.WindowData(dataset, 0.2, 0)
+    b = S.baselines(data)
+    assert set(b) == {"copy_last", "const_velocity"}
+    assert all(np.isfinite(v["val_loss"]) and v["val_loss"] > 0 for v in b.values())
+    run = str(tmp_path / "run")
+    out = str(tmp_path / "w.h5")
+    assert cli.main(["train", "run", dataset, "-o", run, "--size", "tiny", "--epochs", "1",
+                     "--batch", "32", "--threads", "1", "--quiet", "--export", out]) == 0
+    assert tpnet_ref.load(out).config == R.size_config("tiny")
+    assert cli.main(["train", "run", dataset, "-o", run, "--resume", "--epochs", "2",
+                     "--quiet"]) == 0
+    assert cli.main(["train", "export", run, str(tmp_path / "w2.h5")]) == 0
+    assert "(done)" in capsys.readouterr().out
+    args = cli.build_parser().parse_args(["train", "bench", "--size", "tiny", "--rollouts", "1"])
+    assert args.func is cli_train._cli_bench and args.batch == 128
+    assert cli.main(["train", "export", str(tmp_path / "missing"), out]) == 2
+
+
+def test_score_rollouts_on_validation_trajectories(dataset, tmp_path, capsys):
+    """`tpnet train score`: the test protocol on the validation trajectories (never the test
+    cases), for weights files and both baselines; copy last scored as computed directly."""
+    from tpnet_ref.evaluation import copy_last
+    from tpnet_ref.metrics import position_error
+
+    L.train(dataset, tmp_path / "run", tiny_recipe(epochs=1), threads=1, progress=False)
+    L.export(tmp_path / "run", tmp_path / "w.h5")
+    data = R.WindowData(dataset, 0.2, 0)
+    res = S.score_rollouts(data, [tmp_path / "w.h5"], horizon=10, at=(1, 10))
+    assert set(res) == {"copy last", "constant velocity", str(tmp_path / "w.h5")}
+    f = data.frames[data.val_traj].astype(np.float64)
+    want = position_error(f[:, 4 + 9], copy_last(f[:, :4], 10)[:, 9], variant="released").mean()
+    assert res["copy last"]["Ep@10"] == pytest.approx(want, rel=1e-12)
+    assert all(np.isfinite(v) for row in res.values() for v in row.values())
+    assert cli.main(["train", "score", dataset, str(tmp_path / "w.h5"), "--horizon", "10",
+                     "--val-fraction", "0.2"]) == 0
+    out = capsys.readouterr().out
+    assert "Es@10" in out and "copy last" in out and "Ep@40" not in out
+    sp = S.spacing_report(data, [tmp_path / "w.h5"], every=1)
+    assert set(sp) == {"truth", str(tmp_path / "w.h5")}
+    assert sp["truth"]["nn_mean"] == pytest.approx(0.418, abs=0.02)   # a ring, barely deformed
+    assert cli.main(["train", "score", dataset, str(tmp_path / "w.h5"), "--horizon", "10",
+                     "--val-fraction", "0.2", "--spacing"]) == 0
+    assert "nn_min" in capsys.readouterr().out
+
+
+def test_spacing_stats_of_the_rest_ring_and_of_a_clump():
+    from tpnet_ref.evaluation import spacing_stats
+    from tpnet_ref.config import NORM_HI, NORM_LO
+
+    a = 2 * np.pi * np.arange(30) / 30
+    r = 2.0 / (NORM_HI - NORM_LO)
+    ring = np.stack([0.5 + r * np.sin(a), 0.5 + r * np.cos(a)], axis=-1)
+    st = spacing_stats(ring[None])
+    spacing = 2 * 2.0 * np.sin(np.pi / 30)                              # chord, world units
+    assert st["nn_mean"] == pytest.approx(spacing, rel=1e-12)
+    assert st["nn_min"] == pytest.approx(spacing, rel=1e-12)
+    assert st["radius_std"] == pytest.approx(0.0, abs=1e-12)
+    clumped = ring.copy()
+    clumped[1] = clumped[0]                                             # two on one particle
+    st = spacing_stats(np.stack([ring, clumped]))
+    assert st["nn_min"] == pytest.approx(spacing / 2, rel=1e-12)        # mean of 0.418 and 0
+    with pytest.raises(ValueError, match="sets"):
+        spacing_stats(ring)

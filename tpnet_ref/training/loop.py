@@ -1,0 +1,474 @@
+"""The training loop: train (and resume) a run, validate, export native weights, measure speed.
+
+``train(DATA.h5, RUN_DIR, Recipe(...))`` trains :class:`~tpnet_ref.training.torch_model.TorchTPNet`
+on the windows of a ``tpnet data generate`` file (:class:`~tpnet_ref.training.recipe.WindowData`);
+:func:`export` writes the native HDF5 weights through
+:func:`tpnet_ref.weights.torch.import_torch` with provenance; :func:`bench` measures
+throughput. Recipe: ``docs/training.md``.
+
+Validation is always scored with the recipe's ``rollout``-step loss and the Chamfer distances of
+its first and last predictions; the 60 test cases are never read. ``init_from`` starts a new run
+(fresh Adam and schedule) from another run's weights or a native file and carries its provenance;
+the parent may have another window length ``m`` (no weight depends on m).
+
+Determinism: the epoch's window order comes from ``default_rng([seed, epoch])`` and the noise of
+step ``s`` from a torch generator seeded with ``(seed, s)``, so a run resumed from a full
+checkpoint (model + Adam state + position, :mod:`~tpnet_ref.training.checkpoint`) computes
+exactly what the uninterrupted run computes (on the same device and thread count).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import platform
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import TPNetConfig
+from ..extras import require
+from ..weights.torch import import_torch
+from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, inherited, load_checkpoint, load_parent,
+                         save_checkpoint)
+from .recipe import N_STEPS_MAX, Recipe, WindowData
+from .torch_model import TorchTPNet, chamfer_released, chamfer_shape
+
+torch = require("torch", "train")
+
+LOG_NAME = "log.jsonl"
+
+
+# ------------------------------------------------------------------------------------- torch
+def resolve_device(device: str) -> str:
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device not in ("cpu", "cuda"):
+        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device cuda asked for but torch.cuda.is_available() is False")
+    return device
+
+
+def hardware(device: str) -> str:
+    if device == "cuda":
+        return f"cuda:{torch.cuda.get_device_name(0)}"
+    return (f"cpu:{platform.processor() or platform.machine()} "
+            f"({os.cpu_count()} cores, {torch.get_num_threads()} torch threads)")
+
+
+def make_optimizer(net: Any, r: Recipe) -> Any:
+    return torch.optim.Adam(net.parameters(), lr=r.lr, betas=(r.beta1, r.beta2), eps=r.eps)
+
+
+def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float,
+            shape_weight: float = 0.0, match_weight: float = 0.0) -> Any:
+    """The recursive loss over the first ``steps`` targets (``steps=1``: 1-step teacher forced),
+    plus ``shape_weight`` times the same sum of shape Chamfer distances (centred sets) and
+    ``match_weight`` times the same sum of matched (earth mover's) distances."""
+    return net.recursive_loss(x, y[:, :steps], first_weight=first_weight,
+                              shape_weight=shape_weight, match_weight=match_weight)
+
+
+def init_head_template(net: Any, data: "WindowData", weight_scale: float = 0.1) -> None:
+    """Data-dependent initialisation of the sigmoid head (``--head-init template``).
+
+    The head's bias becomes the logit of a ring of the body's rest radius (measured on the
+    first frame of the training trajectories) around the mean training position, and its
+    weights are scaled by ``weight_scale``: the untrained network then outputs a ring of the
+    right size near the middle of the data instead of 30 points scattered around 0.5, so the
+    first steps learn motion instead of first collapsing the point cloud into a shape. Output
+    order is free (the loss is a Chamfer distance), so ring index ``i`` is only a slot."""
+    train_traj = np.setdiff1d(np.arange(data.frames.shape[0]), data.val_traj)
+    f0 = data.frames[train_traj, 0].astype(np.float64)                  # (T, N, 2)
+    radius = float(np.linalg.norm(f0 - f0.mean(1, keepdims=True), axis=-1).mean())
+    centre = data.frames[train_traj].astype(np.float64).reshape(-1, 2).mean(0)
+    n_out, dim = net.config.n_out, net.config.dim
+    if dim != 2:
+        raise ValueError("template head initialisation is defined for 2-D points")
+    a = 2 * np.pi * np.arange(n_out) / n_out
+    ring = centre + radius * np.stack([np.sin(a), np.cos(a)], axis=1)
+    ring = np.clip(ring, 1e-4, 1 - 1e-4)
+    with torch.no_grad():
+        net.head.bias.copy_(torch.from_numpy(np.log(ring / (1 - ring)).reshape(-1)))
+        net.head.weight.mul_(weight_scale)
+
+
+# ------------------------------------------------------------------------------------- eval
+def evaluate(net: Any, data: WindowData, wins: np.ndarray, r: Recipe, device: str,
+             batch: int = 256) -> dict[str, float]:
+    """Validation: the recipe's ``r.rollout``-step loss (weights ``first_weight``, 1, ...; with
+    its shape term when ``r.shape_weight`` > 0), the released Chamfer distance of the first and
+    last predictions (``val_cd1``, ``val_cdK``) and their shape errors (``val_es1``,
+    ``val_esK``), averaged over ``wins``."""
+    if len(wins) == 0:
+        return {}
+    steps = r.rollout
+    tot = np.zeros(steps)
+    tot_s = np.zeros(steps)
+    was = net.training
+    net.eval()
+    with torch.no_grad():
+        for i in range(0, len(wins), batch):
+            x, y = data.gather(wins[i:i + batch])
+            x = torch.from_numpy(x).to(device)
+            y = torch.from_numpy(y[:, :steps]).to(device)
+            pred = net.rollout(x, steps)
+            tot += chamfer_released(pred, y).double().cpu().numpy() * len(x)
+            tot_s += chamfer_shape(pred, y).double().cpu().numpy() * len(x)
+    net.train(was)
+    cd, es = tot / len(wins), tot_s / len(wins)
+    w = np.ones(steps)
+    w[0] = r.first_weight
+    return {"val_loss": float((cd * w).sum() + r.shape_weight * (es * w).sum()),
+            "val_cd1": float(cd[0]), f"val_cd{steps}": float(cd[-1]),
+            "val_es1": float(es[0]), f"val_es{steps}": float(es[-1])}
+
+
+# ------------------------------------------------------------------------------------- train
+def _log(run_dir: Path, rec: dict) -> None:
+    with open(run_dir / LOG_NAME, "a") as f:
+        f.write(json.dumps(rec, sort_keys=True) + "\n")
+
+
+def _trim_log(run_dir: Path, step: int) -> None:
+    """Drop log records past ``step`` (written after the checkpoint a resumed run restarts
+    from): the resumed run redoes those steps with the same batches and logs them again."""
+    path = run_dir / LOG_NAME
+    if path.exists():
+        keep = [s for s in path.read_text().splitlines(keepends=True)
+                if s.strip() and json.loads(s).get("step", 0) <= step]
+        path.write_text("".join(keep))
+
+
+def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Recipe | None = None,
+          *, resume: bool = False, epochs: int | None = None, device: str = "auto",
+          threads: int | None = 2, max_steps: int | None = None,
+          max_minutes: float | None = None, checkpoint_minutes: float = 5.0,
+          log_every: int = 50, val_every: int | None = None, limit_windows: int | None = None, progress: bool = True,
+          export_path: str | os.PathLike | None = None,
+          budget_minutes: float | None = None, checkpoint_part_mib: float | None = None,
+          checkpoint_optimizer: str | None = None, allow_other_scene: bool = False) -> dict:
+    """Train (or, with ``resume``, continue) the run in ``run_dir``; returns the final state.
+
+    ``max_steps`` (a global step count), ``max_minutes`` and SIGINT/SIGTERM (after the current
+    step) stop early with a checkpoint, so a
+    long run can be done in pieces; ``epochs`` on resume extends or shortens the run (the cosine
+    schedule follows the new length from there). A checkpoint is written every
+    ``checkpoint_minutes``, at every epoch end and when stopping.
+
+    ``budget_minutes`` (new runs only) fits the run to a wall-clock budget on this device: a
+    few steps of the longest loss (``r.rollout`` predictions, batch ``r.batch``) are timed on
+    random windows and the run's length (hence its learning-rate schedule) is set to 90 % of
+    what that rate allows; ``max_minutes`` defaults to the budget as a hard stop.
+
+    ``checkpoint_part_mib`` writes the checkpoint as parts of at most that many MiB and
+    ``checkpoint_optimizer`` (``full``, ``bf16``, ``none``) how much of Adam's state it keeps
+    (:mod:`~tpnet_ref.training.checkpoint`); both are stored with the run and kept on resume
+    unless given again. A run resumed from a checkpoint without optimizer state starts a fresh
+    Adam at its step (recorded in ``optimizer_resets``). ``allow_other_scene`` trains on a
+    dataset made with another scene convention than the simulator's default."""
+    run_dir = Path(run_dir)
+    t_start = time.perf_counter()
+    if threads:
+        torch.set_num_threads(int(threads))
+    dev = resolve_device(device)
+    payload: dict | None = None
+    if resume:
+        payload, state = load_checkpoint(run_dir)
+        _trim_log(run_dir, int(state["step"]))
+        r = Recipe.from_dict(state["recipe"])
+        if epochs is not None:
+            r.epochs = float(epochs)
+        if val_every is None:                 # keep the run's validation cadence
+            val_every = state.get("val_every")
+    else:
+        if (run_dir / SIDECAR_NAME).exists():
+            raise ValueError(f"{run_dir} already holds a run; pass --resume or another directory")
+        r = recipe or Recipe()
+        if epochs is not None:
+            r.epochs = float(epochs)
+        state = {"step": 0, "windows_seen": 0, "wall_s": 0.0, "nonfinite_skipped": 0,
+                 "epoch_loss_sum": 0.0, "epoch_loss_n": 0}
+    cfg = r.tpnet_config
+    data = WindowData(data_path, r.val_fraction, r.split_seed, limit_windows, allow_other_scene)
+    if data.m != cfg.m:
+        raise ValueError(f"dataset has m={data.m}, the recipe's network m={cfg.m}")
+    if len(data.train_win) == 0:
+        raise ValueError(f"{data_path}: no training windows")
+    torch.manual_seed(r.seed)
+    net = TorchTPNet(cfg).to(dev)
+    if payload is None and r.init_from:
+        parent, pstate, pcfg = load_parent(r.init_from)
+        # the weights do not depend on m (the LSTMs run over any number of frames), so a
+        # model for another window length may start from them
+        if dataclasses.replace(pcfg, m=cfg.m) != cfg:
+            raise ValueError(f"--init-from {r.init_from}: its network {pcfg} differs from the "
+                             f"recipe's {cfg}")
+        if pcfg.m != cfg.m:              # the stored config names the parent's m
+            parent = {**parent, "_extra_state": net.get_extra_state()}
+        net.load_state_dict(parent)
+        state["inherited"] = inherited(r.init_from, pstate)
+    elif payload is None and r.head_init == "template":
+        init_head_template(net, data)
+    opt = make_optimizer(net, r)
+    if payload is not None:
+        net.load_state_dict(payload["model"])
+        if "optimizer" in payload:
+            opt.load_state_dict(payload["optimizer"])
+        else:                       # saved with checkpoint_optimizer="none": a fresh Adam here
+            state.setdefault("optimizer_resets", []).append(int(state["step"]))
+    ck = state.setdefault("checkpoint_settings", {"part_mib": None, "optimizer": "full"})
+    if checkpoint_part_mib is not None:
+        ck["part_mib"] = float(checkpoint_part_mib) if checkpoint_part_mib > 0 else None
+    if checkpoint_optimizer is not None:
+        if checkpoint_optimizer not in OPTIMIZER_MODES:
+            raise ValueError(f"checkpoint_optimizer must be one of {OPTIMIZER_MODES}, "
+                             f"got {checkpoint_optimizer!r}")
+        ck["optimizer"] = checkpoint_optimizer
+    run_dir.mkdir(parents=True, exist_ok=True)
+
+    n_train = len(data.train_win)
+    spe = max(1, n_train // r.batch)          # full batches only: every step has batch r.batch
+    if budget_minutes is not None and not resume:
+        if not budget_minutes > 0:
+            raise ValueError(f"budget_minutes must be > 0, got {budget_minutes}")
+        wps = bench(cfg, batch=r.batch, rollouts=(r.rollout,), iters=5, warmup=2, device=dev,
+                    threads=threads, seed=r.seed, shape_weight=r.shape_weight,
+                    match_weight=r.match_weight)[r.rollout]
+        r.epochs = max(1.0 / spe, 0.9 * 60.0 * budget_minutes * wps / (spe * r.batch))
+        state["budget"] = {"minutes": float(budget_minutes), "bench_windows_per_s": float(wps),
+                           "epochs": r.epochs}
+        if max_minutes is None:
+            max_minutes = float(budget_minutes)
+    total = max(1, int(round(r.epochs * spe)))
+    state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
+                  "total_steps": total, "train_windows": n_train,
+                  "val_windows": len(data.val_win), "device": dev, "hardware": hardware(dev),
+                  "torch": torch.__version__, "val_every": val_every})
+    val_win = data.val_win
+    if r.val_windows and len(val_win) > r.val_windows:
+        val_win = val_win[np.linspace(0, len(val_win) - 1, r.val_windows).round().astype(int)]
+    state["val_windows_used"] = len(val_win)
+    if state["step"] == 0 and not resume:
+        ev = evaluate(net, data, val_win, r, dev)
+        _log(run_dir, {"kind": "val", "step": 0, "epoch": 0.0, "windows_seen": 0, "wall_s": 0.0,
+                       **ev})
+        state["last_val"] = ev
+    stop_step = total if max_steps is None else min(total, int(max_steps))
+    deadline = None if max_minutes is None else t_start + 60.0 * max_minutes
+    wall0 = state["wall_s"]
+    last_ckpt = time.perf_counter()
+
+    def checkpoint() -> None:
+        nonlocal last_ckpt
+        state["wall_s"] = wall0 + (time.perf_counter() - t_start)
+        save_checkpoint(run_dir, net, opt, state, ck["part_mib"], ck["optimizer"])
+        last_ckpt = time.perf_counter()
+
+    bar = None
+    if progress:
+        try:
+            from tqdm import tqdm
+            bar = tqdm(total=stop_step, initial=min(state["step"], stop_step), unit="step",
+                       desc=f"train {r.recipe}", dynamic_ncols=True)
+        except ImportError:  # tqdm is optional
+            bar = None
+    if progress:
+        print(data.describe(), file=sys.stderr)
+    net.train()
+    stop_signal: list[int] = []
+    restore = _install_stop_handlers(stop_signal)
+    perm_epoch, perm = -1, None
+    consecutive_bad = 0
+    reason = "done"
+    try:
+        while state["step"] < stop_step:
+            step = state["step"]
+            epoch, b = divmod(step, spe)
+            if epoch != perm_epoch:
+                perm = np.random.default_rng([r.seed, epoch]).permutation(n_train)
+                perm_epoch = epoch
+            idx = perm[b * r.batch:(b + 1) * r.batch]
+            x, y = data.gather(data.train_win[np.sort(idx)])
+            x = torch.from_numpy(x)
+            if r.noise > 0:
+                g = torch.Generator().manual_seed(r.seed * 1_000_003 + step)
+                x = x + r.noise * torch.randn(x.shape, generator=g, dtype=x.dtype)
+            x, y = x.to(dev), torch.from_numpy(y).to(dev)
+            n_steps = r.steps_at(step / spe)
+            lr = r.lr_at(step, total)
+            for grp in opt.param_groups:
+                grp["lr"] = lr
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn(net, x, y, n_steps, r.first_weight, r.shape_weight, r.match_weight)
+            lv = float(loss.detach())
+            if not math.isfinite(lv):
+                state["nonfinite_skipped"] += 1
+                consecutive_bad += 1
+                if consecutive_bad >= 10:
+                    checkpoint()
+                    raise FloatingPointError(f"loss not finite for 10 steps in a row at step {step}")
+            else:
+                consecutive_bad = 0
+                loss.backward()
+                if r.clip > 0:
+                    torch.nn.utils.clip_grad_norm_(net.parameters(), r.clip)
+                opt.step()
+                state["epoch_loss_sum"] += lv
+                state["epoch_loss_n"] += 1
+            state["step"] = step + 1
+            state["windows_seen"] += len(idx)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{lv:.4g}", k=n_steps, lr=f"{lr:.2g}")
+            if log_every and state["step"] % log_every == 0:
+                _log(run_dir, {"kind": "train", "step": state["step"], "epoch": state["step"] / spe,
+                               "loss": lv, "rollout": n_steps, "lr": lr,
+                               "windows_seen": state["windows_seen"],
+                               "wall_s": wall0 + time.perf_counter() - t_start})
+            epoch_end = state["step"] % spe == 0
+            if epoch_end or (val_every and state["step"] % val_every == 0):
+                # validate and log at every epoch end (and every val_every steps); checkpoint
+                ev = evaluate(net, data, val_win, r, dev)
+                n = max(1, state["epoch_loss_n"])
+                rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / spe,
+                       "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
+                       "windows_seen": state["windows_seen"],
+                       "wall_s": wall0 + time.perf_counter() - t_start, **ev}
+                _log(run_dir, rec)
+                state["last_val"] = ev
+                if epoch_end:
+                    state["epoch_loss_sum"], state["epoch_loss_n"] = 0.0, 0
+                if bar is not None:
+                    bar.write(f"epoch {rec['epoch']:.2f}: train {rec['train_loss']:.4g} "
+                              + " ".join(f"{k} {v:.4g}" for k, v in ev.items()))
+                checkpoint()
+            elif time.perf_counter() - last_ckpt > 60.0 * checkpoint_minutes:
+                checkpoint()
+            if deadline is not None and time.perf_counter() > deadline:
+                reason = "max_minutes"
+                break
+            if stop_signal:
+                reason = "interrupted"
+                break
+        else:
+            reason = "done" if state["step"] >= total else "max_steps"
+    finally:
+        restore()
+    if bar is not None:
+        bar.close()
+    state["stopped"] = reason
+    checkpoint()
+    if export_path is not None and state["step"] >= total:
+        export(run_dir, export_path)
+    return state
+
+
+def _install_stop_handlers(flag: list[int]):
+    """SIGINT / SIGTERM set ``flag``; the loop stops after the current step with a checkpoint
+    (a second signal acts as usual). Only in the main thread; returns a function that restores
+    the previous handlers."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    old = {}
+
+    def handler(signum: int, frame: Any) -> None:
+        flag.append(signum)
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        old[sig] = signal.getsignal(sig)
+        signal.signal(sig, handler)
+
+    def restore() -> None:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    return restore
+
+
+def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "float32",
+           check_bound: float = 1e-5) -> Any:
+    """Native weights file from a training checkpoint (run directory or ``checkpoint.pt``),
+    through :func:`tpnet_ref.weights.torch.import_torch`, with provenance. Checks before writing that
+    the NumPy model's forward pass equals the torch module's (max abs difference <= check_bound
+    on random windows) and records the difference."""
+    payload, state = load_checkpoint(source)
+    model = import_torch(payload["model"], dtype=dtype)
+    net = TorchTPNet(model.config)
+    net.load_state_dict(payload["model"])
+    net.eval()
+    cfg = model.config
+    w = np.random.default_rng(0).uniform(0.1, 0.9, (8, cfg.m, cfg.n_out, cfg.dim)).astype(np.float32)
+    with torch.no_grad():
+        yt = net(torch.from_numpy(w)).numpy()
+    diff = float(np.abs(model.predict_batch(w, normalized=True) - yt).max())
+    if not diff <= check_bound:
+        raise ValueError(f"export check failed: NumPy vs torch max abs diff {diff:.3g} > "
+                         f"{check_bound:g}")
+    spe = state.get("steps_per_epoch", 0) or 1
+    inh = state.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
+                                  "epochs": 0.0})
+    prov = {"source": str(source), "producer": "tpnet_ref.training",
+            "recipe": json.dumps(state.get("recipe", {}), sort_keys=True),
+            "training_steps": int(state.get("step", 0)) + int(inh["steps"]),
+            "epochs": float(state.get("step", 0)) / spe + float(inh["epochs"]),
+            "windows_seen": int(state.get("windows_seen", 0)) + int(inh["windows_seen"]),
+            "wall_time_s": float(state.get("wall_s", 0.0)) + float(inh["wall_s"]),
+            "parent_runs": json.dumps(inh["runs"], sort_keys=True),
+            "hardware": str(state.get("hardware", "unknown")),
+            "torch": str(state.get("torch", torch.__version__)),
+            "data": str(state.get("data", "")),
+            "val": json.dumps(state.get("last_val", {}), sort_keys=True),
+            "export_max_abs_diff": diff}
+    model.save(str(out), **prov)
+    return model
+
+
+# ------------------------------------------------------------------------------------- bench
+def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[int, ...] = (1, 8),
+          iters: int = 5, warmup: int = 1, device: str = "auto", threads: int | None = 2,
+          seed: int = 0, shape_weight: float = 0.0, match_weight: float = 0.0) -> dict[int, float]:
+    """Training throughput, windows per second, of a full step (loss, backward, clip, Adam) for
+    each rollout length, on random windows."""
+    if threads:
+        torch.set_num_threads(int(threads))
+    dev = resolve_device(device)
+    cfg = config or TPNetConfig()
+    torch.manual_seed(seed)
+    net = TorchTPNet(cfg).to(dev)
+    opt = make_optimizer(net, Recipe(config=cfg.to_dict()))
+    rng = np.random.default_rng(seed)
+    x = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, cfg.m, cfg.n_out, cfg.dim))
+                         .astype(np.float32)).to(dev)
+    y = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, N_STEPS_MAX, cfg.n_out, cfg.dim))
+                         .astype(np.float32)).to(dev)
+    out = {}
+    for k in rollouts:
+        for i in range(warmup + iters):
+            if i == warmup:
+                if dev == "cuda":
+                    torch.cuda.synchronize()
+                t0 = time.perf_counter()
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn(net, x, y, k, 9.0, shape_weight, match_weight)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+            opt.step()
+        if dev == "cuda":
+            torch.cuda.synchronize()
+        out[k] = batch * iters / (time.perf_counter() - t0)
+    return out
+
+
+__all__ = ["train", "export", "bench", "evaluate", "loss_fn", "make_optimizer", "resolve_device",
+           "hardware", "init_head_template", "LOG_NAME"]

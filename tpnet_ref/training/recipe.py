@@ -1,0 +1,191 @@
+"""What a training run computes: the :class:`Recipe`, the network sizes, the training windows.
+
+Recipes (``Recipe.recipe``):
+
+* ``paper``: every step is the published loss, ``9·CD(P_{t+1}) + Σ_{i=2..8} CD(P_{t+i})`` over 8
+  recursive predictions (released-code Chamfer: Euclidean, not squared, both directions summed);
+  ``rollout = K`` shortens it to K predictions (same weights).
+* ``curriculum`` (default): ``pretrain_epochs`` of the 1-step loss (teacher forced, the first
+  term alone), then the recursive loss with the rollout length growing linearly from 1 to 8 over
+  ``ramp_epochs``, then the ``rollout``-step loss (8, the published one, by default). Same
+  weights 9, 1, 1, ...
+
+Both: Adam with the released code's constants (lr 1e-3, beta_1 0.99, beta_2 0.999, eps 1e-7),
+optional linear warm-up and cosine decay, gradient-norm clipping, optional Gaussian noise on the
+input coordinates (never on the targets). Validation is a held-out set of whole training-grid
+*trajectories* (``val_fraction``); the 60 test cases are never read. Everything here is NumPy
+and h5py: torch is needed by :mod:`~tpnet_ref.training.loop` only.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import TPNetConfig
+from ..data import N_TARGETS, check_scene
+
+#: longest recursive loss: the published 8 predictions (the dataset's targets per window)
+N_STEPS_MAX = N_TARGETS
+#: how much of Adam's state a checkpoint keeps (:mod:`~tpnet_ref.training.checkpoint`)
+OPTIMIZER_MODES = ("full", "bf16", "none")
+
+
+@dataclass
+class Recipe:
+    """Everything that decides what a run computes (stored with every checkpoint)."""
+
+    recipe: str = "curriculum"          # "paper" or "curriculum"
+    epochs: float = 100                 # may be fractional: the run is round(epochs * steps/epoch)
+    batch: int = 128
+    lr: float = 1e-3
+    beta1: float = 0.99
+    beta2: float = 0.999
+    eps: float = 1e-7
+    schedule: str = "cosine"            # "constant" or "cosine" (to lr_min at the last step)
+    lr_min: float = 1e-5
+    warmup_steps: int = 200
+    clip: float = 10.0                  # max gradient norm; 0 = no clipping
+    noise: float = 0.0                  # std of Gaussian input noise, normalised units
+    first_weight: float = 9.0
+    shape_weight: float = 0.0           # λ of the added shape term λ·Σ w_i·CD(centred sets)
+    match_weight: float = 0.0           # μ of the added term μ·Σ w_i·EMD (optimal bijection)
+    rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published)
+    pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
+    ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
+    head_init: str = "default"          # "default" or "template" (output bias = a ring, see below)
+    init_from: str = ""                 # fine-tune: start from this run's (or .h5 file's) weights
+    val_windows: int = 0                # validate on this many evenly spaced windows (0: all)
+    val_fraction: float = 0.05
+    split_seed: int = 0                 # which trajectories are validation (independent of seed)
+    seed: int = 0
+    config: dict = field(default_factory=lambda: TPNetConfig().to_dict())
+
+    def __post_init__(self) -> None:
+        if self.recipe not in ("paper", "curriculum"):
+            raise ValueError(f"recipe must be 'paper' or 'curriculum', got {self.recipe!r}")
+        if self.schedule not in ("constant", "cosine"):
+            raise ValueError(f"schedule must be 'constant' or 'cosine', got {self.schedule!r}")
+        if not self.epochs > 0 or self.batch < 1:
+            raise ValueError("epochs must be > 0 and batch >= 1")
+        if self.head_init not in ("default", "template"):
+            raise ValueError(f"head_init must be 'default' or 'template', got {self.head_init!r}")
+        if self.val_windows < 0:
+            raise ValueError("val_windows must be >= 0")
+        if not 1 <= self.rollout <= N_STEPS_MAX:
+            raise ValueError(f"rollout must be in 1..{N_STEPS_MAX}, got {self.rollout}")
+        if not 0 <= self.val_fraction < 1:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        if self.noise < 0 or self.clip < 0 or self.shape_weight < 0 or self.match_weight < 0:
+            raise ValueError("noise, clip, shape_weight and match_weight must be >= 0")
+        if isinstance(self.config, TPNetConfig):
+            self.config = self.config.to_dict()
+        self.config = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.config.items()}
+
+    @property
+    def tpnet_config(self) -> TPNetConfig:
+        return TPNetConfig.from_dict(dict(self.config))
+
+    def steps_at(self, epoch_pos: float) -> int:
+        """Rollout length of the loss at fractional epoch ``epoch_pos``."""
+        if self.recipe == "paper":
+            return self.rollout
+        if epoch_pos < self.pretrain_epochs:
+            return 1
+        if self.ramp_epochs <= 0:
+            return self.rollout
+        t = (epoch_pos - self.pretrain_epochs) / self.ramp_epochs
+        return int(min(self.rollout, 1 + math.floor(t * self.rollout)))
+
+    def lr_at(self, step: int, total: int) -> float:
+        warm = min(1.0, (step + 1) / self.warmup_steps) if self.warmup_steps > 0 else 1.0
+        if self.schedule == "constant":
+            return self.lr * warm
+        frac = min(1.0, step / max(1, total - 1))
+        return warm * (self.lr_min + 0.5 * (self.lr - self.lr_min) * (1 + math.cos(math.pi * frac)))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Recipe":
+        names = {f.name for f in fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"unknown recipe fields: {sorted(unknown)}")
+        return cls(**d)
+
+
+
+#: named network sizes: the released one and reduced widths for CPU experiments and tests
+SIZES: dict[str, dict[str, Any]] = {
+    "full": {},
+    "small": dict(mlp1=(32, 32), mlp2=(64, 128, 256), global_features=64,
+                  lstm_units=(64, 32, 32)),
+    "tiny": dict(mlp1=(8, 8), mlp2=(8, 16, 16), global_features=8, lstm_units=(8, 8, 8)),
+}
+
+
+def size_config(size: str = "full", m: int = 4, **kw: Any) -> TPNetConfig:
+    """The :class:`TPNetConfig` of a named size (``full``: the released widths) for ``m`` frames;
+    ``kw`` overrides fields (e.g. ``lstm_activation``)."""
+    if size not in SIZES:
+        raise ValueError(f"size must be one of {sorted(SIZES)}, got {size!r}")
+    return TPNetConfig(m=m, **{**SIZES[size], **kw})
+
+
+# ------------------------------------------------------------------------------------- data
+class WindowData:
+    """The windows of a ``tpnet data generate`` file, gathered on demand from the trajectories
+    (no copy of each window is held): :meth:`gather` -> inputs ``(B, m, N, 2)`` and targets
+    ``(B, 8, N, 2)``, float32, normalised. Train/validation split by trajectory. A file made
+    with another scene convention than the simulator's default is refused unless
+    ``allow_other_scene`` (:func:`tpnet_ref.data.check_scene`)."""
+
+    def __init__(self, path: str | os.PathLike, val_fraction: float, seed: int,
+                 limit_windows: int | None = None, allow_other_scene: bool = False) -> None:
+        import h5py
+
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"dataset not found: {path}")
+        with h5py.File(path, "r") as h:
+            # a file made with another scene convention trains another physics
+            check_scene(h, str(path), allow_other_scene=allow_other_scene)
+            self.m = int(h.attrs["m"])
+            self.n_targets = int(h.attrs["n_targets"])
+            g = h["train"]
+            if "windows" not in g:
+                raise KeyError(f"{path}: /train has no windows")
+            if not g["done"][...].all():
+                raise ValueError(f"{path}: /train is incomplete; run generate again to finish it")
+            self.frames = g["normalized"][...]
+            win = g["windows"][...]
+        self.path = str(path)
+        n_traj = self.frames.shape[0]
+        n_val = int(round(val_fraction * n_traj))
+        if val_fraction > 0:
+            n_val = max(1, n_val)
+        if n_val >= n_traj and val_fraction > 0:
+            raise ValueError(f"{path}: {n_traj} trajectories are too few for a validation split")
+        perm = np.random.default_rng([seed, 12345]).permutation(n_traj)
+        self.val_traj = np.sort(perm[:n_val])
+        is_val = np.isin(win[:, 0], self.val_traj)
+        self.train_win = win[~is_val]
+        self.val_win = win[is_val]
+        if limit_windows is not None:
+            self.train_win = self.train_win[:limit_windows]
+            self.val_win = self.val_win[:limit_windows]
+        self._offs = np.arange(self.m + self.n_targets)
+
+    def gather(self, win: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        f = self.frames[win[:, 0:1], win[:, 1:2] + self._offs[None, :]]
+        return f[:, :self.m], f[:, self.m:]
+
+    def describe(self) -> str:
+        return (f"{self.path}: {self.frames.shape[0]} trajectories, {len(self.train_win)} train "
+                f"windows, {len(self.val_win)} validation windows ({len(self.val_traj)} "
+                f"trajectories), m={self.m}")
+
+
+__all__ = ["Recipe", "WindowData", "SIZES", "size_config", "N_STEPS_MAX", "OPTIMIZER_MODES"]
