@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from . import layers as L
+from . import specialize as S
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from .blas import cpu_count, one_thread, small_products_pay
 from .checks import NonFiniteResultError, as_point_set, as_real_array
@@ -61,6 +62,10 @@ class TPNet:
         self.meta: dict[str, Any] = dict(meta or {})
         #: threads a large batch is split across (None: every core; 1: never split)
         self.threads: int | None = None
+        #: the scene-specialised prediction network, if any (:meth:`specialize`)
+        self.specialization: S.SceneHead | None = None
+        #: windows through the prediction network, and those a specialisation sent to the full one
+        self.counts = {"windows": 0, "fallbacks": 0}
         expected = param_shapes(config)
         missing = [k for k in expected if k not in params]
         extra = [k for k in params if k not in expected]
@@ -108,6 +113,23 @@ class TPNet:
         """The same network with its parameters in ``dtype`` (float32 or float64)."""
         out = TPNet(self.config, self.params, dtype, self.meta)
         out.threads = self.threads
+        if self.specialization is not None:
+            out.specialization = S.SceneHead(out, self.specialization.used)
+        return out
+
+    def specialize(self, windows: Any, normalized: bool = False) -> "TPNet":
+        """The same network computing only the units that ``windows`` ``(B, m, N, dim)`` (the
+        scene's calibration windows) use, exact on every input: a window that would wake a
+        dropped unit is computed in full (:mod:`tpnet_ref.specialize`). Same ``predict`` /
+        ``predict_batch`` / ``rollout`` API; ``counts`` says how many windows fell back."""
+        return self.with_specialization(S.calibrate(self, windows, normalized))
+
+    def with_specialization(self, used: dict[str, np.ndarray] | None) -> "TPNet":
+        """A copy of this network specialised to the units ``used`` marks (None: not at all)."""
+        out = TPNet(self.config, self.params, self.dtype, self.meta)
+        out.threads = self.threads
+        if used is not None:
+            out.specialization = S.SceneHead(out, used)
         return out
 
     @property
@@ -117,10 +139,11 @@ class TPNet:
 
     def __repr__(self) -> str:
         c = self.config
+        spec = "" if self.specialization is None else ", specialised"
         return (f"TPNet(m={c.m}, n_out={c.n_out}, lstm={c.lstm_units}, act={c.lstm_activation}, "
                 f"transforms={'trained' if c.input_transform_trained else 'identity'}/"
                 f"{'trained' if c.feature_transform_trained else 'identity'}, "
-                f"params={self.num_params:,}, dtype={self.dtype.name})")
+                f"params={self.num_params:,}, dtype={self.dtype.name}{spec})")
 
     def save(self, path: str, **provenance: Any) -> None:
         """Write the native HDF5 weights file (see :mod:`tpnet_ref.weights`)."""
@@ -169,7 +192,21 @@ class TPNet:
         return L.dense(g, self.params["global.w"], self.params["global.b"], "relu")
 
     def sequence_head(self, features: np.ndarray) -> np.ndarray:
-        """Prediction network: ``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1]."""
+        """Prediction network: ``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1].
+        With a specialisation, the specialised one, and the full one for the windows it flags."""
+        spec = self.specialization
+        if spec is None:
+            return self._full_head(features)
+        y, ok = spec(features)
+        y = y.reshape(-1, self.config.n_out, self.config.dim)
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            y[bad] = self._full_head(features[bad])
+        self.counts["windows"] += len(ok)
+        self.counts["fallbacks"] += int(bad.size)
+        return y
+
+    def _full_head(self, features: np.ndarray) -> np.ndarray:
         act = self.config.lstm_activation
         eps = self.config.layer_norm_eps
         h = features.transpose(1, 0, 2)   # time-major (m, B, k) through the BiLSTMs

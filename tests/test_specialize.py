@@ -1,0 +1,135 @@
+"""The scene-specialised network: exact against the full one on every input, guards that trip
+and fall back, an exact round trip through the native weights file."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import tpnet_ref
+from tpnet_ref import specialize as S
+from tpnet_ref.model import TPNetConfig, init_random
+
+
+def _rings(rng, n, m=4):
+    """Windows of a ring of radius 2 (30 points) drifting through the box: ``(n, m, 30, 2)``."""
+    a = np.arange(30) * 2 * np.pi / 30
+    ring = 2 * np.stack([np.sin(a), np.cos(a)], axis=1)
+    start = rng.uniform(8, 37, (n, 1, 1, 2))
+    vel = rng.uniform(-0.6, 0.6, (n, 1, 1, 2))
+    wobble = rng.normal(0, 0.05, (n, m, 30, 2))
+    return start + vel * np.arange(m)[None, :, None, None] + ring + wobble
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    try:
+        return tpnet_ref.load()
+    except (FileNotFoundError, ValueError) as exc:
+        pytest.skip(f"shipped weights not available: {exc}")
+
+
+@pytest.fixture(scope="module")
+def scene(shipped):
+    rng = np.random.default_rng(0)
+    cal = _rings(rng, 300)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return shipped.specialize(cal)
+
+
+def _quiet(fn, *a, **k):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return fn(*a, **k)
+
+
+def test_specialised_drops_units_and_equals_the_full_model_on_the_scene(shipped, scene):
+    used = S.fraction_used(scene.specialization.used)
+    assert used["lstm1"][0] < used["lstm1"][1] and used["global"][0] < used["global"][1]
+    assert scene.specialization.num_params() < 0.6 * shipped.num_params
+    w = _rings(np.random.default_rng(1), 64)
+    scene.counts.update(windows=0, fallbacks=0)
+    np.testing.assert_allclose(_quiet(scene.predict_batch, w), _quiet(shipped.predict_batch, w),
+                               rtol=0, atol=1e-4)
+    assert scene.counts["windows"] == 64
+    np.testing.assert_allclose(_quiet(scene.predict, w[0]), _quiet(shipped.predict, w[0]),
+                               rtol=0, atol=1e-4)
+    np.testing.assert_allclose(_quiet(scene.rollout, w[1], 12), _quiet(shipped.rollout, w[1], 12),
+                               rtol=0, atol=1e-3)
+
+
+@pytest.mark.parametrize("kind", ["random points", "ring far outside the box", "tiny ring",
+                                  "huge ring"])
+def test_inputs_built_to_trip_the_guards_fall_back_and_stay_exact(shipped, scene, kind):
+    rng = np.random.default_rng(2)
+    w = _rings(rng, 16)
+    centre = w.mean(axis=2, keepdims=True)
+    w = {"random points": rng.uniform(0, 45, w.shape),
+         "ring far outside the box": w + 300.0,
+         "tiny ring": centre + (w - centre) * 0.01,
+         "huge ring": centre + (w - centre) * 10}[kind]
+    scene.counts.update(windows=0, fallbacks=0)
+    np.testing.assert_allclose(_quiet(scene.predict_batch, w), _quiet(shipped.predict_batch, w),
+                               rtol=0, atol=1e-4)
+    if kind == "ring far outside the box":
+        assert scene.counts["fallbacks"] > 0
+
+
+def test_a_guard_that_trips_sends_exactly_that_window_to_the_full_network(shipped, scene):
+    """Force a dropped LSTM-1 unit awake through its bias: the specialised head must flag the
+    window (cell pre-activation > 0) and the model must give the full network's answer."""
+    used = scene.specialization.used
+    dead = int(np.flatnonzero(~used["lstm1"][:512])[0])
+    params = dict(shipped.params)
+    b = params["lstm1.fwd.bias"].copy()
+    b[2 * 512 + dead] = 50.0          # Keras gate order i, f, c, o: the cell candidate
+    params["lstm1.fwd.bias"] = b
+    full = type(shipped)(shipped.config, params, shipped.dtype)
+    spec = full.with_specialization(used)
+    w = _rings(np.random.default_rng(3), 5)
+    y, ok = spec.specialization(_quiet(full._frames_to_features, list(w.reshape(-1, 30, 2)),
+                                       False).reshape(5, 4, -1))
+    assert not ok.any()
+    np.testing.assert_allclose(_quiet(spec.predict_batch, w), _quiet(full.predict_batch, w),
+                               rtol=0, atol=1e-4)
+    assert spec.counts["fallbacks"] == 5
+
+
+def test_a_nonzero_dropped_global_feature_falls_back(shipped, scene):
+    drop = scene.specialization.g_drop
+    w = _rings(np.random.default_rng(6), 1)
+    f = _quiet(scene._frames_to_features, list(w.reshape(-1, 30, 2)), False).reshape(1, 4, -1)
+    feats = np.concatenate([f, f])
+    feats[1, 2, drop[0]] = 1e-3
+    _, ok = scene.specialization(feats)
+    assert ok[0] and not ok[1]
+
+
+def test_native_round_trip_is_exact(tmp_path, scene):
+    path = tmp_path / "scene.h5"
+    S.save(scene, path)
+    back = S.attach(tpnet_ref.load(path), path)
+    assert back.specialization is not None
+    for k, v in scene.specialization.used.items():
+        np.testing.assert_array_equal(back.specialization.used[k], v)
+    w = _rings(np.random.default_rng(4), 8)
+    assert np.array_equal(_quiet(back.predict_batch, w), _quiet(scene.predict_batch, w))
+    plain = tmp_path / "plain.h5"
+    tpnet_ref.load().save(plain)
+    assert S.read(plain) is None
+
+
+def test_float64_specialisation_and_tanh_refused():
+    model = init_random(TPNetConfig(lstm_units=(16, 8, 8), mlp2=(16, 32), global_features=16),
+                        seed=1, dtype="float64")
+    rng = np.random.default_rng(5)
+    w = rng.uniform(0.2, 0.8, (20, 4, 30, 2))
+    spec = model.specialize(w, normalized=True)
+    np.testing.assert_allclose(spec.predict_batch(w, normalized=True),
+                               model.predict_batch(w, normalized=True), rtol=0, atol=1e-12)
+    assert spec.astype("float32").specialization is not None
+    tanh = init_random(TPNetConfig(lstm_activation="tanh", lstm_units=(8, 8, 8)), seed=1)
+    with pytest.raises(ValueError, match="ReLU"):
+        tanh.specialize(w, normalized=True)
