@@ -45,15 +45,16 @@ def _fmt(x: float | None, digits: int = 3) -> str:
 
 
 def fmt_err(x: float | None) -> str:
-    """An error with three significant digits (four decimals below 0.1), '–' if missing."""
+    """An error for a table: two significant digits below 0.1 (in decimals down to 1e-4),
+    three decimals up to 10, two above; '–' if missing."""
     if x is None or not np.isfinite(x):
         return "–"
     if x == 0:
         return "0"
-    if abs(x) < 1e-3:
+    if abs(x) < 1e-4:
         return f"{x:.1e}"
     if abs(x) < 0.1:
-        return f"{x:.4f}"
+        return f"{x:.{1 - math.floor(math.log10(abs(x)))}f}"
     return f"{x:.3f}" if abs(x) < 10 else f"{x:.2f}"
 
 
@@ -87,10 +88,10 @@ def results_tables(curves: Sequence[Curve], variant: str = HEADLINE,
             rows.append([m, "**TP-Net, paper** (docs/spec.md §4)"]
                         + [f"{paper[h][i]:g}" if h in paper else "–" for h in hs
                            for i in (0, 1)])
-        for c in curves:
-            if c.m == m and c.ordering == ordering:
-                name = f"**{c.name}**" if c.name.startswith("TP-Net") else c.name
-                rows.append([m, name] + _err_cells(c, variant, hs))
+        mine = [c for c in curves if c.m == m and c.ordering == ordering]
+        for c in sorted(mine, key=lambda c: not c.name.startswith("TP-Net")):  # models first
+            name = f"**{c.name}**" if c.name.startswith("TP-Net") else c.name
+            rows.append([m, name] + _err_cells(c, variant, hs))
     return md_table(header, rows)
 
 
