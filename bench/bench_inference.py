@@ -4,6 +4,7 @@
     python bench/bench_inference.py --quick    # fewer repetitions
     python bench/bench_inference.py --threads 1   # every peer on one core (BLAS, torch, ORT)
     python bench/bench_inference.py --blas-kernel SkylakeX   # NumPy's OpenBLAS with this kernel
+    python bench/bench_inference.py --no-busy  # skip the B = 1 run beside a spinning process
 
 Every peer runs the same weights (a random network of the released shape, m = 4, N = 30,
 identity transform nets, as every checkpoint of the released code has): tpnet_ref float32 and
@@ -144,6 +145,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="limit every peer to this many threads (default: each library's own)")
     ap.add_argument("--blas-kernel", default=None,
                     help="OPENBLAS_CORETYPE for NumPy's OpenBLAS (default: the environment's)")
+    ap.add_argument("--no-busy", action="store_true",
+                    help="skip B = 1 latency with one core kept busy by a second process")
     args = ap.parse_args(argv)
     t_min = 0.5 if args.quick else 2.0
 
@@ -184,6 +187,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         diff = float(np.abs(fn(x256) - m64.predict_batch(x256.astype(np.float64), normalized=True)).max())
         peers[label] = note
+        if label == "onnxruntime":
+            ort_fn = fn
         measure(f"{label} ({note})", fn)
         print(f"  {'':38s} max |peer - tpnet_ref float64| = {diff:.2e}")
         rows[label] = rows.pop(f"{label} ({note})")
@@ -196,6 +201,40 @@ def main(argv: list[str] | None = None) -> int:
     naive = timeit(lambda: [m32.predict(w, normalized=True) for w in wins], t_min, 3)
     print(f"  rollout(window, 80)            {roll * 1e3:8.2f} ms  ({roll / 80 * 1e3:.3f} ms/frame)")
     print(f"  80 x predict(window)           {naive * 1e3:8.2f} ms  -> rollout is {naive / roll:.2f}x faster")
+    ort_roll = None
+    if "onnxruntime" in peers:
+        sess_fn = ort_fn
+
+        def ort_loop() -> None:
+            win = x1.copy()
+            for _ in range(80):
+                y = sess_fn(win)
+                win = np.concatenate([win[:, 1:], y[:, None]], axis=1)
+
+        roll_i, ort_i = [], []
+        for _ in range(3):      # interleaved
+            roll_i.append(timeit(lambda: m32.rollout(w0, 80, normalized=True), t_min / 2, 3))
+            ort_i.append(timeit(ort_loop, t_min / 2, 3))
+        roll, ort_roll = float(np.median(roll_i)), float(np.median(ort_i))
+        print(f"  onnxruntime looping its graph  {ort_roll * 1e3:8.2f} ms  ({ort_roll / 80 * 1e3:.3f} ms/frame); "
+              f"tpnet_ref rollout interleaved {roll * 1e3:.2f} ms")
+
+    busy = None
+    if not args.no_busy:
+        print("\nB = 1 latency with one core busy (a second process spinning), interleaved with idle:")
+        idle_t, busy_t = [], []
+        for _ in range(3):
+            idle_t.append(timeit(lambda: m32.predict(x1[0], normalized=True), t_min / 2, 20))
+            spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+            try:
+                time.sleep(0.2)
+                busy_t.append(timeit(lambda: m32.predict(x1[0], normalized=True), t_min / 2, 20))
+            finally:
+                spin.kill()
+                spin.wait()
+        busy = float(np.median(busy_t)) / float(np.median(idle_t))
+        print(f"  idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
+              f"-> {busy:.2f}x")
 
     print("\ncold start in a fresh process (import + load + first predict), peak memory:")
     import tempfile
@@ -213,21 +252,26 @@ def main(argv: list[str] | None = None) -> int:
     if "onnxruntime" in r:
         lat_ratio = ours["b1_ms"] / r["onnxruntime"]["b1_ms"]
         thr_ratio = ours["b256_per_s"] / r["onnxruntime"]["b256_per_s"]
-        checks += [("B=1 latency / onnxruntime (target <= 0.5)", lat_ratio, lat_ratio <= 0.5),
-                   ("B=256 throughput / onnxruntime (target >= 1.0)", thr_ratio, thr_ratio >= 1.0)]
+        checks += [("B=1 latency / onnxruntime (target <= 1.0)", lat_ratio, lat_ratio <= 1.0),
+                   ("B=256 throughput / onnxruntime (target >= 1.25)", thr_ratio, thr_ratio >= 1.25)]
+    if ort_roll is not None:
+        checks.append(("rollout time per frame / onnxruntime loop (target <= 1.0)",
+                       roll / ort_roll, roll / ort_roll <= 1.0))
+    if busy is not None:
+        checks.append(("B=1 latency, one core busy / idle (target <= 1.5)", busy, busy <= 1.5))
     if "PyTorch eager" in r:
         checks += [("B=1 latency / PyTorch", ours["b1_ms"] / r["PyTorch eager"]["b1_ms"], None),
                    ("B=256 throughput / PyTorch",
                     ours["b256_per_s"] / r["PyTorch eager"]["b256_per_s"], None)]
     f64 = r["tpnet_ref float64"]["b1_ms"] / ours["b1_ms"]
     f64t = ours["b256_per_s"] / r["tpnet_ref float64"]["b256_per_s"]
-    checks += [("rollout speed-up over 80 predicts (target >= 3)", naive / roll, naive / roll >= 3),
+    checks += [("rollout speed-up over 80 predicts", naive / roll, None),
                ("cold start seconds (target <= 1)", cold, cold <= 1.0),
                ("float64 / float32 time, B=1 (target <= 2.5)", f64, f64 <= 2.5),
                ("float64 / float32 time, B=256 (target <= 2.5)", f64t, f64t <= 2.5)]
     for label, val, ok in checks:
         mark = "" if ok is None else ("  MET" if ok else "  NOT MET")
-        print(f"  {label:50s} {val:8.3f}{mark}")
+        print(f"  {label:58s} {val:8.3f}{mark}")
     if args.json:
         Path(args.json).write_text(json.dumps(
             {"machine": machine(), "rows": rows, "peers": peers, "rollout_ms": roll * 1e3,
