@@ -57,7 +57,7 @@ def main() -> None:
                     help="random weights with trained (non-identity) transform nets")
     args = ap.parse_args()
     if args.weights:
-        from tpnet_ref.weights import load
+        from tpnet_ref import load
         m64 = load(args.weights, "float64")
     else:
         from tpnet_ref.model import TPNetConfig

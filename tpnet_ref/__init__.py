@@ -16,17 +16,11 @@ from typing import Any as _Any
 import numpy as _np
 
 from .config import TPNetConfig
-from .model import TPNet, init_random
+from .model import TPNet, init_random, load
 
 __version__ = "0.2.0"
 
 _default_model: TPNet | None = None
-
-
-def load(path: _Any = None, dtype: str = "float32") -> TPNet:
-    """Load a native weights file; ``path=None`` loads the shipped m = 4 model."""
-    from .weights import load as _load
-    return _load(path, dtype)
 
 
 def _model(model: TPNet | None) -> TPNet:

@@ -18,6 +18,7 @@ with row blocking. (Max-pooling alone is invariant in exact arithmetic only.)
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -29,6 +30,7 @@ from . import specialize as S
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from .blas import cpu_count, one_thread, small_products_pay
 from .checks import NonFiniteResultError, as_point_set, as_real_array
+from .weights.native import default_weights_path, read_native, write_native
 
 #: points per block of the feature extractor (activations of a block stay in cache)
 BLOCK_POINTS = 2048
@@ -145,10 +147,10 @@ class TPNet:
                 f"{'trained' if c.feature_transform_trained else 'identity'}, "
                 f"params={self.num_params:,}, dtype={self.dtype.name}{spec})")
 
-    def save(self, path: str, **provenance: Any) -> None:
-        """Write the native HDF5 weights file (see :mod:`tpnet_ref.weights`)."""
-        from .weights import save_native
-        save_native(self, path, **provenance)
+    def save(self, path: str | os.PathLike, **provenance: Any) -> None:
+        """Write the native HDF5 weights file (:mod:`tpnet_ref.weights.native`) in the model's
+        dtype (bit-exact), with its ``meta`` and ``provenance`` as root attributes."""
+        write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance})
 
     # ------------------------------------------------------------ coordinates
     def normalize(self, x: np.ndarray) -> np.ndarray:
@@ -355,6 +357,14 @@ class TPNet:
         return out if normalized else self.denormalize(out)
 
 
+def load(path: str | os.PathLike | None = None, dtype: Any = "float32") -> TPNet:
+    """A :class:`TPNet` from a native weights file; ``path=None`` loads the shipped m = 4 model
+    (:func:`tpnet_ref.weights.native.default_weights_path`; a one-line ``FileNotFoundError``
+    when there is none)."""
+    config, params, meta = read_native(default_weights_path() if path is None else path)
+    return TPNet(config, params, dtype, meta)
+
+
 def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Indices that sort each frame's points by x, then y (then the remaining coordinates).
 
@@ -409,5 +419,5 @@ def init_random(config: TPNetConfig | None = None, seed: int = 0, dtype: Any = "
                                            "seed": int(seed)})
 
 
-__all__ = ["TPNetConfig", "TPNet", "param_shapes", "init_random", "canonical_order",
+__all__ = ["TPNetConfig", "TPNet", "load", "param_shapes", "init_random", "canonical_order",
            "NORM_LO", "NORM_HI"]

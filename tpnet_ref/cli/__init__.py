@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.cli.data",         # data generate
     "tpnet_ref.cli.evaluation",   # eval, demo
     "tpnet_ref.cli.train",        # train run|export|bench|baselines|score
+    "tpnet_ref.cli.specialize",   # specialize
 )
 
 
@@ -49,6 +50,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         rc = args.func(args)
+    except BrokenPipeError:              # `tpnet ... | head`: the reader left, nothing to report
+        sys.stderr.close()
+        return 0
     except (ValueError, TypeError, FileNotFoundError, KeyError, OSError, ArithmeticError,
             MemoryError, ImportError) as exc:
         # ImportError: MissingExtraError names the extra to install (tpnet_ref.extras)
@@ -58,9 +62,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         msg = str(msg).strip().replace("\n", " ") or type(exc).__name__
         print(f"tpnet {args.command}: error: {msg}", file=sys.stderr)
         return 2
-    except BrokenPipeError:              # `tpnet ... | head`: the reader left, nothing to report
-        sys.stderr.close()
-        return 0
     except KeyboardInterrupt:
         print(f"tpnet {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -34,8 +34,9 @@ def load_npy(path: str, what: str = "window file") -> np.ndarray:
     with open(p, "rb") as fh:
         magic = fh.read(6)
     if magic != b"\x93NUMPY":
-        kind = "an .npz archive" if magic[:2] == b"PK" else "not in the .npy format"
-        raise ValueError(f"{what} {path}: {kind}; expected one array saved with numpy.save")
+        kind = "an .npz archive" if magic[:2] == b"PK" else "no .npy header"
+        raise ValueError(f"{what} {path}: not a numeric .npy array ({kind}; save one array "
+                         "with numpy.save)")
     try:
         arr: Any = np.load(p, allow_pickle=False)
     except (ValueError, EOFError, OSError) as exc:

@@ -11,9 +11,12 @@ from ..checks import OutsideTrainingRangeWarning
 
 
 def add_cli(sub: Any) -> None:
-    p = sub.add_parser("info", help="describe a weights file (config, parameters, provenance)")
+    p = sub.add_parser("info", help="describe a weights file: network, parameters, stored dtype, "
+                                    "provenance")
     p.add_argument("weights", nargs="?", default=None,
                    help="native weights file (default: the shipped m=4 model)")
+    p.add_argument("--json", action="store_true",
+                   help="every config field and root attribute of the file as JSON")
     p.set_defaults(func=_cli_info)
 
     p = sub.add_parser("predict", help="predict the next point set(s) from a window in a .npy file")
@@ -28,13 +31,16 @@ def add_cli(sub: Any) -> None:
 
 
 def _cli_info(args: Any) -> int:
-    from ..weights import load
-    model = load(args.weights, dtype="float64")
-    print(model)
-    for k, v in model.config.to_dict().items():
-        print(f"  {k:26s} {v}")
-    for k, v in sorted(model.meta.items()):
-        print(f"  meta.{k:21s} {v}")
+    import json
+
+    from ..weights.native import default_weights_path, describe, read_native
+    path = args.weights or default_weights_path()
+    if args.json:
+        cfg, _, meta = read_native(path)
+        print(json.dumps({"config": cfg.to_dict(), "meta": meta}, indent=1, sort_keys=True,
+                         default=str))
+    else:
+        print(describe(path))
     return 0
 
 

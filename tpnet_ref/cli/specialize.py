@@ -23,7 +23,7 @@ def add_cli(sub: Any) -> None:
 
 def _cli_specialize(args: Any) -> int:
     from .. import specialize as S
-    from ..weights import load
+    from ..model import load
 
     src = Path(args.source)
     if not src.is_file():

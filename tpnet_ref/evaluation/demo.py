@@ -42,7 +42,7 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
     Returns the numbers printed: ``errors[h][method]`` -> the error dict of
     :func:`~tpnet_ref.evaluation.errors` at horizon ``h``, timings, the PNG path."""
     from ..sim import simulate
-    from ..weights import load
+    from ..model import load
     stream = out or sys.stdout
 
     def say(s: str = "") -> None:

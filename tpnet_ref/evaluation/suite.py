@@ -52,7 +52,7 @@ def _gallery_model(models: list[ModelSpec]) -> ModelSpec | None:
 
 def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
     """``tpnet eval`` with parsed ``args``; returns the path of ``results.md``."""
-    from ..weights import load
+    from ..model import load
     log = log or sys.stderr
     t_start = time.perf_counter()
     progress = not args.quiet

@@ -71,25 +71,6 @@ def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any
     return model
 
 
-# ---- transitional: until tpnet_ref.model has ``load`` and ``TPNet.save`` calls write_native,
-# ---- the old entry points stay here (delete these three then; nothing else uses them)
-def save_native(model: Any, path: str | os.PathLike, **provenance: Any) -> None:
-    """Transitional: ``TPNet.save``."""
-    write_native(path, model.config, model.params, model.dtype, {**model.meta, **provenance})
-
-
-def load_native(path: str | os.PathLike, dtype: Any = "float32") -> Any:
-    """Transitional: ``tpnet_ref.load(path)``."""
-    from ..model import TPNet
-    cfg, params, meta = read_native(path)
-    return TPNet(cfg, params, dtype, meta)
-
-
-def load(path: str | os.PathLike | None = None, dtype: Any = "float32") -> Any:
-    """Transitional: ``tpnet_ref.load``; ``path=None`` loads the shipped m = 4 model."""
-    return load_native(default_weights_path() if path is None else path, dtype)
-
-
 def __getattr__(name: str) -> Any:
     """``import_keras_h5`` / ``import_torch`` at first use (see the module docstring)."""
     if name == "import_keras_h5":
