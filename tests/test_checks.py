@@ -1,0 +1,85 @@
+"""tpnet_ref.checks: one-line errors naming the argument, and the training-range warning that
+leaves the result unchanged."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import tpnet_ref
+from tpnet_ref.checks import (OutsideTrainingRangeWarning, as_point_set, as_real_array,
+                              training_range_problem)
+from tpnet_ref.config import NORM_HI, NORM_LO, normalize
+from tpnet_ref.model import init_random
+
+
+def _ring(cx=20.0, cy=20.0, r=2.0, n=30):
+    a = np.arange(n) * 2 * np.pi / n
+    return np.stack([cx + r * np.sin(a), cy + r * np.cos(a)], axis=1)
+
+
+def _window(**kw):
+    return np.stack([_ring(**kw) + [0.3 * i, -0.1 * i] for i in range(4)])
+
+
+@pytest.fixture(scope="module")
+def net():
+    return init_random(seed=3, dtype="float64")
+
+
+@pytest.mark.parametrize("x, exc, msg", [
+    ("abc", TypeError, "pts: expected a numeric array"),
+    ([[1, 2], [3]], ValueError, "pts: cannot be read as one array"),
+    (np.zeros((3, 2), dtype=complex), TypeError, "pts: expected real numbers"),
+    (np.zeros((3, 3)), ValueError, r"pts: expected shape \(N, 2\)"),
+    (np.zeros((0, 2)), ValueError, "pts: is empty"),
+    (np.array([[0.0, np.nan]]), ValueError, "pts: contains 1 NaN"),
+])
+def test_point_set_errors_name_the_argument(x, exc, msg):
+    with pytest.raises(exc, match=msg):
+        as_point_set(x, "pts")
+
+
+def test_integers_are_accepted_and_converted():
+    assert as_real_array([1, 2], "x", np.float32).dtype == np.float32
+
+
+def _problem(window, normalized=False):
+    frames = [np.asarray(f, float) if normalized else normalize(np.asarray(f, float))
+              for f in window]
+    return training_range_problem(frames, NORM_LO, NORM_HI, normalized)
+
+
+def test_a_ring_in_the_box_is_in_range():
+    assert _problem(_window()) is None
+
+
+@pytest.mark.parametrize("window, normalized, msg", [
+    (_window(cx=120.0), False, "outside the training box"),
+    (_window(), True, "world units passed as normalized=True"),
+    ((_window() - NORM_LO) / (NORM_HI - NORM_LO), False, "model coordinates given as world units"),
+    (_window(r=0.3), False, "mean radius is 0.3"),
+    (_window(r=8.0), False, "mean radius is 8"),
+])
+def test_out_of_range_inputs_are_named(window, normalized, msg):
+    assert msg in _problem(window, normalized)
+
+
+def test_public_predict_warns_once_in_one_line_and_keeps_the_result(net):
+    w = _window(cx=120.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = tpnet_ref.predict(w, model=net)
+    hits = [c for c in caught if issubclass(c.category, OutsideTrainingRangeWarning)]
+    assert len(hits) == 1 and "\n" not in str(hits[0].message)
+    assert hits[0].filename == __file__                      # points at the caller's line
+    np.testing.assert_array_equal(got, net.predict(w))       # the result is not changed
+
+
+def test_in_range_input_does_not_warn(net):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OutsideTrainingRangeWarning)
+        tpnet_ref.predict(_window(), model=net)
+        tpnet_ref.predict_batch(np.stack([_window(), _window(cx=30.0)]), model=net)
+        tpnet_ref.rollout(_window(), 2, model=net)
