@@ -151,6 +151,8 @@ class TPNet:
         """Write the native HDF5 weights file (:mod:`tpnet_ref.weights.native`) in the model's
         dtype (bit-exact), with its ``meta`` and ``provenance`` as root attributes."""
         write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance})
+        if self.specialization is not None:        # the masks, beside config and params
+            S.write(path, self.specialization.used)
 
     # ------------------------------------------------------------ coordinates
     def normalize(self, x: np.ndarray) -> np.ndarray:
@@ -360,9 +362,10 @@ class TPNet:
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32") -> TPNet:
     """A :class:`TPNet` from a native weights file; ``path=None`` loads the shipped m = 4 model
     (:func:`tpnet_ref.weights.native.default_weights_path`; a one-line ``FileNotFoundError``
-    when there is none)."""
-    config, params, meta = read_native(default_weights_path() if path is None else path)
-    return TPNet(config, params, dtype, meta)
+    when there is none). A file written by a specialised model loads specialised."""
+    path = default_weights_path() if path is None else path
+    config, params, meta = read_native(path)
+    return S.attach(TPNet(config, params, dtype, meta), path)   # specialised if the file says so
 
 
 def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:
