@@ -3,7 +3,7 @@
 Needs the ``box2d`` package (``pip install box2d==2.3.10``, the engine version of the paper); it is
 imported by the validation scripts in ``bench/`` and by skip-if-missing tests, never by the package.
 
-Built from SPEC section 5 and the Box2D 2.3 manual: static box walls (fixtures with friction and
+Built from docs/spec.md §5 and the Box2D 2.3 manual: static box walls (fixtures with friction and
 restitution), dynamic circle particles (density 1, friction 1, restitution 0), soft distance joints
 between every pair within index reach 12 (``frequencyHz``, ``dampingRatio``; ``collideConnected``
 False), an impulse ``F (cos a, sin a)`` on every particle at t = 0, ``world.Step(dt, 10, 10)``.

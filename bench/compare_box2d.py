@@ -34,7 +34,7 @@ TARGETS = {160: 0.05, 600: 0.5}
 
 
 def chamfer_paper(p: np.ndarray, q: np.ndarray) -> float:
-    """SPEC section 3 position error: (sum min d^2 both ways) / |P| (brute force)."""
+    """docs/spec.md §3 position error: (sum min d^2 both ways) / |P| (brute force)."""
     d2 = ((p[:, None, :] - q[None, :, :]) ** 2).sum(-1)
     return float((d2.min(1).sum() + d2.min(0).sum()) / len(p))
 
@@ -44,7 +44,7 @@ def shape_error(p: np.ndarray, q: np.ndarray) -> float:
 
 
 def chamfer_released(p: np.ndarray, q: np.ndarray) -> float:
-    """SPEC section 3 released-code variant: unsquared distances, summed both ways, no 1/|P|."""
+    """docs/spec.md §3 released-code variant: unsquared distances, summed both ways, no 1/|P|."""
     d = np.sqrt(((p[:, None, :] - q[None, :, :]) ** 2).sum(-1))
     return float(d.min(1).sum() + d.min(0).sum())
 

@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python bench/shape_floor.py [--weights weights/tpnet-m5.h5]
 
-On the 60 held-out test cases (SPEC §5 protocol, released metric, normalised), E_s at
+On the 60 held-out test cases (docs/spec.md §5 protocol, released metric, normalised), E_s at
 horizons 1, 10, 40, 80 of predictors that know more or less than a model can:
 
 * copy last / constant velocity: the baselines of the issue;

@@ -1,4 +1,4 @@
-"""Numerical stability of the network (SPEC §6): float32 overflow and float32/float64 divergence.
+"""Numerical stability of the network (docs/spec.md §6): float32 overflow and float32/float64 divergence.
 
     PYTHONPATH=. nice -n 19 python bench/stability_network.py [--frames 10000] [--seed 0]
 

@@ -54,7 +54,7 @@ def test_collapsed_ring_scores_its_closed_form_in_each_reading():
 
 
 def _ring(n=30, r=2.0, turn_deg=0.0, centre=(10.0, 20.0)):
-    """The body's start ring (SPEC §5 particle order), turned counter-clockwise by turn_deg."""
+    """The body's start ring (docs/spec.md §5 particle order), turned counter-clockwise by turn_deg."""
     a = 2 * np.pi * np.arange(n) / n - np.radians(turn_deg)
     return np.stack([centre[0] + r * np.sin(a), centre[1] + r * np.cos(a)], -1)
 

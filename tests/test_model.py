@@ -103,7 +103,7 @@ def test_released_shapes_and_parameter_count():
     assert shapes["lstm2.bwd.kernel"] == (1024, 1024) and shapes["lstm3.fwd.kernel"] == (512, 1024)
     assert shapes["ln1.gamma"] == (1024,) and shapes["head.w"] == (512, 60)
     n_full = sum(int(np.prod(s)) for s in shapes.values())
-    assert n_full == 8_112_192  # SPEC: "about 8.1 million"
+    assert n_full == 8_112_192  # docs/spec.md §2: "about 8.1 million"
     n_released = sum(int(np.prod(s)) for s in param_shapes(TPNetConfig()).values())
     assert n_released < n_full  # identity transform nets carry no parameters
 

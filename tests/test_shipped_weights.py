@@ -1,5 +1,5 @@
 """The shipped models (weights/tpnet-m{3,4,5}.h5): m = 4 is what `tpnet_ref.load()` returns; each
-says where it came from, and what it reaches on the 60 held-out cases (SPEC §5 protocol, 80
+says where it came from, and what it reaches on the 60 held-out cases (docs/spec.md §5 protocol, 80
 predictions)."""
 from __future__ import annotations
 

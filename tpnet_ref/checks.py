@@ -76,6 +76,9 @@ class OutsideTrainingRangeWarning(UserWarning):
 RANGE_LO, RANGE_HI = -0.05, 1.05
 #: the body's mean distance from its centroid, world units: a ring of radius 2, deformed
 RADIUS_RANGE = (1.0, 3.0)
+#: the radius is judged on frames of at least this many points only (a partial arc of the ring,
+#: as an occluded observation gives, has a shifted centroid)
+RADIUS_MIN_POINTS = 20
 
 
 def training_range_problem(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
@@ -99,7 +102,7 @@ def training_range_problem(frames: list[np.ndarray], norm_lo: float, norm_hi: fl
     groups = ([np.stack(frames)] if len(sizes) == 1
               else [f[None] for f in frames])           # (F, N, 2) at once when N is shared
     for g in groups:
-        if g.shape[1] < 3:
+        if g.shape[1] < RADIUS_MIN_POINTS:
             continue
         r = np.sqrt(((g - g.mean(axis=1, keepdims=True)) ** 2).sum(axis=2)).mean(axis=1) * scale
         bad = r[(r < RADIUS_RANGE[0]) | (r > RADIUS_RANGE[1])]
