@@ -1,12 +1,15 @@
 """The BLAS under NumPy, seen from tpnet_ref: its threads, and which product shapes it runs fast.
 
-- Threads. One window (or a small batch) runs with a one-thread BLAS (:func:`one_thread`): the
-  products of one window are too small to gain from a second thread, and a BLAS thread that
-  shares its core with another busy process makes every product wait for it (measured in
-  ``docs/performance.md``: with the other core busy a two-thread BLAS made one prediction 3x
-  slower). A large batch is split across threads, each with a one-thread BLAS, so NumPy's
-  element-wise work uses every core too. Both go through threadpoolctl; without it the BLAS
-  keeps its threads.
+- Threads. A single window runs under :class:`ThreadPolicy` (:func:`adaptive`): on an idle
+  machine the BLAS's own threads make one prediction about 25 % faster (its weight-streaming
+  products use both cores' bandwidth), but a BLAS thread that shares its core with another busy
+  process makes every product wait for it (a two-thread BLAS made one prediction 3x slower).
+  So the policy measures: it keeps the latest latencies of each choice, runs the faster one and
+  tries the other every :data:`PROBE_EVERY` calls. The BLAS's thread count does not change a
+  single window's result (``tests/test_blas.py`` compares them bit for bit). A small batch
+  runs with a one-thread BLAS (:func:`one_thread`); a large batch is split across threads, each
+  with a one-thread BLAS, so NumPy's element-wise work uses every core too. All go through
+  threadpoolctl; without it the BLAS keeps its threads.
 - Small products. :func:`small_products_pay` measures once per process whether the BLAS runs a
   small product (``M*N*K <=`` :data:`SMALL_PRODUCT`) much faster than the same columns in one
   large product, as OpenBLAS's unpacked small-matrix kernels (SkylakeX and later) do.
@@ -19,7 +22,8 @@ import contextlib
 import os
 import threading
 import time
-from typing import Any, Iterator
+from collections import deque
+from typing import Any, Hashable, Iterator
 
 import numpy as np
 
@@ -77,6 +81,102 @@ def one_thread() -> Iterator[None]:
 #: the name under which earlier versions offered :func:`one_thread`
 single_threaded = one_thread
 
+#: :class:`ThreadPolicy`: every this many calls of one kind, the choice not currently preferred
+PROBE_EVERY = 8
+#: :class:`ThreadPolicy`: latencies kept per choice (their median decides)
+KEEP = 4
+
+
+class ThreadPolicy:
+    """Runs each call of a kind with a one-thread BLAS or with the BLAS's own threads, whichever
+    its recent calls of that kind measured faster.
+
+    Per kind (any hashable, e.g. ``("predict", dtype, points)``) it keeps the last :data:`KEEP`
+    latencies of each choice; it runs the choice with the lower median and, every
+    :data:`PROBE_EVERY` calls, the other one (less often while the probes lose clearly), so a
+    change of load (another process taking a core, then leaving) moves the choice. Inside an enclosing :func:`one_thread`
+    block, or when the BLAS has one thread anyway, it changes nothing. ``TPNET_BLAS_THREADS=1``
+    or ``=all`` fixes the choice. Thread-safe; about 2 us per call.
+    """
+
+    def __init__(self, probe_every: int = PROBE_EVERY, keep: int = KEEP) -> None:
+        self.probe_every, self.keep = probe_every, keep
+        # per kind: the latencies of each choice, [calls, calls between probes, probing now]
+        self._kinds: dict[Hashable, tuple[dict[int, deque], list[int]]] = {}
+        self._lock = threading.Lock()
+
+    def _best(self, times: dict[int, deque]) -> int:
+        return min((1, 0), key=lambda c: sorted(times[c])[len(times[c]) // 2])
+
+    def choose(self, kind: Hashable) -> int:
+        """1 (one thread) or 0 (the BLAS's own threads) for the next call of ``kind``."""
+        fixed = os.environ.get("TPNET_BLAS_THREADS")
+        if fixed == "1":
+            return 1
+        if fixed == "all":
+            return 0
+        with self._lock:
+            if kind not in self._kinds and len(self._kinds) >= 256:
+                self._kinds.clear()                 # many kinds (ragged windows): start over
+            times, st = self._kinds.setdefault(
+                kind, ({1: deque(maxlen=self.keep), 0: deque(maxlen=self.keep)},
+                       [0, self.probe_every, 0]))
+            for c in (1, 0):                        # first fill both with a few samples
+                if len(times[c]) < 2:
+                    return c
+            st[0] += 1
+            best = self._best(times)
+            st[2] = int(st[0] % st[1] == 0)
+            return 1 - best if st[2] else best
+
+    def record(self, kind: Hashable, choice: int, seconds: float) -> None:
+        """Keep one measured latency of ``choice`` for ``kind``. A probe that lost by more than
+        a quarter doubles the calls until the next probe (up to 1024: a two-thread BLAS beside a
+        busy core can take 10x as long, so losing probes must get rare); a probe that did not
+        lose resets it."""
+        with self._lock:
+            if kind not in self._kinds:
+                return
+            times, st = self._kinds[kind]
+            if st[2] and len(times[1 - choice]):
+                other = sorted(times[1 - choice])[len(times[1 - choice]) // 2]
+                st[1] = min(2 * st[1], 1024) if seconds > 1.25 * other else self.probe_every
+                st[2] = 0
+            times[choice].append(seconds)
+
+    def preferred(self, kind: Hashable) -> int | None:
+        """The choice (1 or 0) the recent calls of ``kind`` measured faster; None before any."""
+        with self._lock:
+            if kind not in self._kinds:
+                return None
+            times = self._kinds[kind][0]
+            if not (times[0] and times[1]):
+                return None
+            return self._best(times)
+
+    @contextlib.contextmanager
+    def __call__(self, kind: Hashable) -> Iterator[int]:
+        """Run the block with the chosen thread count; yields the choice (1, 0, or -1 when the
+        policy stands aside) and records the block's latency."""
+        ctls = _controllers()
+        with _LOCK:
+            active = _STATE["depth"] == 0 and any(c.get_num_threads() > 1 for c in ctls)
+        if not active:
+            yield -1
+            return
+        choice = self.choose(kind)
+        t = time.perf_counter()
+        if choice == 1:
+            with one_thread():
+                yield 1
+        else:
+            yield 0
+        self.record(kind, choice, time.perf_counter() - t)
+
+
+#: the process-wide policy :mod:`tpnet_ref.model` runs single windows under
+adaptive = ThreadPolicy()
+
 
 def small_products_pay(dtype: Any = np.float32) -> bool:
     """Whether a product of 4 rows runs clearly faster (< 0.8x the time) as column blocks of
@@ -119,5 +219,5 @@ def describe() -> str:
                      f"{d.get('architecture')} threads {d.get('num_threads')}" for d in info)
 
 
-__all__ = ["SMALL_PRODUCT", "one_thread", "single_threaded", "small_products_pay", "cpu_count",
+__all__ = ["SMALL_PRODUCT", "one_thread", "ThreadPolicy", "adaptive", "PROBE_EVERY", "single_threaded", "small_products_pay", "cpu_count",
            "describe"]

@@ -28,7 +28,7 @@ import numpy as np
 from . import layers as L
 from . import specialize as S
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
-from .blas import cpu_count, one_thread, small_products_pay
+from .blas import adaptive, cpu_count, one_thread, small_products_pay
 from .checks import NonFiniteResultError, as_point_set, as_real_array
 from .weights.native import default_weights_path, read_native, write_native
 
@@ -302,11 +302,14 @@ class TPNet:
         return frames, len(windows)
 
     def _split(self, fn: Any, frames: list[np.ndarray], batch: int, *args: Any) -> np.ndarray:
-        """``fn(frames, batch, *args)`` with a one-thread BLAS (see :mod:`tpnet_ref.blas`), or,
-        for a batch of ``SPLIT_MIN_BATCH`` windows or more and ``self.threads`` > 1, the same
-        on consecutive parts of the batch in threads, each with a one-thread BLAS (NumPy's
-        element-wise work then uses every core too), joined along the batch axis. The parts
-        depend on ``batch`` and ``self.threads`` only."""
+        """``fn(frames, batch, *args)``: a single window as it is (``fn`` runs its work under
+        :data:`tpnet_ref.blas.adaptive`, which picks the BLAS's thread count by measured
+        latency), a small batch with a one-thread BLAS, and a batch of ``SPLIT_MIN_BATCH``
+        windows or more, when ``self.threads`` > 1, on consecutive parts in threads, each with a
+        one-thread BLAS (NumPy's element-wise work then uses every core too), joined along the
+        batch axis. The parts depend on ``batch`` and ``self.threads`` only."""
+        if batch == 1:
+            return fn(frames, batch, *args)
         n = min(self.threads or cpu_count(), batch // (SPLIT_MIN_BATCH // 2))
         with one_thread():
             if batch < SPLIT_MIN_BATCH or n < 2:
@@ -317,10 +320,15 @@ class TPNet:
                      for b0, b1 in zip(bounds[:-1], bounds[1:])]
             return np.concatenate(list(_pool(n).map(lambda p: fn(p[0], p[1], *args), parts)))
 
+    def _kind(self, what: str, batch: int, points: int) -> tuple:
+        """The key under which :data:`tpnet_ref.blas.adaptive` keeps this work's latencies."""
+        return (id(self), what, batch, points)
+
     def _predict_frames(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
         """``batch * m`` validated frames, window after window -> ``(batch, n_out, dim)``."""
-        g = self._frames_to_features(frames, normalized)
-        y = self.sequence_head(g.reshape(batch, self.config.m, -1))
+        with adaptive(self._kind("predict", batch, sum(f.shape[0] for f in frames))):
+            g = self._frames_to_features(frames, normalized)
+            y = self.sequence_head(g.reshape(batch, self.config.m, -1))
         return y if normalized else self.denormalize(y)
 
     def rollout(self, window: Any, steps: int, normalized: bool = False) -> np.ndarray:
@@ -349,13 +357,16 @@ class TPNet:
             out = np.empty((batch, steps, self.config.n_out, self.config.dim), dtype=self.dtype)
         except MemoryError:
             raise ValueError(f"steps: {steps} steps do not fit in memory") from None
-        feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
+        with adaptive(self._kind("features", batch, sum(f.shape[0] for f in frames))):
+            feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
         counts = np.full(batch, self.config.n_out)
+        kind = self._kind("rollout step", batch, self.config.n_out)
         for s in range(steps):
-            y = self.sequence_head(feats[:, s:s + m])                 # (batch, n_out, dim)
-            out[:, s] = y
-            flat = y.reshape(-1, self.config.dim)
-            feats[:, m + s] = self.frame_features(flat[canonical_order(flat, counts)], counts)
+            with adaptive(kind):                                      # per step: follows the load
+                y = self.sequence_head(feats[:, s:s + m])             # (batch, n_out, dim)
+                out[:, s] = y
+                flat = y.reshape(-1, self.config.dim)
+                feats[:, m + s] = self.frame_features(flat[canonical_order(flat, counts)], counts)
         return out if normalized else self.denormalize(out)
 
 

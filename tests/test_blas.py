@@ -1,0 +1,98 @@
+"""The BLAS policy: the measured thread choice for single windows, and that the BLAS's thread
+count never changes a single window's result (so the choice is free to follow the load)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import threadpoolctl
+
+from tpnet_ref import blas
+from tpnet_ref.model import init_random
+
+
+def _blas_threads() -> list[int]:
+    return [d["num_threads"] for d in threadpoolctl.threadpool_info() if d["user_api"] == "blas"]
+
+
+def _run(policy: blas.ThreadPolicy, kind, latency: dict[int, float], calls: int) -> list[int]:
+    """Drive the policy with fake latencies per choice; returns the choices made."""
+    out = []
+    for _ in range(calls):
+        c = policy.choose(kind)
+        policy.record(kind, c, latency[c])
+        out.append(c)
+    return out
+
+
+def test_policy_runs_the_faster_choice_and_probes_the_other():
+    p = blas.ThreadPolicy(probe_every=8, keep=4)
+    choices = _run(p, "k", {1: 5.0, 0: 4.0}, 4 + 80)     # all threads faster (an idle machine)
+    assert p.preferred("k") == 0
+    steady = choices[4:]
+    assert steady.count(1) == 10                         # one probe every 8 calls
+    assert all(c == 0 for i, c in enumerate(steady, 1) if i % 8)
+
+
+def test_policy_follows_a_change_of_load_within_a_few_calls():
+    p = blas.ThreadPolicy(probe_every=8, keep=4)
+    _run(p, "k", {1: 5.0, 0: 4.0}, 40)
+    assert p.preferred("k") == 0
+    later = _run(p, "k", {1: 5.5, 0: 40.0}, 20)          # the other core got busy
+    assert later[2:].count(0) <= 2                      # switched after two slow calls
+    assert p.preferred("k") == 1
+    back = _run(p, "k", {1: 5.5, 0: 4.0}, 200)           # and idle again
+    assert p.preferred("k") == 0 and back[-8:].count(0) >= 7
+
+
+def test_losing_probes_get_rarer():
+    p = blas.ThreadPolicy(probe_every=8, keep=4)
+    choices = _run(p, "k", {1: 5.0, 0: 100.0}, 4 + 2000)
+    probes = choices[4:].count(0)
+    assert 0 < probes < 2000 // 8 // 4                   # backed off: far fewer than every 8th
+    assert p.preferred("k") == 1
+
+
+def test_policy_stands_aside_inside_one_thread_and_restores_the_threads():
+    before = _blas_threads()
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        with blas.one_thread():
+            with blas.adaptive("stand aside") as choice:
+                assert choice == -1 and all(n == 1 for n in _blas_threads())
+        for _ in range(6):
+            with blas.adaptive("restores") as choice:
+                assert choice in (0, 1)
+                assert all(n == (1 if choice == 1 else 2) for n in _blas_threads())
+            assert all(n == 2 for n in _blas_threads())
+    assert _blas_threads() == before
+
+
+def test_environment_fixes_the_choice(monkeypatch):
+    p = blas.ThreadPolicy()
+    monkeypatch.setenv("TPNET_BLAS_THREADS", "1")
+    assert {p.choose("k") for _ in range(20)} == {1}
+    monkeypatch.setenv("TPNET_BLAS_THREADS", "all")
+    assert {p.choose("k") for _ in range(20)} == {0}
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_a_single_window_gives_the_same_bits_with_one_or_two_blas_threads(dtype, monkeypatch):
+    """predict and rollout of one window run with whichever thread count the policy measured
+    faster; their results must not depend on it (permutation invariance is bit-identical)."""
+    base = init_random(seed=3, dtype=dtype)
+    rng = np.random.default_rng(4)
+    cases = []
+    for m, sizes in ((4, [30] * 4), (1, [7]), (6, [64] * 6), (3, [5, 64, 17]), (4, [1, 2, 40, 33])):
+        model = type(base)(dataclasses.replace(base.config, m=m), base.params, dtype)
+        frames = [rng.uniform(5, 40, (n, 2)) for n in sizes]
+        cases.append((model, frames))
+
+    def outputs(setting: str) -> list[np.ndarray]:
+        monkeypatch.setenv("TPNET_BLAS_THREADS", setting)
+        with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+            return [f(model, frames) for model, frames in cases
+                    for f in (lambda mo, fr: mo.predict(fr), lambda mo, fr: mo.rollout(fr, 3))]
+
+    for a, b in zip(outputs("1"), outputs("all")):
+        assert np.array_equal(a, b)
