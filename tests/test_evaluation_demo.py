@@ -2,8 +2,6 @@
 """
 from __future__ import annotations
 
-import argparse
-import importlib.util
 
 import numpy as np
 import pytest
@@ -12,23 +10,7 @@ pytest.importorskip("h5py")
 
 from tpnet_ref import evaluation as E  # noqa: E402
 from tpnet_ref.cli import main  # noqa: E402
-from tpnet_ref.metrics import position_error  # noqa: E402
-from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-
-SMALL = dict(input_tnet_mlp=(4, 8), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
-             feature_tnet_fc=(8,), mlp2=(16, 32), global_features=16, lstm_units=(16, 8, 8))
-HAS_MPL = importlib.util.find_spec("matplotlib") is not None
-
-
-def small_model(m: int = 4, seed: int = 0, dtype: str = "float64"):
-    return init_random(TPNetConfig(m=m, **SMALL), seed=seed, dtype=dtype)
-
-
-@pytest.fixture(scope="module")
-def weights_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("w") / "small_m4.h5"
-    small_model(4, seed=3, dtype="float32").save(str(path))
-    return str(path)
+from evaluation_helpers import HAS_MPL, weights_file  # noqa: E402,F401
 
 
 def test_demo_without_shipped_weights_exits_2(tmp_path, monkeypatch, capsys):

@@ -2,8 +2,6 @@
 """
 from __future__ import annotations
 
-import argparse
-import importlib.util
 
 import numpy as np
 import pytest
@@ -11,28 +9,12 @@ import pytest
 pytest.importorskip("h5py")
 
 from tpnet_ref import evaluation as E  # noqa: E402
-from tpnet_ref.cli import main  # noqa: E402
-from tpnet_ref.metrics import position_error  # noqa: E402
-from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-
-SMALL = dict(input_tnet_mlp=(4, 8), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
-             feature_tnet_fc=(8,), mlp2=(16, 32), global_features=16, lstm_units=(16, 8, 8))
-HAS_MPL = importlib.util.find_spec("matplotlib") is not None
-
-
-def _fake_curves(m=4, H=90, names=("copy last", "TP-Net x.h5")):
-    out = []
-    for i, n in enumerate(names):
-        for o in E.ORDERINGS:
-            err = {f"{k}_{v}": np.tile(np.linspace(0.01, 1, H) * (i + 1), (3, 1))
-                   for k in ("Ep", "Es") for v in E.VARIANTS}
-            out.append(E.Curve(n, m, o, err))
-    return out
+from evaluation_helpers import fake_curves  # noqa: E402,F401
 
 
 def test_markdown_tables():
     assert E.md_table(["a", "b"], [[1, "x"]]) == "| a | b |\n|---|---|\n| 1 | x |"
-    curves = _fake_curves()
+    curves = fake_curves()
     t = E.results_tables(curves)
     lines = t.splitlines()
     assert lines[0] == "| m | method | E_p @40 | E_s @40 | E_p @80 | E_s @80 |"
@@ -46,14 +28,14 @@ def test_markdown_tables():
     assert "TP-Net, paper" not in E.results_tables(curves, "released")
     assert "TP-Net, paper" not in E.results_tables(curves, "paper")
     assert len(E.ordering_table(curves).splitlines()) == 2 + 8
-    short = _fake_curves(H=5)
+    short = fake_curves(H=5)
     assert "E_p @5" in E.results_tables(short)            # horizons beyond the rollout dropped
 
 
 def test_write_results_structure(tmp_path):
     rep = E.Report(command="tpnet eval --baselines-only", n_cases=3, horizon=90,
-                   source="test", curves=_fake_curves(), timing=None,
-                   generalisation={"force > 1.6": _fake_curves()})
+                   source="test", curves=fake_curves(), timing=None,
+                   generalisation={"force > 1.6": fake_curves()})
     path = E.write_results(rep, tmp_path / "out", plots=False)
     text = path.read_text()
     assert path.name == "results.md"
@@ -79,7 +61,7 @@ def test_evidence_singles_out_the_squared_reading():
     """From the scene alone: every E_s of the paper's table lies below a perfect ring at a
     random rotation in the released reading, above the collapsed ring in the paper's
     equation, and between the two only in the squared reading (docs/spec.md §3)."""
-    rows = {r["reading"]: r for r in E.evidence_rows(_fake_curves())}
+    rows = {r["reading"]: r for r in E.evidence_rows(fake_curves())}
     assert rows["released"]["verdict"].startswith("impossible")
     assert rows["paper"]["verdict"].startswith("implausible")
     assert rows["squared"]["verdict"].startswith("consistent")
@@ -88,5 +70,5 @@ def test_evidence_singles_out_the_squared_reading():
     assert rows["released"]["floor"] == pytest.approx(0.147, rel=0.01)
     assert rows["paper"]["collapsed"] == pytest.approx(0.00439, rel=0.01)
     assert set(rows["squared"]["copy_last"]) == {40, 80}
-    md = E.evidence_md(_fake_curves())
+    md = E.evidence_md(fake_curves())
     assert "copy last (m=4) @40" in md and md.count("\n") == 4

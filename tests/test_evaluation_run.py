@@ -5,8 +5,6 @@ Everything runs on small random networks, a few cases and short rollouts.
 """
 from __future__ import annotations
 
-import argparse
-import importlib.util
 
 import numpy as np
 import pytest
@@ -14,23 +12,8 @@ import pytest
 pytest.importorskip("h5py")
 
 from tpnet_ref import evaluation as E  # noqa: E402
-from tpnet_ref.cli import main  # noqa: E402
 from tpnet_ref.metrics import position_error  # noqa: E402
-from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-
-SMALL = dict(input_tnet_mlp=(4, 8), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
-             feature_tnet_fc=(8,), mlp2=(16, 32), global_features=16, lstm_units=(16, 8, 8))
-HAS_MPL = importlib.util.find_spec("matplotlib") is not None
-
-
-def small_model(m: int = 4, seed: int = 0, dtype: str = "float64"):
-    return init_random(TPNetConfig(m=m, **SMALL), seed=seed, dtype=dtype)
-
-
-@pytest.fixture(scope="module")
-def frames3():
-    """Model frames of the first three held-out cases, long enough for m=4 + 6 predictions."""
-    return E.simulate_cases(E.TEST_CASES[:3], E.FRAME_EVERY * 10 + 1, workers=1)
+from evaluation_helpers import frames3, small_model  # noqa: E402,F401
 
 
 def test_simulated_frames_are_every_fourth_row(frames3):

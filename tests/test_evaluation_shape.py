@@ -2,8 +2,6 @@
 """
 from __future__ import annotations
 
-import argparse
-import importlib.util
 
 import numpy as np
 import pytest
@@ -11,13 +9,6 @@ import pytest
 pytest.importorskip("h5py")
 
 from tpnet_ref import evaluation as E  # noqa: E402
-from tpnet_ref.cli import main  # noqa: E402
-from tpnet_ref.metrics import position_error  # noqa: E402
-from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-
-SMALL = dict(input_tnet_mlp=(4, 8), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
-             feature_tnet_fc=(8,), mlp2=(16, 32), global_features=16, lstm_units=(16, 8, 8))
-HAS_MPL = importlib.util.find_spec("matplotlib") is not None
 
 
 def test_ring_phase_floor_matches_its_closed_form():

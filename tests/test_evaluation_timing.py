@@ -2,8 +2,6 @@
 """
 from __future__ import annotations
 
-import argparse
-import importlib.util
 
 import numpy as np
 import pytest
@@ -11,33 +9,7 @@ import pytest
 pytest.importorskip("h5py")
 
 from tpnet_ref import evaluation as E  # noqa: E402
-from tpnet_ref.cli import main  # noqa: E402
-from tpnet_ref.metrics import position_error  # noqa: E402
-from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-
-SMALL = dict(input_tnet_mlp=(4, 8), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
-             feature_tnet_fc=(8,), mlp2=(16, 32), global_features=16, lstm_units=(16, 8, 8))
-HAS_MPL = importlib.util.find_spec("matplotlib") is not None
-
-
-def small_model(m: int = 4, seed: int = 0, dtype: str = "float64"):
-    return init_random(TPNetConfig(m=m, **SMALL), seed=seed, dtype=dtype)
-
-
-@pytest.fixture(scope="module")
-def frames3():
-    """Model frames of the first three held-out cases, long enough for m=4 + 6 predictions."""
-    return E.simulate_cases(E.TEST_CASES[:3], E.FRAME_EVERY * 10 + 1, workers=1)
-
-
-def _fake_curves(m=4, H=90, names=("copy last", "TP-Net x.h5")):
-    out = []
-    for i, n in enumerate(names):
-        for o in E.ORDERINGS:
-            err = {f"{k}_{v}": np.tile(np.linspace(0.01, 1, H) * (i + 1), (3, 1))
-                   for k in ("Ep", "Es") for v in E.VARIANTS}
-            out.append(E.Curve(n, m, o, err))
-    return out
+from evaluation_helpers import fake_curves, frames3, small_model  # noqa: E402,F401
 
 
 def test_sim_coarse_indexing():
@@ -70,7 +42,7 @@ def test_timing_table_rows(frames3):
             assert t[peer].ms_batch > 0
     md = E.timing_md(rows, 3)
     assert "ms/frame (batch of 3)" in md and "E_p @3" in md
-    rep = E.Report(command="x", n_cases=3, horizon=3, source="s", curves=_fake_curves(H=3),
+    rep = E.Report(command="x", n_cases=3, horizon=3, source="s", curves=fake_curves(H=3),
                    timing=rows, models=["w.h5"])
     text = E.render_markdown(rep)
     assert "## Error against run time" in text and "Fastest here for one rollout: net" in text
