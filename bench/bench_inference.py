@@ -222,19 +222,26 @@ def main(argv: list[str] | None = None) -> int:
     busy = None
     if not args.no_busy:
         print("\nB = 1 latency with one core busy (a second process spinning), interleaved with idle:")
-        idle_t, busy_t = [], []
+        from tpnet_ref.blas import adaptive
+        kind = m32._kind("predict", 1, int(np.prod(x1.shape[1:3])))
+        name = {1: "one thread", 0: "all threads", None: "n/a (BLAS has one thread)"}
+        idle_t, busy_t, chose = [], [], {"idle": [], "busy": []}
         for _ in range(3):
             idle_t.append(timeit(lambda: m32.predict(x1[0], normalized=True), t_min / 2, 20))
+            chose["idle"].append(name[adaptive.preferred(kind)])
             spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
             try:
                 time.sleep(0.2)
                 busy_t.append(timeit(lambda: m32.predict(x1[0], normalized=True), t_min / 2, 20))
+                chose["busy"].append(name[adaptive.preferred(kind)])
             finally:
                 spin.kill()
                 spin.wait()
         busy = float(np.median(busy_t)) / float(np.median(idle_t))
         print(f"  idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
               f"-> {busy:.2f}x")
+        print(f"  BLAS threads the policy (tpnet_ref.blas.adaptive) measured faster: idle "
+              f"{', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
 
     print("\ncold start in a fresh process (import + load + first predict), peak memory:")
     import tempfile
