@@ -191,6 +191,24 @@ def test_rollout_computes_each_frame_feature_once(model64, monkeypatch):
     assert sum(calls) == 4 + 10  # m initial frames + one per predicted frame (the last unused)
 
 
+def test_rollout_projects_each_frame_into_the_first_lstm_once(model64, monkeypatch):
+    """BiLSTM 1's input projection is a function of one frame: a rollout computes it once per
+    frame and reuses it for the m - 1 frames its windows share (same output as predict)."""
+    rows = []
+    orig = type(model64).project_frames
+
+    def counting(self, features):
+        rows.append(len(features))
+        return orig(self, features)
+
+    monkeypatch.setattr(type(model64), "project_frames", counting)
+    w = model64.normalize(_window(np.random.default_rng(8)))
+    out = model64.rollout(w, 10, normalized=True)
+    assert sum(rows) == 4 + 10 - 1          # m initial frames + each predicted frame but the last
+    want = model64.predict(np.concatenate([w[2:], out[:2]]), normalized=True)
+    np.testing.assert_allclose(out[2], want, rtol=0, atol=1e-12)
+
+
 def test_tanh_switch_changes_the_cell():
     cfg = TPNetConfig(lstm_activation="tanh")
     a = init_random(cfg, seed=1, dtype="float64")

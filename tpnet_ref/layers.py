@@ -210,7 +210,8 @@ def project(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None = None,
 
 def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
                  blocks: np.ndarray | None = None, activation: str = "relu",
-                 return_sequences: bool = True, small: bool = True) -> np.ndarray:
+                 return_sequences: bool = True, small: bool = True,
+                 xp: np.ndarray | None = None) -> np.ndarray:
     """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`,
     time-major: ``x (T, B, C)`` -> ``(T, B, 2u)`` or, with ``return_sequences=False``, ``(B, 2u)``.
 
@@ -221,7 +222,9 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     once in step order (step ``s`` is forward time ``s`` and backward time ``T-1-s``), both
     directions advance together with one batched product per step into the gate buffer (none
     at step 0, where h = c = 0), and the gates are updated in place. Time-major layout keeps
-    every step's slice contiguous, so nothing is re-laid-out between layers.
+    every step's slice contiguous, so nothing is re-laid-out between layers. ``xp`` ``(T, B, 8u)``,
+    when given, is the input projection ``x @ kernel`` (without the bias) computed beforehand,
+    e.g. one frame at a time by a rollout; ``x`` then only gives the shapes.
     """
     steps, bsz, _ = x.shape
     u = recurrent.shape[1]
@@ -229,7 +232,9 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     if not relu_act and activation != "tanh":
         _activation(activation)  # raises the error naming the activation
     dt = x.dtype
-    xp = project(x.reshape(steps * bsz, -1), kernel, blocks, small).reshape(steps, bsz, 2, 4 * u)
+    if xp is None:
+        xp = project(x.reshape(steps * bsz, -1), kernel, blocks, small)
+    xp = xp.reshape(steps, bsz, 2, 4 * u)
     xs = np.empty((steps, 2, bsz, 4 * u), dtype=dt)     # input projections in step order
     np.add(xp[:, :, 0], bias[:4 * u], out=xs[:, 0])
     np.add(xp[::-1, :, 1], bias[4 * u:], out=xs[:, 1])

@@ -195,12 +195,14 @@ class TPNet:
         g = L.mlp_max(h, self._mlp2, counts)
         return L.dense(g, self.params["global.w"], self.params["global.b"], "relu")
 
-    def sequence_head(self, features: np.ndarray) -> np.ndarray:
+    def sequence_head(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
         """Prediction network: ``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1].
-        With a specialisation, the specialised one, and the full one for the windows it flags."""
+        With a specialisation, the specialised one, and the full one for the windows it flags.
+        ``proj1`` ``(m, B, 8u)``: BiLSTM 1's input projections of the frames, if already known
+        (:meth:`project_frames`; used by the full network only)."""
         spec = self.specialization
         if spec is None:
-            return self._full_head(features)
+            return self._full_head(features, proj1)
         y, ok = spec(features)
         y = y.reshape(-1, self.config.n_out, self.config.dim)
         bad = np.flatnonzero(~ok)
@@ -210,7 +212,15 @@ class TPNet:
         self.counts["fallbacks"] += int(bad.size)
         return y
 
-    def _full_head(self, features: np.ndarray) -> np.ndarray:
+    def project_frames(self, features: np.ndarray) -> np.ndarray:
+        """BiLSTM 1's input projection (without bias) of each frame's feature: ``(F, k)`` ->
+        ``(F, 8u)``. A function of the frame alone, so a rollout computes it once per frame."""
+        if self._small is None:
+            self._small = small_products_pay(self.dtype)
+        fused = self._lstms[0][0]
+        return L.project(features, fused.kernel, fused.blocks, self._small)
+
+    def _full_head(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
         act = self.config.lstm_activation
         eps = self.config.layer_norm_eps
         h = features.transpose(1, 0, 2)   # time-major (m, B, k) through the BiLSTMs
@@ -224,7 +234,7 @@ class TPNet:
         with np.errstate(over="ignore", invalid="ignore"):
             for i, (fused, gamma, beta) in enumerate(self._lstms):
                 h = L.bilstm_fused(h, *fused, activation=act, return_sequences=i < last,
-                                   small=self._small)
+                                   small=self._small, xp=proj1 if i == 0 else None)
                 if act == "relu" and not h.max() < limit:   # also catches NaN
                     self._overflow(f"BiLSTM {i + 1}")
                 h = L.layer_norm(h, gamma, beta, eps)
@@ -357,16 +367,24 @@ class TPNet:
             out = np.empty((batch, steps, self.config.n_out, self.config.dim), dtype=self.dtype)
         except MemoryError:
             raise ValueError(f"steps: {steps} steps do not fit in memory") from None
+        # BiLSTM 1's input projection of each frame, also computed once per frame (the full
+        # network only: a specialised one projects its kept units itself); the last m kept
+        cache = self.specialization is None
         with adaptive(self._kind("features", batch, sum(f.shape[0] for f in frames))):
             feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
+            proj = (list(self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1))
+                         .reshape(m, batch, -1)) if cache else None)
         counts = np.full(batch, self.config.n_out)
         kind = self._kind("rollout step", batch, self.config.n_out)
         for s in range(steps):
             with adaptive(kind):                                      # per step: follows the load
-                y = self.sequence_head(feats[:, s:s + m])             # (batch, n_out, dim)
+                y = self.sequence_head(feats[:, s:s + m],             # (batch, n_out, dim)
+                                       np.stack(proj[-m:]) if cache else None)
                 out[:, s] = y
                 flat = y.reshape(-1, self.config.dim)
                 feats[:, m + s] = self.frame_features(flat[canonical_order(flat, counts)], counts)
+                if cache and s + 1 < steps:
+                    proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s])]
         return out if normalized else self.denormalize(out)
 
 
