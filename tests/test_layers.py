@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tpnet_ref import layers as L
-from tpnet_ref.blas import SMALL_PRODUCT, one_thread, small_products_pay
+from tpnet_ref.blas import BLOCK_COLUMNS, SMALL_PRODUCT, one_thread, small_products_pay
 
 
 def _direction(rng, c, u, dtype):
@@ -56,7 +56,7 @@ def test_column_blocks_fit_the_small_product_bound_and_give_the_product():
     fwd, bwd = _direction(rng, c, u, np.float32), _direction(rng, c, u, np.float32)
     fused = L.fuse_bilstm(fwd, bwd, block_rows=4)
     nblocks, c_in, nb = fused.blocks.shape
-    assert c_in == c and nblocks * nb == 8 * u and 4 * c * nb <= SMALL_PRODUCT
+    assert c_in == c and nblocks * nb == 8 * u and 4 * c * nb <= SMALL_PRODUCT and nb <= BLOCK_COLUMNS
     np.testing.assert_array_equal(fused.blocks.transpose(1, 0, 2).reshape(c, -1), fused.kernel)
     x = rng.normal(size=(4, c)).astype(np.float32)
     np.testing.assert_allclose(L.project(x, fused.kernel, fused.blocks), x @ fused.kernel,

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .blas import SMALL_PRODUCT
+from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 
 
 def relu(x: np.ndarray) -> np.ndarray:
@@ -173,7 +173,8 @@ def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
     and computes sigmoid(x) = 1 / (1 + exp(-x)) in three in-place passes. With ``block_rows``
     (the rows of the input projection of one window, ``m``), also the kernel's columns cut
     into equal contiguous blocks ``(8u / nb, C, nb)`` with ``block_rows * C * nb`` at most
-    :data:`SMALL_PRODUCT`, for :func:`project`.
+    :data:`SMALL_PRODUCT` and ``nb`` at most :data:`~tpnet_ref.blas.BLOCK_COLUMNS`, for
+    :func:`project`.
     """
     def reorder(a: np.ndarray) -> np.ndarray:
         u = a.shape[-1] // 4
@@ -187,7 +188,7 @@ def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
     blocks = None
     if block_rows:
         c_in, n = kernel.shape
-        fits = [nb for nb in range(1, n + 1)
+        fits = [nb for nb in range(1, min(n, BLOCK_COLUMNS) + 1)
                 if n % nb == 0 and block_rows * c_in * nb <= SMALL_PRODUCT]
         if fits and fits[-1] < n:
             nb = fits[-1]
