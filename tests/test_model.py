@@ -10,6 +10,7 @@ import pytest
 
 import tpnet_ref
 from tpnet_ref.config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
+from tpnet_ref import model as M
 from tpnet_ref.model import init_random
 
 import reference_python as ref
@@ -207,6 +208,23 @@ def test_rollout_projects_each_frame_into_the_first_lstm_once(model64, monkeypat
     assert sum(rows) == 4 + 10 - 1          # m initial frames + each predicted frame but the last
     want = model64.predict(np.concatenate([w[2:], out[:2]]), normalized=True)
     np.testing.assert_allclose(out[2], want, rtol=0, atol=1e-12)
+
+
+def test_canonical_order_small_and_large_paths_give_the_same_indices(monkeypatch):
+    """Few points are sorted by one lexsort, many by row-wise argsorts: same indices, ties too."""
+    rng = np.random.default_rng(9)
+    for counts in (np.full(4, 30), np.array([5, 1, 40, 17])):
+        pts = np.round(rng.uniform(0, 3, (int(counts.sum()), 2)), 0)     # many exact ties
+        small = M.canonical_order(pts, counts)
+        monkeypatch.setattr(M, "SMALL_SORT", 0)
+        large = M.canonical_order(pts, counts)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(small, large)
+        ends = np.cumsum(counts)
+        for f0, f1 in zip(np.concatenate(([0], ends[:-1])), ends):   # sorted within each frame
+            seg = pts[small[f0:f1]]
+            assert np.all(small[f0:f1] >= f0) and np.all(small[f0:f1] < f1)
+            assert all(tuple(a) <= tuple(b) for a, b in zip(seg[:-1], seg[1:]))
 
 
 def test_tanh_switch_changes_the_cell():
