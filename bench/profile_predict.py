@@ -30,6 +30,53 @@ def med(fn, reps: int = 400) -> float:
     return float(np.median(ts))
 
 
+def in_sequence(model, window, calls: int = 300) -> None:
+    """The same stages timed inside whole predictions (each call wrapped, medians): the weights
+    then come from memory as in real use, not from cache as when a stage is repeated alone."""
+    import tpnet_ref.model as M
+    times: dict[str, list[float]] = {}
+    layer = [0]
+    saved = []
+
+    def wrap(owner, name: str, per_layer: bool = False) -> None:
+        f = getattr(owner, name)
+        saved.append((owner, name, f))
+
+        def timed(*a, **k):
+            t = time.perf_counter()
+            r = f(*a, **k)
+            dt = time.perf_counter() - t
+            key = f"{name} {layer[0] % 3 + 1}" if per_layer else name
+            if name == "bilstm_fused":
+                layer[0] += 1
+            times.setdefault(key, []).append(dt)
+            return r
+        setattr(owner, name, timed)
+
+    wrap(M.TPNet, "_check_window")
+    wrap(M, "canonical_order")
+    wrap(M.TPNet, "frame_features")
+    wrap(L, "project", True)
+    wrap(L, "bilstm_fused", True)
+    wrap(L, "layer_norm")
+    wrap(M.TPNet, "predict")
+    try:
+        for _ in range(30):
+            model.predict(window)
+        times.clear()
+        layer[0] = 0
+        for _ in range(calls):
+            model.predict(window)
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+    print(f"\nin sequence, inside {calls} whole predictions (median per prediction; "
+          "bilstm_fused includes its input projection 'project'):")
+    for key, ts in times.items():
+        n = len(ts) // calls
+        print(f"  {key:22s} x{n}  {np.median(ts) * n * 1e6:8.1f} us")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.parse_args(argv)
@@ -73,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:66s} {t * 1e6:8.1f} {t / s:6.1%} {nbytes / 1e6:10.2f} {gbs}")
     print(f"{'sum of stages':66s} {s * 1e6:8.1f}")
     print(f"{'predict(window), measured whole':66s} {total * 1e6:8.1f}")
+    in_sequence(model, window)
 
     # B = 256: the split between the two halves, and the share of matrix products in the head
     big = rng.uniform(5, 40, (256, 4, 30, 2))
