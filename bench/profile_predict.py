@@ -77,6 +77,36 @@ def in_sequence(model, window, calls: int = 300) -> None:
         print(f"  {key:22s} x{n}  {np.median(ts) * n * 1e6:8.1f} us")
 
 
+def cold_blocks(model, reps: int = 11) -> None:
+    """Each LSTM input projection of one window (4 rows) with its weights not in cache (256 MB
+    read before every call), as one product and in column blocks of several widths, one thread."""
+    from tpnet_ref.blas import SMALL_PRODUCT, one_thread
+    evict = np.ones(64 * 2**20, np.float32)
+    rng = np.random.default_rng(1)
+
+    def cold(fn) -> float:
+        ts = []
+        for _ in range(reps):
+            evict.sum()
+            t = time.perf_counter()
+            fn()
+            ts.append(time.perf_counter() - t)
+        return float(np.median(ts))
+
+    print("\ninput projections of one window, weights not in cache, one thread (us):")
+    with one_thread():
+        for fused, _, _ in model._lstms:
+            k = fused.kernel
+            c, n = k.shape
+            x = rng.standard_normal((4, c)).astype(k.dtype)
+            row = [f"plain {cold(lambda: x @ k) * 1e6:7.0f}"]
+            for nb in (16, 32, 64, 128, 256, 1024):
+                if n % nb == 0 and 4 * c * nb <= SMALL_PRODUCT:
+                    b = np.ascontiguousarray(k.reshape(c, n // nb, nb).transpose(1, 0, 2))
+                    row.append(f"blocks of {nb} {cold(lambda: np.matmul(x, b)) * 1e6:6.0f}")
+            print(f"  {c}x{n}: " + ", ".join(row))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.parse_args(argv)
@@ -121,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'sum of stages':66s} {s * 1e6:8.1f}")
     print(f"{'predict(window), measured whole':66s} {total * 1e6:8.1f}")
     in_sequence(model, window)
+    cold_blocks(model)
 
     # B = 256: the split between the two halves, and the share of matrix products in the head
     big = rng.uniform(5, 40, (256, 4, 30, 2))
