@@ -57,7 +57,8 @@ def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
         for i in range(2):
             axes[i, j].set_yscale("log")
             axes[i, j].grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=8, loc="lower right")
+    for j in range(len(ms)):                  # each panel names its own model
+        axes[0, j].legend(fontsize=7, loc="lower right")
     axes[0, 0].set_ylabel(f"position error E_p ({HEADLINE})")
     axes[1, 0].set_ylabel(f"shape error E_s ({HEADLINE})")
     fig.suptitle("Rollout error on the held-out cases (mean over cases, normalised coordinates)")
