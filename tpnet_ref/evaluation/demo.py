@@ -14,8 +14,11 @@ import numpy as np
 
 from ..blas import describe as blas_describe
 from ..config import normalize
+from ..model import load
 from ..protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
     split_protocol
+from ..sim import simulate
+from .plots import plot_demo
 from .run import PAPER_TABLE, TEST_CASES, errors
 
 #: the demo's built-in scene: the first held-out test case (force, angle, x, y)
@@ -41,8 +44,6 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
     Raises ``FileNotFoundError`` (from :func:`tpnet_ref.load`) when there are no weights.
     Returns the numbers printed: ``errors[h][method]`` -> the error dict of
     :func:`~tpnet_ref.evaluation.errors` at horizon ``h``, timings, the PNG path."""
-    from ..sim import simulate
-    from ..model import load
     stream = out or sys.stdout
 
     def say(s: str = "") -> None:
@@ -98,7 +99,6 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
             f"E_s {p[1]} / {p[3]} at 40 / 80 predictions (this is one case)")
     wrote = None
     if png:
-        from .plots import plot_demo
         ph = [h for h in PNG_HORIZONS if h <= H] or [H]
         titles = {}
         for h in ph:

@@ -16,6 +16,8 @@ import numpy as np
 
 from ..blas import describe as blas_describe
 from ..config import denormalize
+from ..data import load_trajectories
+from ..model import load
 from ..protocol import FRAME_EVERY, SIM_ROWS, split_protocol
 from .report import Report, write_results
 from .run import TEST_CASES, Curve, ModelSpec, evaluate, generalisation_cases, simulate_cases
@@ -52,7 +54,6 @@ def _gallery_model(models: list[ModelSpec]) -> ModelSpec | None:
 
 def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
     """``tpnet eval`` with parsed ``args``; returns the path of ``results.md``."""
-    from ..model import load
     log = log or sys.stderr
     t_start = time.perf_counter()
     progress = not args.quiet
@@ -70,7 +71,6 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
               for n, w in zip(names, args.weights)]
     ms = args.m or ([s.model.config.m for s in models] or [4])
     if args.data:
-        from ..data import load_trajectories
         kw = {"allow_other_scene": True} if getattr(args, "allow_other_scene", False) else {}
         frames, params = load_trajectories(args.data, "test", **kw)
         frames = frames.astype(np.float64)
