@@ -1,9 +1,12 @@
 """What the shape error E_s can reach without the particles' rotation phase (model card, issue 6).
 
-    PYTHONPATH=. python bench/shape_floor.py [--weights weights/tpnet-m5.h5]
+    PYTHONPATH=. python bench/shape_floor.py [--weights weights/tpnet-m5.h5] [--variant squared]
+        [--impulse-point particle_centre]
 
-On the 60 held-out test cases (docs/spec.md §5 protocol, released metric, normalised), E_s at
-horizons 1, 10, 40, 80 of predictors that know more or less than a model can:
+On the 60 held-out test cases (docs/spec.md §5 protocol, simulated in the default scene
+convention unless ``--impulse-point`` says otherwise; metric reading ``--variant``, default
+"released"; normalised), E_s at horizons 1, 10, 40, 80 of predictors that know more or less
+than a model can:
 
 * copy last / constant velocity: the baselines of the issue;
 * rest ring at a random phase: the body's undeformed ring, turned by a uniform fraction of one
@@ -33,6 +36,7 @@ import numpy as np
 import tpnet_ref
 from tpnet_ref import evaluation as ev
 from tpnet_ref.sim.cases import TEST_CASES
+from tpnet_ref.sim.scene import IMPULSE_POINTS, SceneParams
 from tpnet_ref.metrics import shape_error
 
 HS = (1, 10, 40, 80)
@@ -42,11 +46,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--variant", default="released", choices=("released", "squared", "paper"),
+                    help="metric reading of E_s (docs/spec.md §3)")
+    ap.add_argument("--impulse-point", default=SceneParams().impulse_point,
+                    choices=IMPULSE_POINTS, help="scene convention of the ground truth")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     model = tpnet_ref.load(args.weights)
     m, hmax = model.config.m, max(HS)
-    frames = ev.normalize(ev.simulate_cases(np.asarray(TEST_CASES), workers=args.workers))
+    frames = ev.normalize(ev.simulate_cases(np.asarray(TEST_CASES), workers=args.workers,
+                                              impulse_point=args.impulse_point))
     inputs, targets = ev.split_protocol(frames, m, hmax)
     at = [h - 1 for h in HS]
     truth = targets[:, at]                                             # (C, H, N, 2)
@@ -54,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(0)
 
     def es(pred: np.ndarray) -> np.ndarray:                           # (C, H, N, 2) -> (H,)
-        return shape_error(truth, np.broadcast_to(pred, truth.shape), variant="released").mean(0)
+        return shape_error(truth, np.broadcast_to(pred, truth.shape), variant=args.variant).mean(0)
 
     rows: list[tuple[str, np.ndarray]] = []
     rows.append(("copy last input frame", es(ev.copy_last(inputs, hmax)[:, at])))
@@ -79,14 +88,15 @@ def main(argv: list[str] | None = None) -> int:
                  es(ev.resample_outline(pred.reshape(c * nh, n, 2)).reshape(truth.shape))))
     rows.append(("this model as a circle of its mean radius, random phase", circle(pred)))
 
-    print(f"E_s (released, normalised) on the {c} test cases, m = {m}, "
-          f"weights {args.weights or 'shipped'}; rest ring at a uniform phase: "
-          f"{ev.ring_phase_floor():.3f}")
+    print(f"E_s ({args.variant} reading, normalised) on the {c} test cases simulated with "
+          f"impulse_point={args.impulse_point!r}, m = {m}, weights "
+          f"{args.weights or 'shipped'}; rest ring at a uniform phase: "
+          f"{ev.ring_phase_floor(variant=args.variant):.4g}")
     print()
     print("| predictor | " + " | ".join(f"E_s @{h}" for h in HS) + " |")
     print("|---|" + "---|" * nh)
     for name, v in rows:
-        print(f"| {name} | " + " | ".join(f"{x:.3f}" for x in v) + " |")
+        print(f"| {name} | " + " | ".join(f"{x:.3g}" for x in v) + " |")
     print()
     spacing = 360.0 / n
     rot = ev.ring_rotation(ev.denormalize(truth))                      # (C, H) degrees
