@@ -3,7 +3,8 @@
     PYTHONPATH=. python bench/stability.py          # Box2D / naive rows when importable
     PYTHONPATH=. python bench/stability.py --spin   # only the spinning-particles table
 
-    PYTHONPATH=. python bench/stability.py --long   # only the long-run table
+    PYTHONPATH=. python bench/stability.py --long   # only the first-step and long-run tables
+    PYTHONPATH=. python bench/stability.py --first-step   # only the first-step table
 
 Energies: E_motion = kinetic (linear + rotational) + gravitational, E_total adds the springs'
 potential energy as ideal springs of stiffness mu (2 pi f)^2. Positions in world units; the free
@@ -88,6 +89,28 @@ def spin_table() -> None:
           "after the first step, with the clamped spin; 20 Hz: E_motion)")
 
 
+def first_step() -> None:
+    """The first step's rotation clamp: energy of the built state (unclamped start spin) and
+    after one step, free flight (F 1.6, 45 deg, start (22, 22), no walls, no gravity)."""
+    print("## first step, free flight: F=1.6, 45 deg, start (22, 22), no walls, no gravity")
+    print("| impulse point | max abs(w) built (rad/s) | E built | of it rotational | "
+          "E after step 1 | of it rotational | max abs(w) after step 1 | E after 2,001 steps |")
+    for ip in ("ring_centre", "particle_centre"):
+        p = SceneParams(walls=False, gravity=(0.0, 0.0), impulse_point=ip)
+        sc = build_scene(22.0, 22.0, 1.6, 45.0, p)
+        rows = []
+        for k in range(2002):
+            if k:
+                sc.step()
+            b = sc.read()
+            if k in (0, 1, 2001):
+                w = b[:30, 4]
+                rows.append((np.abs(w).max(), sc.energy(), 0.5 * p.inertia * float((w ** 2).sum())))
+        (w0, e0, r0), (w1, e1, r1), (_, e2, _) = rows
+        print(f"| {ip} | {w0:.1f} | {e0:.1f} | {r0:.1f} | {e1:.1f} | {r1:.1f} | {w1:.2f} | "
+              f"{e2:.1f} |")
+
+
 def long_table() -> None:
     """Long runs with damping ratio 0: 10,000 steps each."""
     print("## long runs: 10,000 steps, damping ratio 0, sleep off (E0: after the first step)")
@@ -118,7 +141,12 @@ def main() -> int:
         spin_table()
         return 0
     if "--long" in sys.argv[1:]:
+        first_step()
+        print()
         long_table()
+        return 0
+    if "--first-step" in sys.argv[1:]:
+        first_step()
         return 0
     try:
         from box2d_scene import simulate_box2d
@@ -169,6 +197,8 @@ def main() -> int:
           f"min / max centre {lo:.2f} / {hi:.2f}")
     print()
     spin_table()
+    print()
+    first_step()
     print()
     long_table()
     return 0
