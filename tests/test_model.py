@@ -198,9 +198,9 @@ def test_rollout_projects_each_frame_into_the_first_lstm_once(model64, monkeypat
     rows = []
     orig = type(model64).project_frames
 
-    def counting(self, features):
+    def counting(self, features, batch=1):
         rows.append(len(features))
-        return orig(self, features)
+        return orig(self, features, batch)
 
     monkeypatch.setattr(type(model64), "project_frames", counting)
     w = model64.normalize(_window(np.random.default_rng(8)))

@@ -84,6 +84,12 @@ def one_thread() -> Iterator[None]:
                     c.set_num_threads(n)
 
 
+def in_one_thread() -> bool:
+    """Whether the calling code runs inside a :func:`one_thread` block (the numba engine then
+    runs its serial kernels too; outside, its directions in parallel)."""
+    return _STATE["depth"] > 0
+
+
 #: the name under which earlier versions offered :func:`one_thread`
 single_threaded = one_thread
 
@@ -223,5 +229,5 @@ def describe() -> str:
                      f"{d.get('architecture')} threads {d.get('num_threads')}" for d in info)
 
 
-__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "ThreadPolicy", "adaptive", "PROBE_EVERY", "single_threaded", "small_products_pay", "cpu_count",
+__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread", "ThreadPolicy", "adaptive", "PROBE_EVERY", "single_threaded", "small_products_pay", "cpu_count",
            "describe"]

@@ -17,6 +17,7 @@ with row blocking. (Max-pooling alone is invariant in exact arithmetic only.)
 """
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 from collections.abc import Sequence
@@ -28,8 +29,9 @@ import numpy as np
 from . import layers as L
 from . import specialize as S
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
-from .blas import adaptive, cpu_count, one_thread, small_products_pay
+from .blas import adaptive, cpu_count, in_one_thread, one_thread, small_products_pay
 from .checks import NonFiniteResultError, as_point_set, as_real_array
+from .extras import require
 from .weights.native import default_weights_path, read_native, write_native
 
 #: points per block of the feature extractor (activations of a block stay in cache)
@@ -39,6 +41,12 @@ SPLIT_MIN_BATCH = 64
 #: up to this many points the canonical order is one lexsort (measured 120 points: 19 -> 5 us);
 #: above it, row-wise stable argsorts (1,024 frames of 30 points: 1.5 ms instead of 7 ms)
 SMALL_SORT = 512
+#: the prediction engines: "numpy" (layers.py, the reference), "numba" (engine_numba.py, the
+#: optional compiled prediction network; extra ``metrics``), "auto" (numba when installed)
+ENGINES = ("numpy", "numba", "auto")
+#: the numba engine runs batches of up to this many windows; larger ones take the NumPy path
+#: (BLAS products of many rows, split across threads: faster, measured in docs/performance.md)
+ENGINE_MAX_BATCH = 8
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
@@ -47,6 +55,15 @@ def _pool(n: int) -> ThreadPoolExecutor:
     if n not in _POOLS:
         _POOLS[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tpnet")
     return _POOLS[n]
+
+
+def _as_engine(engine: Any) -> str:
+    """The engine a model runs: ``engine`` checked, "auto" resolved (numba if installed)."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {', '.join(map(repr, ENGINES))}, got {engine!r}")
+    if engine == "auto":
+        return "numba" if importlib.util.find_spec("numba") is not None else "numpy"
+    return engine
 
 
 def _as_dtype(dtype: Any) -> np.dtype:
@@ -58,12 +75,20 @@ def _as_dtype(dtype: Any) -> np.dtype:
 
 class TPNet:
     """A TP-Net with its parameters in one dtype. Build it with :func:`init_random`,
-    :func:`tpnet_ref.load` or an importer in :mod:`tpnet_ref.weights`."""
+    :func:`tpnet_ref.load` or an importer in :mod:`tpnet_ref.weights`. ``engine``: "numpy" (the
+    reference), "numba" (the compiled prediction network of :mod:`tpnet_ref.engine_numba`, needs
+    the ``metrics`` extra) or "auto" (numba when installed); every engine gives the same results
+    up to rounding."""
 
     def __init__(self, config: TPNetConfig, params: dict[str, np.ndarray],
-                 dtype: Any = "float32", meta: dict[str, Any] | None = None) -> None:
+                 dtype: Any = "float32", meta: dict[str, Any] | None = None,
+                 engine: str = "numpy") -> None:
         self.config = config
         self.dtype = _as_dtype(dtype)
+        #: "numpy" or "numba" (see :data:`ENGINES`)
+        self.engine = _as_engine(engine)
+        if self.engine == "numba":
+            require("numba", "metrics", "engine='numba' (the Numba inference engine)")
         self.meta: dict[str, Any] = dict(meta or {})
         #: threads a large batch is split across (None: every core; 1: never split)
         self.threads: int | None = None
@@ -111,12 +136,16 @@ class TPNet:
             for i in range(1, len(cfg.lstm_units) + 1)
         ]
         self._small: bool | None = None     # small_products_pay(dtype), asked at first use
+        self._nb = None                     # the numba engine's prediction network
+        if self.engine == "numba":
+            from . import engine_numba     # optional: imports numba
+            self._nb = engine_numba.NumbaHead(cfg, p, self.dtype)
         self._lo = self.dtype.type(cfg.norm_lo)
         self._scale = self.dtype.type(cfg.norm_hi - cfg.norm_lo)
 
     def astype(self, dtype: Any) -> "TPNet":
         """The same network with its parameters in ``dtype`` (float32 or float64)."""
-        out = TPNet(self.config, self.params, dtype, self.meta)
+        out = TPNet(self.config, self.params, dtype, self.meta, self.engine)
         out.threads = self.threads
         if self.specialization is not None:
             out.specialization = S.SceneHead(out, self.specialization.used)
@@ -131,10 +160,18 @@ class TPNet:
 
     def with_specialization(self, used: dict[str, np.ndarray] | None) -> "TPNet":
         """A copy of this network specialised to the units ``used`` marks (None: not at all)."""
-        out = TPNet(self.config, self.params, self.dtype, self.meta)
+        out = TPNet(self.config, self.params, self.dtype, self.meta, self.engine)
         out.threads = self.threads
         if used is not None:
             out.specialization = S.SceneHead(out, used)
+        return out
+
+    def with_engine(self, engine: str) -> "TPNet":
+        """The same network (and specialisation) run by ``engine`` ("numpy", "numba", "auto")."""
+        out = TPNet(self.config, self.params, self.dtype, self.meta, engine)
+        out.threads = self.threads
+        if self.specialization is not None:
+            out.specialization = S.SceneHead(out, self.specialization.used)
         return out
 
     @property
@@ -148,7 +185,7 @@ class TPNet:
         return (f"TPNet(m={c.m}, n_out={c.n_out}, lstm={c.lstm_units}, act={c.lstm_activation}, "
                 f"transforms={'trained' if c.input_transform_trained else 'identity'}/"
                 f"{'trained' if c.feature_transform_trained else 'identity'}, "
-                f"params={self.num_params:,}, dtype={self.dtype.name}{spec})")
+                f"params={self.num_params:,}, dtype={self.dtype.name}, engine={self.engine}{spec})")
 
     def save(self, path: str | os.PathLike, **provenance: Any) -> None:
         """Write the native HDF5 weights file (:mod:`tpnet_ref.weights.native`) in the model's
@@ -215,15 +252,36 @@ class TPNet:
         self.counts["fallbacks"] += int(bad.size)
         return y
 
-    def project_frames(self, features: np.ndarray) -> np.ndarray:
+    def _engine_for(self, batch: int) -> Any:
+        """The numba engine's network if it runs batches of ``batch`` windows, else None."""
+        return self._nb if self._nb is not None and batch <= ENGINE_MAX_BATCH else None
+
+    def project_frames(self, features: np.ndarray, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection (without bias) of each frame's feature: ``(F, k)`` ->
-        ``(F, 8u)``. A function of the frame alone, so a rollout computes it once per frame."""
+        ``(F, 8u)``. A function of the frame alone, so a rollout computes it once per frame.
+        For the numba engine (batches of ``batch`` windows it runs), its own layout
+        (:meth:`tpnet_ref.engine_numba.NumbaHead.project`, the bias included), also ``(F, 8u)``."""
+        nb = self._engine_for(batch)
+        if nb is not None:
+            return nb.project(features, parallel=not in_one_thread()).reshape(len(features), -1)
         if self._small is None:
             self._small = small_products_pay(self.dtype)
         fused = self._lstms[0][0]
         return L.project(features, fused.kernel, fused.blocks, self._small)
 
     def _full_head(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
+        batch, m = features.shape[:2]
+        nb = self._engine_for(batch)
+        if nb is not None:
+            parallel = not in_one_thread()
+            if proj1 is None:
+                proj1 = nb.project(features.transpose(1, 0, 2).reshape(m * batch, -1), parallel)
+            y, bad = nb(proj1.reshape(m * batch, 2, -1, 4), m, batch, parallel)
+            if bad:
+                self._overflow(f"BiLSTM {bad}")
+            if not np.isfinite(y).all():
+                self._overflow("the output layer")
+            return y.reshape(-1, self.config.n_out, self.config.dim)
         act = self.config.lstm_activation
         eps = self.config.layer_norm_eps
         h = features.transpose(1, 0, 2)   # time-major (m, B, k) through the BiLSTMs
@@ -375,8 +433,8 @@ class TPNet:
         cache = self.specialization is None
         with adaptive(self._kind("features", batch, sum(f.shape[0] for f in frames))):
             feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
-            proj = (list(self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1))
-                         .reshape(m, batch, -1)) if cache else None)
+            proj = (list(self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1),
+                                             batch).reshape(m, batch, -1)) if cache else None)
         counts = np.full(batch, self.config.n_out)
         kind = self._kind("rollout step", batch, self.config.n_out)
         for s in range(steps):
@@ -387,17 +445,19 @@ class TPNet:
                 flat = y.reshape(-1, self.config.dim)
                 feats[:, m + s] = self.frame_features(flat[canonical_order(flat, counts)], counts)
                 if cache and s + 1 < steps:
-                    proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s])]
+                    proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s], batch)]
         return out if normalized else self.denormalize(out)
 
 
-def load(path: str | os.PathLike | None = None, dtype: Any = "float32") -> TPNet:
+def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
+         engine: str = "numpy") -> TPNet:
     """A :class:`TPNet` from a native weights file; ``path=None`` loads the shipped m = 4 model
     (:func:`tpnet_ref.weights.native.default_weights_path`; a one-line ``FileNotFoundError``
-    when there is none). A file written by a specialised model loads specialised."""
+    when there is none). A file written by a specialised model loads specialised. ``engine``:
+    see :class:`TPNet`."""
     path = default_weights_path() if path is None else path
     config, params, meta = read_native(path)
-    return S.attach(TPNet(config, params, dtype, meta), path)   # specialised if the file says so
+    return S.attach(TPNet(config, params, dtype, meta, engine), path)   # specialised if the file says so
 
 
 def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:
