@@ -33,7 +33,8 @@ def _pin_env() -> int | None:
     env = dict(os.environ)
     k = sys.argv[sys.argv.index("--threads") + 1] if "--threads" in sys.argv else None
     if k is not None:
-        env.update(OPENBLAS_NUM_THREADS=k, OMP_NUM_THREADS=k, MKL_NUM_THREADS=k)
+        env.update(OPENBLAS_NUM_THREADS=k, OMP_NUM_THREADS=k, MKL_NUM_THREADS=k,
+                   NUMBA_NUM_THREADS=k)
     if "--blas-kernel" in sys.argv:
         env["OPENBLAS_CORETYPE"] = sys.argv[sys.argv.index("--blas-kernel") + 1]
     if env != dict(os.environ):
@@ -50,7 +51,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
 import tpnet_ref  # noqa: E402
-from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
+from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
 
 
 def machine() -> str:
@@ -112,7 +113,7 @@ import time
 t0 = time.perf_counter()
 import numpy as np, sys
 import tpnet_ref
-m = tpnet_ref.load(sys.argv[1])
+m = tpnet_ref.load(sys.argv[1], engine=sys.argv[2])
 y = tpnet_ref.predict(np.random.default_rng(0).uniform(5, 40, (4, 30, 2)), model=m)
 t1 = time.perf_counter()
 def hwm():  # peak resident set of this process image, MB (ru_maxrss would include the parent's)
@@ -127,10 +128,10 @@ print(t1 - t0, rss1, rss2, ",".join(bad))
 """
 
 
-def cold_start(weights: Path, runs: int = 3) -> tuple[float, float, float, str]:
+def cold_start(weights: Path, runs: int = 3, engine: str = "numpy") -> tuple[float, float, float, str]:
     res = []
     for _ in range(runs):
-        out = subprocess.run([sys.executable, "-c", COLD, str(weights)], check=True,
+        out = subprocess.run([sys.executable, "-c", COLD, str(weights), engine], check=True,
                              capture_output=True, text=True).stdout.split()
         res.append(out)
     t = float(np.median([float(r[0]) for r in res]))
@@ -160,6 +161,12 @@ def main(argv: list[str] | None = None) -> int:
     m_tn.threads = THREADS
     m_one = m32.astype("float32")
     m_one.threads = 1                     # the batch never split: one NumPy thread + the BLAS's
+    try:
+        nb32 = m32.with_engine("numba")   # the optional Numba engine (extra 'metrics')
+        nb64 = nb32.astype("float64")
+    except ImportError as exc:
+        nb32 = nb64 = None
+        print(f"engine='numba' skipped ({exc})")
     rng = np.random.default_rng(0)
     x1 = rng.uniform(0.1, 0.9, (1, 4, 30, 2)).astype(np.float32)
     x256 = rng.uniform(0.1, 0.9, (256, 4, 30, 2)).astype(np.float32)
@@ -176,6 +183,12 @@ def main(argv: list[str] | None = None) -> int:
     print("one-step prediction (normalised input, same weights):")
     measure("tpnet_ref float32", lambda x: m32.predict_batch(x, normalized=True))
     measure("tpnet_ref float64", lambda x: m64.predict_batch(x.astype(np.float64), normalized=True))
+    if nb32 is not None:
+        nb32.predict_batch(x1, normalized=True)          # compile (or load the cache) first
+        nb64.predict_batch(x1.astype(np.float64), normalized=True)
+        measure("tpnet_ref float32, engine=numba", lambda x: nb32.predict_batch(x, normalized=True))
+        measure("tpnet_ref float64, engine=numba",
+                lambda x: nb64.predict_batch(x.astype(np.float64), normalized=True))
     measure("tpnet_ref float32, transform nets computed",
             lambda x: m_tn.predict_batch(x, normalized=True))
     if (THREADS or 2) > 1:
@@ -201,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     naive = timeit(lambda: [m32.predict(w, normalized=True) for w in wins], t_min, 3)
     print(f"  rollout(window, 80)            {roll * 1e3:8.2f} ms  ({roll / 80 * 1e3:.3f} ms/frame)")
     print(f"  80 x predict(window)           {naive * 1e3:8.2f} ms  -> rollout is {naive / roll:.2f}x faster")
-    ort_roll = None
+    ort_roll = nb_roll = None
     if "onnxruntime" in peers:
         sess_fn = ort_fn
 
@@ -211,37 +224,49 @@ def main(argv: list[str] | None = None) -> int:
                 y = sess_fn(win)
                 win = np.concatenate([win[:, 1:], y[:, None]], axis=1)
 
-        roll_i, ort_i = [], []
+        roll_i, ort_i, nb_i = [], [], []
         for _ in range(3):      # interleaved
             roll_i.append(timeit(lambda: m32.rollout(w0, 80, normalized=True), t_min / 2, 3))
             ort_i.append(timeit(ort_loop, t_min / 2, 3))
+            if nb32 is not None:
+                nb_i.append(timeit(lambda: nb32.rollout(w0, 80, normalized=True), t_min / 2, 3))
         roll, ort_roll = float(np.median(roll_i)), float(np.median(ort_i))
         print(f"  onnxruntime looping its graph  {ort_roll * 1e3:8.2f} ms  ({ort_roll / 80 * 1e3:.3f} ms/frame); "
               f"tpnet_ref rollout interleaved {roll * 1e3:.2f} ms")
+        if nb_i:
+            nb_roll = float(np.median(nb_i))
+            print(f"  rollout, engine=numba          {nb_roll * 1e3:8.2f} ms  ({nb_roll / 80 * 1e3:.3f} ms/frame), interleaved")
 
-    busy = None
+    busy = nb_busy = None
     if not args.no_busy:
         print("\nB = 1 latency with one core busy (a second process spinning), interleaved with idle:")
         from tpnet_ref.blas import adaptive
-        kind = m32._kind("predict", 1, int(np.prod(x1.shape[1:3])))
-        name = {1: "one thread", 0: "all threads", None: "n/a (BLAS has one thread)"}
-        idle_t, busy_t, chose = [], [], {"idle": [], "busy": []}
-        for _ in range(3):
-            idle_t.append(timeit(lambda: m32.predict(x1[0], normalized=True), t_min / 2, 20))
-            chose["idle"].append(name[adaptive.preferred(kind)])
-            spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-            try:
-                time.sleep(0.2)
-                busy_t.append(timeit(lambda: m32.predict(x1[0], normalized=True), t_min / 2, 20))
-                chose["busy"].append(name[adaptive.preferred(kind)])
-            finally:
-                spin.kill()
-                spin.wait()
-        busy = float(np.median(busy_t)) / float(np.median(idle_t))
-        print(f"  idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
-              f"-> {busy:.2f}x")
-        print(f"  BLAS threads the policy (tpnet_ref.blas.adaptive) measured faster: idle "
-              f"{', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
+
+        def busy_idle(model, label: str) -> float:
+            kind = model._kind("predict", 1, int(np.prod(x1.shape[1:3])))
+            name = {1: "one thread", 0: "all threads", None: "n/a (BLAS has one thread)"}
+            idle_t, busy_t, chose = [], [], {"idle": [], "busy": []}
+            for _ in range(3):
+                idle_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 2, 20))
+                chose["idle"].append(name[adaptive.preferred(kind)])
+                spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                try:
+                    time.sleep(0.2)
+                    busy_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 2, 20))
+                    chose["busy"].append(name[adaptive.preferred(kind)])
+                finally:
+                    spin.kill()
+                    spin.wait()
+            ratio = float(np.median(busy_t)) / float(np.median(idle_t))
+            print(f"  {label}: idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
+                  f"-> {ratio:.2f}x")
+            print(f"    threads the policy (tpnet_ref.blas.adaptive) measured faster: idle "
+                  f"{', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
+            return ratio
+
+        busy = busy_idle(m32, "engine=numpy")
+        if nb32 is not None:
+            nb_busy = busy_idle(nb32, "engine=numba")
 
     print("\ncold start in a fresh process (import + load + first predict), peak memory:")
     import tempfile
@@ -249,12 +274,17 @@ def main(argv: list[str] | None = None) -> int:
         path = Path(d) / "w.h5"
         m32.save(path)
         cold, rss1, rss2, bad = cold_start(path)
-    print(f"  cold start {cold:.3f} s; peak RSS {rss1:.0f} MB after first predict, "
-          f"{rss2:.0f} MB after a B=256 batch; frameworks imported: {bad or 'none'}")
+        print(f"  cold start {cold:.3f} s; peak RSS {rss1:.0f} MB after first predict, "
+              f"{rss2:.0f} MB after a B=256 batch; frameworks imported: {bad or 'none'}")
+        nb_cold = None
+        if nb32 is not None:
+            nb_cold, nrss1, nrss2, nbad = cold_start(path, engine="numba")
+            print(f"  engine=numba (compiled code from numba's cache): cold start {nb_cold:.3f} s; "
+                  f"peak RSS {nrss1:.0f} / {nrss2:.0f} MB; imported: {nbad or 'none'}")
 
     r = rows
     ours = r["tpnet_ref float32"]
-    print("\nratios and targets:")
+    print(f"\nratios and targets, default settings (engine={m32.engine}):")
     checks = []
     if "onnxruntime" in r:
         lat_ratio = ours["b1_ms"] / r["onnxruntime"]["b1_ms"]
@@ -279,6 +309,29 @@ def main(argv: list[str] | None = None) -> int:
     for label, val, ok in checks:
         mark = "" if ok is None else ("  MET" if ok else "  NOT MET")
         print(f"  {label:58s} {val:8.3f}{mark}")
+    if nb32 is not None and "onnxruntime" in r:
+        nb = r["tpnet_ref float32, engine=numba"]
+        ort = r["onnxruntime"]
+        nchecks = [("B=1 latency / onnxruntime (target <= 1.0)", nb["b1_ms"] / ort["b1_ms"]),
+                   ("B=256 throughput / onnxruntime (target >= 1.25)",
+                    nb["b256_per_s"] / ort["b256_per_s"])]
+        if nb_roll is not None:
+            nchecks.append(("rollout time per frame / onnxruntime loop (target <= 1.0)",
+                            nb_roll / ort_roll))
+        if nb_busy is not None:
+            nchecks.append(("B=1 latency, one core busy / idle (target <= 1.5)", nb_busy))
+        nchecks += [("cold start seconds (target <= 1)", nb_cold),
+                    ("float64 / float32 time, B=1 (target <= 2.5)",
+                     r["tpnet_ref float64, engine=numba"]["b1_ms"] / nb["b1_ms"]),
+                    ("B=1 latency / engine=numpy B=1 latency", nb["b1_ms"] / ours["b1_ms"])]
+        print(f"\nratios and targets, engine=numba (batches above {ENGINE_MAX_BATCH} windows take the NumPy path):")
+        for label, val in nchecks:
+            lim = label.split("target ")[1].rstrip(")") if "target" in label else None
+            ok = None if lim is None else (val <= float(lim[2:]) if lim.startswith("<=")
+                                           else val >= float(lim[2:]))
+            mark = "" if ok is None else ("  MET" if ok else "  NOT MET")
+            print(f"  {label:58s} {val:8.3f}{mark}")
+            checks.append((f"engine=numba: {label}", val, ok))
     if args.json:
         Path(args.json).write_text(json.dumps(
             {"machine": machine(), "rows": rows, "peers": peers, "rollout_ms": roll * 1e3,

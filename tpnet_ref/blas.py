@@ -63,6 +63,17 @@ def _controllers() -> list[Any]:
     return _STATE["controllers"]
 
 
+def refresh() -> bool:
+    """Find the loaded BLAS libraries again at the next use (after importing a module that
+    loads another BLAS, as numba does with SciPy's). Only outside any :func:`one_thread`
+    block; returns whether it did."""
+    with _LOCK:
+        if _STATE["depth"] == 0:
+            _STATE["controllers"] = None
+            return True
+        return False
+
+
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """A one-thread BLAS inside the block (process-wide; the previous thread counts come back
@@ -229,5 +240,5 @@ def describe() -> str:
                      f"{d.get('architecture')} threads {d.get('num_threads')}" for d in info)
 
 
-__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread", "ThreadPolicy", "adaptive", "PROBE_EVERY", "single_threaded", "small_products_pay", "cpu_count",
+__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread", "refresh", "ThreadPolicy", "adaptive", "PROBE_EVERY", "single_threaded", "small_products_pay", "cpu_count",
            "describe"]

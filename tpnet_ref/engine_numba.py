@@ -5,20 +5,21 @@ compiled function. ``TPNet(..., engine="numba")`` or ``model.with_engine("numba"
 
 What it does that NumPy cannot:
 
-- one call per prediction instead of ~130 NumPy calls: the gates, cell and output of each unit are
-  computed in the same loop that finishes its pre-activations, LayerNorm and head included;
-- weights laid out at load for sequential reads: each direction's kernel ``(C, 4u)`` and recurrent
-  matrix ``(u, 4u)`` cut into blocks of ``ub`` units, ``(u / ub, C, 4 ub)`` with the four gates of
-  the block's units side by side, so a block's pre-activations are one contiguous stream of rows
-  multiplied into ``4 ub`` accumulators (``x[c] * row``, no horizontal sums);
-- rows multiplied by zero are skipped: a ReLU network's inputs and hidden states are often
-  exactly zero (``0 * w`` adds nothing), so their weight rows are never read from memory;
+- one call per prediction instead of ~130 NumPy calls (plus one for BiLSTM 1's input projection,
+  which a rollout computes once per frame): the gates, cell and output of each unit are computed
+  in the loop that finishes its pre-activations, LayerNorm and head included;
+- weights laid out at load for the products they feed: each direction's input kernel as each
+  unit's four gate rows ``(u, 4, C)`` (four dot products with contiguous rows, every weight row
+  read once for four input rows); the recurrent matrix as Keras stores it ``(u, 4u)``, row ``k``
+  added ``h[k]`` times into the ``4u`` pre-activations, and rows with ``h[k] == 0`` not read at
+  all (a ReLU LSTM's state is often half zeros; skipping whole 8 KB rows keeps the reads
+  sequential);
 - the two directions of a layer run in parallel (``prange`` over the direction: each direction's
   whole recurrence on one thread, no synchronisation between steps).
 
-Determinism: every number is computed by one thread in a fixed order (the order of the weight
-rows), so the result does not depend on the thread count (bit for bit) or on the other windows
-of a batch; the canonical point order before the extractor keeps permutation invariance exact.
+Determinism: every number is computed by one thread in a fixed order (the same compiled code
+whatever the thread count), so the result does not depend on the thread count (bit for bit) or
+on the other windows of a batch; the canonical point order before the extractor keeps permutation invariance exact.
 Products accumulate in the model's dtype (as the BLAS does); LayerNorm statistics in float64.
 """
 from __future__ import annotations
@@ -28,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from . import blas
 from .extras import require
 
 numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
@@ -60,18 +62,10 @@ def _act(x, relu, zero):
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _dot(w, v, zero):
-    """``sum_k w[k] v[k]`` in the dtype of ``zero``, vectorised (partial sums in a fixed order:
-    the same machine code, hence the same bits, on every thread and every call)."""
-    a = zero
-    for k in range(v.shape[0]):
-        a += w[k] * v[k]
-    return a
-
-
-@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _dot4(w, x0, x1, x2, x3, zero):
-    """Four dot products with one row ``w``, read once: ``(w . x0, w . x1, w . x2, w . x3)``."""
+    """Four dot products with one row ``w``, read once: ``(w . x0, w . x1, w . x2, w . x3)``,
+    vectorised (partial sums in a fixed order: the same machine code, hence the same bits, on
+    every thread and for every row)."""
     a0 = zero
     a1 = zero
     a2 = zero
@@ -112,35 +106,43 @@ def _project_dir(x, k, bias, out, d):
 def _recur_dir(xs, rec, out, d, steps, bsz, relu, one):
     """One direction's recurrence over ``steps`` steps of ``bsz`` windows.
 
-    ``xs (T*B, 2, u, 4)`` input projections with bias (row ``t*B + b``), ``rec (u, 4, u)`` the
-    recurrent matrix's rows (unit, gate), ``out (T*B, 2u)`` receives ``h`` at columns
-    ``d*u ..`` (Keras's re-aligned backward output: row ``t`` of the backward direction is its
-    state after consuming steps ``T-1 .. t``)."""
+    ``xs (T*B, 2, u, 4)`` input projections with bias (row ``t*B + b``), ``rec (u, 4u)`` the
+    recurrent matrix as Keras stores it (row ``k``: what ``h[k]`` adds to the 4u gate
+    pre-activations), ``out (T*B, 2u)`` receives ``h`` at columns ``d*u ..`` (Keras's
+    re-aligned backward output: row ``t`` of the backward direction is its state after
+    consuming steps ``T-1 .. t``). Each window is computed on its own, and only the rows of
+    ``rec`` whose ``h[k]`` is non-zero are read (whole contiguous rows: a ReLU LSTM's state is
+    often half zeros)."""
     u = rec.shape[0]
+    n4 = rec.shape[1]
     zero = one - one
-    h = np.zeros((bsz, u), dtype=out.dtype)
-    hn = np.empty((bsz, u), dtype=out.dtype)
-    c = np.zeros((bsz, u), dtype=out.dtype)
-    for s in range(steps):
-        t = s if d == 0 else steps - 1 - s
-        for j in range(u):
-            w = rec[j]
-            for b in range(bsz):
-                z = xs[t * bsz + b, d, j]
-                if s == 0:                          # h = 0: no recurrent product
-                    zi, zf, zc, zo = z[0], z[1], z[2], z[3]
-                else:
-                    hb = h[b]
-                    zi = _dot(w[0], hb, zero) + z[0]
-                    zf = _dot(w[1], hb, zero) + z[1]
-                    zc = _dot(w[2], hb, zero) + z[2]
-                    zo = _dot(w[3], hb, zero) + z[3]
-                cc = _sigmoid(zf, one) * c[b, j] + _sigmoid(zi, one) * _act(zc, relu, zero)
-                c[b, j] = cc
+    h = np.zeros(u, dtype=out.dtype)
+    c = np.zeros(u, dtype=out.dtype)
+    acc = np.empty(n4, dtype=out.dtype)
+    for b in range(bsz):
+        h[:] = 0
+        c[:] = 0
+        for s in range(steps):
+            t = s if d == 0 else steps - 1 - s
+            acc[:] = 0
+            if s > 0:
+                for k in range(u):
+                    hv = h[k]
+                    if hv != 0:
+                        w = rec[k]
+                        for q in range(n4):
+                            acc[q] += hv * w[q]
+            z = xs[t * bsz + b, d]
+            for j in range(u):
+                zi = acc[j] + z[j, 0]
+                zf = acc[u + j] + z[j, 1]
+                zc = acc[2 * u + j] + z[j, 2]
+                zo = acc[3 * u + j] + z[j, 3]
+                cc = _sigmoid(zf, one) * c[j] + _sigmoid(zi, one) * _act(zc, relu, zero)
+                c[j] = cc
                 hh = _sigmoid(zo, one) * _act(cc, relu, zero)
-                hn[b, j] = hh
+                h[j] = hh
                 out[t * bsz + b, d * u + j] = hh
-        h[:] = hn
 
 
 def _head_impl(xp1, kernels, recs, biases, gammas, betas, head_w, head_b, steps, bsz,
@@ -157,7 +159,7 @@ def _head_impl(xp1, kernels, recs, biases, gammas, betas, head_w, head_b, steps,
     cast = np.empty(1, dtype=dt)
     for li in range(nl):
         rec = recs[li]
-        u = rec.shape[1]
+        u = rec.shape[1]       # (2, u, 4u)
         if li > 0:
             xs = np.empty((steps * bsz, 2, u, 4), dtype=dt)
         out = np.empty((steps * bsz, 2 * u), dtype=dt)
@@ -224,6 +226,14 @@ _project_parallel = njit(cache=True, nogil=True, parallel=True)(_project_impl)
 
 #: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
 _PARALLEL = threading.Lock()
+_LOADED = [False]
+
+
+def _loaded() -> None:
+    """After the first kernel call (numba has then loaded SciPy's BLAS as well), let
+    :mod:`tpnet_ref.blas` find every BLAS again, so its thread limits cover them all."""
+    if not _LOADED[0]:
+        _LOADED[0] = blas.refresh()
 
 
 class NumbaHead:
@@ -238,9 +248,9 @@ class NumbaHead:
         kernels, recs, biases = [], [], []
         for i, u in enumerate(config.lstm_units, start=1):
             lay = {k: np.stack([unit_rows(params[f"lstm{i}.{d}.{k}"]) for d in ("fwd", "bwd")])
-                   for k in ("kernel", "recurrent", "bias")}
+                   for k in ("kernel", "bias")}
             kernels.append(lay["kernel"])             # (2, u, 4, C)
-            recs.append(lay["recurrent"])             # (2, u, 4, u)
+            recs.append(np.stack([params[f"lstm{i}.{d}.recurrent"] for d in ("fwd", "bwd")]))
             biases.append(lay["bias"])                # (2, u, 4)
         self.kernels, self.recs, self.biases = tuple(kernels), tuple(recs), tuple(biases)
         n = len(config.lstm_units)
@@ -272,6 +282,7 @@ class NumbaHead:
         args = (np.ascontiguousarray(xp1), self.kernels, self.recs, self.biases, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
+        _loaded()
         if parallel and _PARALLEL.acquire(blocking=False):
             try:
                 return _head_parallel(*args)
