@@ -69,22 +69,41 @@ def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
 
 
 def plot_groups(groups: dict[str, Sequence[Curve]], path: str | os.PathLike) -> Path:
-    """Generalisation: E_p vs prediction step, one panel per group of scenes (ordering given)."""
+    """Generalisation: E_p vs prediction step, one panel per group of scenes (ordering given).
+
+    One colour per model (its m in the label), the baselines in grey (copy last, dashed) and
+    orange (constant velocity, dotted) for every m; one legend below the panels."""
     plt = _plt()
-    fig, axes = plt.subplots(1, len(groups), figsize=(4 * len(groups), 3.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(groups), figsize=(4.6 * len(groups), 4.4), squeeze=False)
+    style = {"copy last": ("0.55", "--"), "constant velocity": ("tab:orange", ":")}
+    model_colours = ("tab:blue", "tab:green", "tab:purple", "tab:red", "tab:brown")
+    handles: dict[str, Any] = {}
     for j, (g, cs) in enumerate(groups.items()):
         ax = axes[0, j]
+        ms = sorted({c.m for c in cs})
         for c in cs:
-            if c.ordering == "given":
-                ax.plot(np.arange(1, c.err[f"Ep_{HEADLINE}"].shape[1] + 1), c.mean(), lw=1.2,
-                        label=f"{c.name} (m={c.m})")
+            if c.ordering != "given":
+                continue
+            h = np.arange(1, c.err[f"Ep_{HEADLINE}"].shape[1] + 1)
+            if c.name in style:
+                col, ls = style[c.name]
+                label = f"{c.name} (m = {', '.join(map(str, ms))})"
+                line, = ax.plot(h, c.mean(), color=col, ls=ls, lw=1.0)
+            else:
+                col = model_colours[ms.index(c.m) % len(model_colours)]
+                label = f"{c.name} (m = {c.m})"
+                line, = ax.plot(h, c.mean(), color=col, lw=1.6)
+            handles.setdefault(label, line)
         ax.set_title(g)
         ax.set_yscale("log")
         ax.set_xlabel("prediction step h")
+        ax.set_ylabel(f"position error E_p ({HEADLINE})")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].set_ylabel(f"E_p ({HEADLINE})")
-    axes[0, -1].legend(fontsize=7)
-    fig.tight_layout()
+    fig.suptitle("Outside the training ranges: position error against prediction step "
+                 "(mean over the group's cases, normalised coordinates)", fontsize=11)
+    fig.legend(list(handles.values()), list(handles.keys()), loc="lower center",
+               ncol=min(len(handles), 5), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.1 if len(handles) <= 5 else 0.15, 1, 1))
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return Path(path)
@@ -113,6 +132,7 @@ def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
     ax.set_yscale("log")
     ax.set_xlabel("ms per predicted frame (one rollout)")
     ax.set_ylabel(f"E_p ({HEADLINE}), hollow @{HORIZONS[0]}, filled @{HORIZONS[1]}")
+    ax.set_title("Position error against run time (held-out cases)", fontsize=11)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
@@ -159,9 +179,14 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
             if i == 0:
                 ax.set_title(f"prediction {h}" + (f" (frame {m - 1 + h})" if m else ""),
                              fontsize=8)
-            if j == 0 and case_labels is not None:
-                ax.set_ylabel(case_labels[i], fontsize=7)
+            if j == 0:
+                ax.set_ylabel((case_labels[i] + "\n" if case_labels is not None else "")
+                              + "y (world units)", fontsize=7)
+            if i == C - 1:
+                ax.set_xlabel("x (world units)", fontsize=7)
     axes[0, -1].legend(fontsize=6, loc="upper right")
+    fig.suptitle("Simulated (dots) and predicted (crosses) rings on held-out cases; each panel "
+                 "zoomed on its own, equal aspect, walls in grey", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
