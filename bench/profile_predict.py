@@ -107,6 +107,45 @@ def cold_blocks(model, reps: int = 11) -> None:
             print(f"  {c}x{n}: " + ", ".join(row))
 
 
+def engine_numba(model, window, calls: int = 200) -> None:
+    """The numba engine's prediction network against the NumPy one, inside whole predictions
+    (weights from memory), serial and with the two directions in parallel (medians)."""
+    try:
+        nb = model.with_engine("numba")
+    except ImportError as exc:
+        print(f"\nengine=numba skipped ({exc})")
+        return
+    from tpnet_ref.blas import one_thread
+    counts = np.full(4, 30)
+    pts = model.normalize(window.reshape(-1, 2).astype(np.float32))
+    pts = pts[canonical_order(pts, counts)]
+    g = model.frame_features(pts, counts).reshape(1, 4, -1)
+
+    def serial(fn):
+        def run():
+            with one_thread():
+                fn()
+        return run
+
+    fns = {"NumPy head, BLAS threads": lambda: model._full_head(g),
+           "NumPy head, one thread": serial(lambda: model._full_head(g)),
+           "numba head, directions in parallel": lambda: nb._full_head(g),
+           "numba head, serial": serial(lambda: nb._full_head(g)),
+           "predict, engine=numpy": lambda: model.predict(window),
+           "predict, engine=numba": lambda: nb.predict(window)}
+    ts: dict[str, list[float]] = {k: [] for k in fns}
+    for f in fns.values():
+        f()
+    for _ in range(calls):                  # interleaved
+        for k, f in fns.items():
+            t = time.perf_counter()
+            f()
+            ts[k].append(time.perf_counter() - t)
+    print(f"\nprediction network (BiLSTMs, LayerNorms, head) of one window, {calls} interleaved calls:")
+    for k, v in ts.items():
+        print(f"  {k:40s} {np.median(v) * 1e6:8.1f} us")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.parse_args(argv)
@@ -152,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'predict(window), measured whole':66s} {total * 1e6:8.1f}")
     in_sequence(model, window)
     cold_blocks(model)
+    engine_numba(model, window)
 
     # B = 256: the split between the two halves, and the share of matrix products in the head
     big = rng.uniform(5, 40, (256, 4, 30, 2))
