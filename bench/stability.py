@@ -60,9 +60,12 @@ def spin_table() -> None:
     print("## spinning particles: impulse at the ring centre, 3,000 steps, sleep off")
     print("| case | finite | min / max centre | max abs(w) dt / (pi/2) | max E_total / E0 | "
           "E_total end / E0 | spinning particles at the end |")
+    print("|" + "---|" * 7)
     limit = 0.5 * math.pi
-    for name, args, kw in (("F=1.6, 200 deg, start (41.9, 41.2) (corner)", (1.6, 200, 41.9, 41.2), {}),
-                           ("F=1.6, 270 deg, start (41.9, 31.7) (floor)", (1.6, 270, 41.9, 31.7), {}),
+    for name, args, kw in (("F=1.6, 200 deg, start (41.9, 41.2) (corner)",
+                            (1.6, 200, 41.9, 41.2), {}),
+                           ("F=1.6, 270 deg, start (41.9, 31.7) (floor)",
+                            (1.6, 270, 41.9, 31.7), {}),
                            ("F=1.0, 180 deg, start (2.9, 2.9) (corner)", (1.0, 180, 2.9, 2.9), {}),
                            ("F=16, 225 deg, start (30, 30)", (16.0, 225, 30, 30), {}),
                            ("F=16, 225 deg, no rotation clamp", (16.0, 225, 30, 30),
@@ -95,6 +98,7 @@ def first_step() -> None:
     print("## first step, free flight: F=1.6, 45 deg, start (22, 22), no walls, no gravity")
     print("| impulse point | max abs(w) built (rad/s) | E built | of it rotational | "
           "E after step 1 | of it rotational | max abs(w) after step 1 | E after 2,001 steps |")
+    print("|" + "---|" * 8)
     for ip in ("ring_centre", "particle_centre"):
         p = SceneParams(walls=False, gravity=(0.0, 0.0), impulse_point=ip)
         sc = build_scene(22.0, 22.0, 1.6, 45.0, p)
@@ -116,6 +120,7 @@ def long_table() -> None:
     print("## long runs: 10,000 steps, damping ratio 0, sleep off (E0: after the first step)")
     print("| case | max E / E0 | largest one-step rise of E / E0 | E end / E0 | "
           "E0 / E_built (first step's rotation clamp) | min / max centre |")
+    print("|" + "---|" * 6)
     for name, kw, args in (("1 Hz, walls, F=1.6", {}, (1.6, 225, 30, 30)),
                            ("1 Hz, wall restitution 1", {"wall_restitution": 1.0},
                             (1.6, 225, 30, 30)),
@@ -160,6 +165,7 @@ def main() -> int:
           "(E0: after the first step)")
     print("| f (Hz) | omega dt | finite | min centre | max centre | max abs(L-L0) | "
           "Box2D max abs(L-L0) | max E_motion / E0 | max E_total / E0 | naive pymunk | ms |")
+    print("|" + "---|" * 11)
     for f in (1, 2, 5, 20, 100, 1000):
         t = time.perf_counter()
         tr, em, et = run(1.6, 225, 30, 30, 600, frequency=f, sleep=False)
@@ -179,6 +185,7 @@ def main() -> int:
     print("## impulses: 8 directions, start (41, 41) and (4, 4), 600 steps")
     print("| force | clamp (Box2D max translation 2/step) | min centre | max centre | "
           "max speed (units/s) |")
+    print("|" + "---|" * 5)
     for force in (1.6, 4.0, 8.0, 16.0, 160.0):
         for clamp in (2.0, None):
             lo, hi, vmax = 99.0, -99.0, 0.0
