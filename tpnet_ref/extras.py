@@ -11,7 +11,7 @@ from types import ModuleType
 
 #: what each extra enables (pyproject.toml [project.optional-dependencies] has the pins)
 EXTRAS: dict[str, str] = {
-    "metrics": "the Chamfer metrics (numba)",
+    "metrics": "the Chamfer metrics and the Numba inference engine (numba)",
     "sim": "the soft-body simulator (pymunk, numba)",
     "plot": "figures (matplotlib)",
     "eval": "the evaluation protocol and the demo (metrics, sim, plot, tqdm)",
