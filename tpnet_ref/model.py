@@ -1,4 +1,4 @@
-"""TP-Net in NumPy: the config, the parameters and the forward pass (SPEC §2).
+"""TP-Net in NumPy: the config, the parameters and the forward pass (docs/spec.md §2).
 
 Data flow for one window of ``m`` frames (``N`` points each, normalised coordinates):
 
@@ -196,7 +196,7 @@ class TPNet:
 
     # ------------------------------------------------------------ coordinates
     def normalize(self, x: np.ndarray) -> np.ndarray:
-        """World units -> model coordinates (SPEC §5)."""
+        """World units -> model coordinates (docs/spec.md §5)."""
         return (x - self._lo) / self._scale
 
     def denormalize(self, x: np.ndarray) -> np.ndarray:

@@ -489,7 +489,8 @@ def start_spin(start: np.ndarray, x: float, y: float, force: float, angle_deg: f
     """``(N,)`` angular velocity (rad/s) each particle starts with: ``(c - p_i) x J / I`` for an
     impulse ``J = force (cos a, sin a)`` applied at the ring centre ``c = (x, y)`` (Box2D's
     ``ApplyLinearImpulse``), zero for ``impulse_point="particle_centre"``. With the paper's values
-    the lever arm is the ring radius, so up to ~4,000 rad/s at F = 1.6 (bench/stability.py --first-step: 4,019); Box2D's solver then limits the
+    the lever arm is the ring radius, so up to ~4,000 rad/s at F = 1.6 (bench/stability.py
+    --first-step: 4,019); Box2D's solver then limits the
     rotation to ``max_rotation`` per step (pi/2, i.e. 70.7 rad/s at dt = 1/45) after the first
     step's velocity solve."""
     if params.impulse_point == "particle_centre":
