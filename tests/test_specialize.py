@@ -119,6 +119,26 @@ def test_native_round_trip_is_exact(tmp_path, scene):
     plain = tmp_path / "plain.h5"
     tpnet_ref.load().save(plain)
     assert S.read(plain) is None
+    again = tmp_path / "again.h5"
+    scene.save(again)                                   # TPNet.save keeps the masks too
+    assert tpnet_ref.load(again).specialization is not None
+
+
+def test_hostile_specialisation_groups_are_refused(tmp_path, scene):
+    import h5py
+    path = tmp_path / "scene.h5"
+    S.save(scene, path)
+    name = next(iter(scene.specialization.used))
+    with h5py.File(path, "r+") as f:                    # a mask replaced by a link
+        f.move(f"{S.GROUP}/{name}", "elsewhere")
+        f[f"{S.GROUP}/{name}"] = h5py.SoftLink("/elsewhere")
+    with pytest.raises(ValueError, match="links are not accepted"):
+        tpnet_ref.load(path)
+    with h5py.File(path, "r+") as f:                    # a mask of values other than 0/1
+        del f[f"{S.GROUP}/{name}"]
+        f[f"{S.GROUP}/{name}"] = np.full(8, 7, np.uint8)
+    with pytest.raises(ValueError, match="other than 0 and 1"):
+        tpnet_ref.load(path)
 
 
 def test_float64_specialisation_and_tanh_refused():

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from . import layers as L
+from .weights.hdf5 import attr, safe_dataset, safe_group
 
 #: name of the HDF5 group that holds a specialisation in the native weights file
 GROUP = "specialization"
@@ -234,18 +235,21 @@ def write(path: str | os.PathLike, used: dict[str, np.ndarray], **attrs: Any) ->
 
 
 def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
-    """The masks of a native weights file's ``specialization`` group, or None without one."""
+    """The masks of a native weights file's ``specialization`` group, or None without one. The
+    file is untrusted: links, external storage and oversized datasets are refused
+    (:mod:`tpnet_ref.weights.hdf5`)."""
     import h5py
+    where = str(path)
     with h5py.File(path, "r") as f:
         if GROUP not in f:
             return None
-        g = f[GROUP]
-        if not isinstance(g, h5py.Group) or g.attrs.get("format") not in (FORMAT, FORMAT.encode()):
+        g = safe_group(f, GROUP, where)
+        if attr(g, "format", where) not in (FORMAT, FORMAT.encode()):
             raise ValueError(f"{path}: group {GROUP!r} is not a {FORMAT} specialisation")
         out = {}
         for k in g:
-            d = g[k]
-            if not isinstance(d, h5py.Dataset) or d.ndim != 1 or d.size > 1 << 20:
+            d = safe_dataset(g, k, where)
+            if d.ndim != 1 or d.size > 1 << 20 or d.dtype.kind not in "uib":
                 raise ValueError(f"{path}: {GROUP}/{k} is not a mask")
             a = np.asarray(d[()])
             if not np.isin(a, (0, 1)).all():

@@ -100,18 +100,25 @@ def damaged_file_is_value_error(fn: Callable) -> Callable:
     return wrapper
 
 
-def safe_dataset(group: Any, name: str, where: str) -> Any:
-    """The dataset ``group[name]`` if it is a plain, internal, non-virtual dataset."""
+def _hard_child(parent: Any, name: str, where: str, kind: str, missing: type) -> Any:
+    """``parent[name]`` if it is reached by a hard link and is an h5py ``kind``
+    ("Dataset" or "Group"); ``missing`` is the exception raised when there is none."""
     import h5py
 
-    link = group.get(name, getlink=True)
+    link = parent.get(name, getlink=True)
     if link is None:
-        raise KeyError(f"{where}: missing dataset {name!r}")
+        raise missing(f"{where}: missing {kind.lower()} {name!r}")
     if not isinstance(link, h5py.HardLink):
         raise ValueError(f"{where}: {name!r} is a {type(link).__name__}; links are not accepted")
-    ds = group[name]
-    if not isinstance(ds, h5py.Dataset):
-        raise ValueError(f"{where}: {name!r} is not a dataset")
+    obj = parent[name]
+    if not isinstance(obj, getattr(h5py, kind)):
+        raise ValueError(f"{where}: {name!r} is not a {kind.lower()}")
+    return obj
+
+
+def safe_dataset(group: Any, name: str, where: str) -> Any:
+    """The dataset ``group[name]`` if it is a plain, internal, non-virtual dataset."""
+    ds = _hard_child(group, name, where, "Dataset", KeyError)
     if ds.is_virtual or ds.external:
         raise ValueError(f"{where}: {name!r} stores its data outside the file; refused")
     return ds
@@ -119,16 +126,7 @@ def safe_dataset(group: Any, name: str, where: str) -> Any:
 
 def safe_group(parent: Any, name: str, where: str) -> Any:
     """The group ``parent[name]`` if it is reached by a hard link."""
-    import h5py
-
-    link = parent.get(name, getlink=True)
-    if link is None:
-        raise ValueError(f"{where}: missing group {name!r}")
-    if not isinstance(link, h5py.HardLink):
-        raise ValueError(f"{where}: {name!r} is a link; links are not accepted")
-    if not isinstance(parent[name], h5py.Group):
-        raise ValueError(f"{where}: {name!r} is not a group")
-    return parent[name]
+    return _hard_child(parent, name, where, "Group", ValueError)
 
 
 def safe_child(group: Any, name: str, where: str) -> Any:
