@@ -15,7 +15,9 @@ from typing import Any as _Any
 
 import numpy as _np
 
+from .checks import warn_outside_training_range as _warn_outside_training_range
 from .config import TPNetConfig
+from .config import normalize as _normalize
 from .model import TPNet, init_random, load
 
 __version__ = "0.2.0"
@@ -36,15 +38,17 @@ def _model(model: TPNet | None) -> TPNet:
 
 def _range_check(net: TPNet, windows: _Any, normalized: bool, name: str) -> None:
     """One-line warning for (already validated) input outside the training range."""
-    from .checks import warn_outside_training_range
     c = net.config
-    if isinstance(windows, _np.ndarray):
-        frames = list(_np.asarray(windows, dtype=_np.float64).reshape(-1, *windows.shape[-2:]))
+
+    def model_units(x: _Any) -> _np.ndarray:
+        x = _np.asarray(x, dtype=_np.float64)
+        return x if normalized else _normalize(x, c.norm_lo, c.norm_hi)
+
+    if isinstance(windows, _np.ndarray):                # one (F, N, 2) array, checked at once
+        frames = model_units(windows).reshape(-1, *windows.shape[-2:])
     else:
-        frames = [_np.asarray(f, dtype=_np.float64) for w in windows for f in w]
-    if not normalized:
-        frames = [(f - c.norm_lo) / (c.norm_hi - c.norm_lo) for f in frames]
-    warn_outside_training_range(frames, c.norm_lo, c.norm_hi, name, normalized)
+        frames = [model_units(f) for w in windows for f in w]
+    _warn_outside_training_range(frames, c.norm_lo, c.norm_hi, name, normalized)
 
 
 def predict(window: _Any, model: TPNet | None = None, normalized: bool = False) -> _np.ndarray:

@@ -81,14 +81,21 @@ RADIUS_RANGE = (1.0, 3.0)
 RADIUS_MIN_POINTS = 20
 
 
-def training_range_problem(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
-                           normalized: bool = False) -> str | None:
-    """Why ``frames`` (each ``(N_i, 2)``, model coordinates) lie outside the training range, or
-    ``None``. ``norm_lo``, ``norm_hi``: the model's world-unit normalisation; ``normalized``:
-    whether the caller passed model coordinates (for the hint)."""
+def training_range_problem(frames: np.ndarray | list[np.ndarray], norm_lo: float,
+                           norm_hi: float, normalized: bool = False) -> str | None:
+    """Why ``frames`` (model coordinates: an ``(F, N, 2)`` array, or a list of ``(N_i, 2)``
+    frames) lie outside the training range, or ``None``. ``norm_lo``, ``norm_hi``: the model's
+    world-unit normalisation; ``normalized``: whether the caller passed model coordinates (for
+    the hint)."""
     scale = norm_hi - norm_lo
-    lo = min(float(f.min()) for f in frames)
-    hi = max(float(f.max()) for f in frames)
+    if isinstance(frames, np.ndarray):
+        groups = [frames]
+    elif len({f.shape[0] for f in frames}) == 1:
+        groups = [np.stack(frames)]                     # (F, N, 2) at once when N is shared
+    else:
+        groups = [f[None] for f in frames]
+    lo = min(float(g.min()) for g in groups)
+    hi = max(float(g.max()) for g in groups)
     if lo < RANGE_LO or hi > RANGE_HI:
         if normalized:
             hint = (" (world units passed as normalized=True / --normalized?)" if hi > 2.0
@@ -98,9 +105,6 @@ def training_range_problem(frames: list[np.ndarray], norm_lo: float, norm_hi: fl
         return (f"coordinates span [{lo * scale + norm_lo:.3g}, {hi * scale + norm_lo:.3g}] world "
                 f"units, outside the training box [{norm_lo:g}, {norm_hi:g}]"
                 )
-    sizes = {f.shape[0] for f in frames}
-    groups = ([np.stack(frames)] if len(sizes) == 1
-              else [f[None] for f in frames])           # (F, N, 2) at once when N is shared
     for g in groups:
         if g.shape[1] < RADIUS_MIN_POINTS:
             continue
@@ -115,7 +119,7 @@ def training_range_problem(frames: list[np.ndarray], norm_lo: float, norm_hi: fl
     return None
 
 
-def warn_outside_training_range(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
+def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: float, norm_hi: float,
                                 name: str, normalized: bool = False,
                                 stacklevel: int = 4) -> None:
     """One-line :class:`OutsideTrainingRangeWarning` if :func:`training_range_problem` finds one."""
