@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import threading
 import time
 from collections import deque
@@ -39,7 +40,7 @@ SMALL_PRODUCT = 1_000_000
 BLOCK_COLUMNS = 64
 
 _LOCK = threading.Lock()
-_STATE: dict[str, Any] = {"controllers": None, "depth": 0, "saved": []}
+_STATE: dict[str, Any] = {"controllers": None, "modules": 0, "depth": 0, "saved": []}
 _SMALL: dict[str, bool] = {}
 
 
@@ -52,26 +53,20 @@ def cpu_count() -> int:
 
 
 def _controllers() -> list[Any]:
-    """threadpoolctl's controllers of the loaded BLAS libraries (found once, cached)."""
-    if _STATE["controllers"] is None:
+    """threadpoolctl's controllers of the loaded BLAS libraries, cached, and found again
+    (outside any :func:`one_thread` block) whenever modules were imported since the last look:
+    an import may load another BLAS, as numba does with SciPy's, which the thread limits must
+    cover too. In a steady state this is one ``len(sys.modules)``."""
+    n = len(sys.modules)
+    if _STATE["controllers"] is None or (_STATE["modules"] != n and _STATE["depth"] == 0):
         try:
             from threadpoolctl import ThreadpoolController
             ctl = ThreadpoolController()
             _STATE["controllers"] = [c for c in ctl.lib_controllers if c.user_api == "blas"]
         except Exception:   # threadpoolctl missing or unable to inspect: leave the BLAS alone
             _STATE["controllers"] = []
+        _STATE["modules"] = len(sys.modules)
     return _STATE["controllers"]
-
-
-def refresh() -> bool:
-    """Find the loaded BLAS libraries again at the next use (after importing a module that
-    loads another BLAS, as numba does with SciPy's). Only outside any :func:`one_thread`
-    block; returns whether it did."""
-    with _LOCK:
-        if _STATE["depth"] == 0:
-            _STATE["controllers"] = None
-            return True
-        return False
 
 
 @contextlib.contextmanager
@@ -101,9 +96,6 @@ def in_one_thread() -> bool:
     return _STATE["depth"] > 0
 
 
-#: the name under which earlier versions offered :func:`one_thread`
-single_threaded = one_thread
-
 #: :class:`ThreadPolicy`: every this many calls of one kind, the choice not currently preferred
 PROBE_EVERY = 8
 #: :class:`ThreadPolicy`: latencies kept per choice (their median decides)
@@ -117,8 +109,9 @@ class ThreadPolicy:
     Per kind (any hashable, e.g. ``("predict", dtype, points)``) it keeps the last :data:`KEEP`
     latencies of each choice; it runs the choice with the lower median and, every
     :data:`PROBE_EVERY` calls, the other one (less often while the probes lose clearly), so a
-    change of load (another process taking a core, then leaving) moves the choice. Inside an enclosing :func:`one_thread`
-    block, or when the BLAS has one thread anyway, it changes nothing. ``TPNET_BLAS_THREADS=1``
+    change of load (another process taking a core, then leaving) moves the choice. Inside an
+    enclosing :func:`one_thread` block, or when the BLAS has one thread anyway, it changes
+    nothing. ``TPNET_BLAS_THREADS=1``
     or ``=all`` fixes the choice. Thread-safe; about 2 us per call.
     """
 
@@ -240,5 +233,5 @@ def describe() -> str:
                      f"{d.get('architecture')} threads {d.get('num_threads')}" for d in info)
 
 
-__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread", "refresh", "ThreadPolicy", "adaptive", "PROBE_EVERY", "single_threaded", "small_products_pay", "cpu_count",
-           "describe"]
+__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread",
+           "ThreadPolicy", "adaptive", "PROBE_EVERY", "small_products_pay", "cpu_count", "describe"]

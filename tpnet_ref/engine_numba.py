@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 
-from . import blas
 from .extras import require
 
 numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
@@ -226,14 +225,6 @@ _project_parallel = njit(cache=True, nogil=True, parallel=True)(_project_impl)
 
 #: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
 _PARALLEL = threading.Lock()
-_LOADED = [False]
-
-
-def _loaded() -> None:
-    """After the first kernel call (numba has then loaded SciPy's BLAS as well), let
-    :mod:`tpnet_ref.blas` find every BLAS again, so its thread limits cover them all."""
-    if not _LOADED[0]:
-        _LOADED[0] = blas.refresh()
 
 
 class NumbaHead:
@@ -282,7 +273,6 @@ class NumbaHead:
         args = (np.ascontiguousarray(xp1), self.kernels, self.recs, self.biases, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
-        _loaded()
         if parallel and _PARALLEL.acquire(blocking=False):
             try:
                 return _head_parallel(*args)

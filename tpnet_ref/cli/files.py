@@ -7,8 +7,12 @@ from typing import Any
 import numpy as np
 
 
-def output_path(path: str, what: str = "output") -> Path:
-    """``path`` as given (no suffix added), after checking its directory exists."""
+def output_path(path: str, what: str = "output", suffix: str | None = None) -> Path:
+    """``path`` as given (no suffix added), after checking its directory exists and, with
+    ``suffix``, that it ends in it."""
+    if suffix is not None and not str(path).lower().endswith(suffix):
+        raise ValueError(f"{what} {path}: must end in {suffix} (the file is written as {suffix}, "
+                         "exactly at the path given)")
     p = Path(path)
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():

@@ -1,8 +1,9 @@
 """``tpnet sim run`` and ``tpnet sim show``: one trajectory of the scene to a .npy file or a PNG."""
 from __future__ import annotations
 
-import os
 from typing import Any
+
+from .files import output_path, save_npy
 
 
 def add_cli(sub: Any) -> None:
@@ -43,17 +44,6 @@ def _scene_flags(q: Any) -> None:
                    help="allow Box2D island sleeping (the released world: off)")
 
 
-def output_path(path: str, suffix: str, flag: str = "--output") -> str:
-    """``path`` if it ends in ``suffix`` and its directory exists, else a one-line ValueError."""
-    if not path.lower().endswith(suffix):
-        raise ValueError(f"{flag}: {path!r} must end in {suffix} (the file is written as "
-                         f"{suffix}, exactly at the path given)")
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise ValueError(f"{flag}: directory {folder!r} does not exist")
-    return path
-
-
 def _trajectory(args: Any, include_initial: bool = False) -> Any:
     from ..sim.scene import simulate
     return simulate(args.force, args.angle, args.x, args.y, args.steps,
@@ -63,11 +53,9 @@ def _trajectory(args: Any, include_initial: bool = False) -> Any:
 
 
 def _cli_run(args: Any) -> int:
-    import numpy as np
-    path = output_path(args.output, ".npy")
+    output_path(args.output, "--output", ".npy")      # before the work, not after
     traj = _trajectory(args)
-    with open(path, "wb") as f:      # np.save(str) would append .npy to another suffix
-        np.save(f, traj)
+    path = save_npy(args.output, traj, "--output")
     print(f"wrote {traj.shape} to {path}")
     return 0
 
@@ -75,7 +63,7 @@ def _cli_run(args: Any) -> int:
 def _cli_show(args: Any) -> int:
     if args.every < 1:
         raise ValueError(f"--every: must be >= 1, got {args.every}")
-    path = output_path(args.output, ".png")
+    path = output_path(args.output, "--output", ".png")
     from ..sim.plot import show
     traj = _trajectory(args, include_initial=True)
     show(traj, path, every=args.every,

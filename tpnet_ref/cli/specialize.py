@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from .files import load_npy, output_path
+
 
 def add_cli(sub: Any) -> None:
     p = sub.add_parser("specialize", help="write a model that computes only the units a scene "
@@ -27,16 +29,11 @@ def _cli_specialize(args: Any) -> int:
 
     src = Path(args.source)
     if not src.is_file():
-        raise SystemExit(f"tpnet specialize: source: no such file {src}")
-    out = Path(args.output)
-    if not out.parent.is_dir():
-        raise SystemExit(f"tpnet specialize: -o: no such directory {out.parent}")
+        raise FileNotFoundError(f"source not found: {src}")
+    out = output_path(args.output, "-o")
     model = load(args.weights)
     if src.suffix == ".npy":
-        try:
-            windows = np.load(src, allow_pickle=False)
-        except ValueError as exc:
-            raise SystemExit(f"tpnet specialize: source: not a plain .npy array ({exc})") from None
+        windows = load_npy(str(src), "source")
         normalized = False
     else:
         from ..data import load_windows
