@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..config import NORM_HI, NORM_LO
-from ..protocol import HORIZONS
+from ..protocol import FRAME_EVERY, HORIZONS, SIM_ROWS
 from . import plots as P
 from .run import HEADLINE, PAPER_TABLE, VARIANTS, Curve, table_horizons
 from .shape import reading_evidence
@@ -222,7 +222,8 @@ def render_markdown(rep: Report) -> str:
         L += ["Weights: " + ", ".join(f"`{w}`" for w in rep.models), ""]
     L += [headline_md(rep)]
     L += ["## Protocol", "",
-          f"{rep.n_cases} cases ({rep.source}); 600 simulator rows, model frame j = row 4j. "
+          f"{rep.n_cases} cases ({rep.source}); {SIM_ROWS} simulator rows, model frame j = row "
+          f"{FRAME_EVERY}j. "
           "A model with m input frames gets frames 0..m-1 and predicts recursively; its h-th "
           "prediction is compared with frame m-1+h (\"@40\" = the 40th prediction, as the "
           f"paper's \"prediction steps\"). Rollouts of {rep.horizon} predictions. Errors: "
