@@ -24,7 +24,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tpnet_ref  # noqa: E402
 from tpnet_ref import specialize as S  # noqa: E402
-from tpnet_ref.data import train_grid  # noqa: E402
 from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
 from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
 from tpnet_ref.sim.scene import simulate  # noqa: E402
@@ -42,15 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     n_cal = 12 if args.quick else 36
     full = tpnet_ref.load()
     m = full.config.m
-    grid = train_grid()
-    pick = grid[np.random.default_rng(0).choice(len(grid), n_cal, replace=False)]
     t0 = time.perf_counter()
-    cal = []
-    for case in pick:
-        traj = simulate(*case)[::FRAME_EVERY]
-        cal.append(windows(traj, m))
-        cal.append(windows(np.concatenate([traj[:m], full.rollout(traj[:m], 40)]), m))
-    cal = np.concatenate(cal)
+    cal = S.calibration_windows(full, n_cal, seed=0, rollout=40)
     spec = full.specialize(cal)
     print(f"calibrated on {len(cal)} windows of {n_cal} training-grid trajectories "
           f"({time.perf_counter() - t0:.0f} s): units used "

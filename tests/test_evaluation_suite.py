@@ -94,7 +94,29 @@ def test_eval_gallery_and_timing_use_the_m4_model(tmp_path):
                             cases=1, horizon=2, orderings=["given"], no_timing=False,
                             no_peers=True, repeats=1, generalisation=False, gen_cases=1,
                             workers=1, seed=0, out=str(tmp_path / "o"), no_plots=True,
-                            quiet=True)
+                            quiet=True, calibration_trajectories=1)
     text = E.run_eval(ns, command="x").read_text()
     assert "| TP-Net m4.h5 NumPy float32 |" in text and "m3.h5 NumPy" not in text
     assert "m = 4, ordering `given`" in text
+    # the scene-specialised row is on by default (ns has no no_specialized), calibrated as asked
+    assert "| TP-Net m4.h5 NumPy float32, scene-specialised |" in text
+    assert "windows of 1 simulated training-grid trajectories" in text
+
+
+def test_eval_cli_no_specialized_and_calibration_flags(weights_file, tmp_path, capsys,
+                                                       monkeypatch):
+    from tpnet_ref.cli import evaluation as cli_eval
+    from tpnet_ref.evaluation.timing import CALIBRATION_TRAJECTORIES
+    assert cli_eval._CALIBRATION_TRAJECTORIES == CALIBRATION_TRAJECTORIES   # --help's default
+    base = ["eval", "--weights", weights_file, "--cases", "1", "--horizon", "2", "--no-peers",
+            "--repeats", "1", "--no-plots", "--quiet", "--orderings", "given"]
+    assert main(base + ["--out", str(tmp_path / "a"), "--no-specialized"]) == 0
+    text = (tmp_path / "a" / "results.md").read_text()
+    assert "| TP-Net small_m4.h5 NumPy float32 |" in text and "scene-specialised" not in text
+    assert main(base + ["--out", str(tmp_path / "b"), "--calibration-trajectories", "0"]) == 2
+    assert "--calibration-trajectories: must be >= 1" in capsys.readouterr().err
+    ns = argparse.Namespace(weights=["w.h5"], baselines_only=False, data=None, cases=None,
+                            horizon=None, generalisation=False, no_specialized=True,
+                            calibration_trajectories=3, out="o", m=None)
+    monkeypatch.setattr("sys.argv", ["pytest"])                    # rebuilt from ns
+    assert E.command_line(ns).endswith("--no-specialized --calibration-trajectories 3 --out o")

@@ -46,3 +46,30 @@ def test_timing_table_rows(frames3):
                    timing=rows, models=["w.h5"])
     text = E.render_markdown(rep)
     assert "## Error against run time" in text and "Fastest here for one rollout: net" in text
+
+
+def test_timing_table_scene_specialised_row(frames3):
+    """The float32 network specialised on training-grid trajectories: its own row, the float32
+    row's errors, a note that names the calibration and the fallbacks; off by default."""
+    from tpnet_ref.evaluation.timing import CALIBRATION_ROLLOUT
+    from tpnet_ref.specialize import calibration_windows
+    model = small_model(4, dtype="float32")
+    cases = np.asarray(E.TEST_CASES[:3])
+    kw = dict(m=4, horizon=3, repeats=1, peers=False, dt_factors=())
+    rows = E.timing_table(frames3, cases, [E.ModelSpec("net", model)], specialized=True,
+                          calibration_trajectories=2, **kw)
+    t = {r.name: r for r in rows}
+    names = [r.name for r in rows]
+    assert names[:3] == ["net NumPy float64", "net NumPy float32",
+                         "net NumPy float32, scene-specialised"]
+    sp, f32 = t["net NumPy float32, scene-specialised"], t["net NumPy float32"]
+    assert sp.kind == "model" and sp.ms_batch > 0 and sp.ms_single > 0
+    for key, e in f32.err.items():
+        np.testing.assert_allclose(sp.err[key], e, rtol=1e-4, atol=1e-6)
+    n_windows = len(calibration_windows(model, 2, rollout=CALIBRATION_ROLLOUT))
+    assert f"on {n_windows:,} windows of 2 simulated training-grid trajectories" in sp.note
+    assert "timed windows fell back to the full network" in sp.note
+    assert "max abs difference from the float32 row's predictions" in sp.note
+    assert "scene-specialised" in E.timing_md(rows, 3)
+    plain = E.timing_table(frames3, cases, [E.ModelSpec("net", model)], **kw)
+    assert not [r for r in plain if "specialised" in r.name]

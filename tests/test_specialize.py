@@ -169,3 +169,37 @@ def test_cli_writes_a_specialised_file_and_names_bad_paths_in_one_line(tmp_path,
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and msg in err[0]
+
+
+def test_calibration_windows_are_training_grid_windows_and_own_rollouts(monkeypatch):
+    """Every window of each picked training-grid trajectory, then every window of the model's own
+    rollout from its first m frames; no held-out test case is ever simulated."""
+    from tpnet_ref.data import train_grid
+    from tpnet_ref.protocol import FRAME_EVERY
+    from tpnet_ref.sim import TEST_CASES, scene
+    small = dict(input_tnet_mlp=(4, 8), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
+                 feature_tnet_fc=(8,), mlp2=(16, 32), global_features=16, lstm_units=(16, 8, 8))
+    model = init_random(TPNetConfig(m=4, **small), seed=0, dtype="float32")
+    simulated = []
+    real = scene.simulate
+
+    def record(*case, **kw):
+        simulated.append(case)
+        return real(*case, **kw)
+    monkeypatch.setattr(scene, "simulate", record)
+    w = _quiet(S.calibration_windows, model, n_trajectories=2, seed=5, rollout=3)
+    grid = {tuple(c) for c in train_grid()}
+    test = {tuple(map(float, c)) for c in TEST_CASES}
+    assert len(simulated) == 2 and len(set(simulated)) == 2
+    assert all(tuple(c) in grid and tuple(c) not in test for c in simulated)
+    np.testing.assert_array_equal(np.array(simulated), S.calibration_cases(2, seed=5))
+    traj = real(*simulated[1])[::FRAME_EVERY]                      # (150, 30, 2)
+    n_sim, n_own = len(traj) - 3, 4                                # m = 4, rollout 3: 7 frames
+    assert w.shape == (2 * (n_sim + n_own), 4, 30, 2)
+    second = w[n_sim + n_own:]
+    np.testing.assert_array_equal(second[:n_sim], np.stack([traj[s:s + 4] for s in range(n_sim)]))
+    own = np.concatenate([traj[:4], _quiet(model.rollout_batch, traj[None, :4], 3)[0]])
+    np.testing.assert_allclose(second[n_sim:], np.stack([own[s:s + 4] for s in range(n_own)]),
+                               rtol=0, atol=1e-5)     # rolled out in a batch of 2: BLAS rounding
+    with pytest.raises(ValueError, match="n_trajectories"):
+        S.calibration_cases(0)

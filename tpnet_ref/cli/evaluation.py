@@ -7,6 +7,7 @@ from typing import Any
 # the defaults shown in --help, spelled here so that the parser imports no library module
 _DEMO_HORIZONS = (1, 10, 20, 40, 80, 140)
 _ORDERINGS = ("given", "ascending_x", "descending_y", "shuffle")
+_CALIBRATION_TRAJECTORIES = 36      # tpnet_ref.evaluation.timing.CALIBRATION_TRAJECTORIES
 
 
 def add_cli(sub: Any) -> None:
@@ -47,6 +48,12 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--no-timing", action="store_true", help="skip the error-vs-time table")
     p.add_argument("--no-peers", action="store_true", help="timing without PyTorch/onnxruntime")
     p.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")
+    p.add_argument("--no-specialized", action="store_true",
+                   help="timing without the scene-specialised float32 row (its calibration "
+                        "simulates training-grid trajectories: about 20 s)")
+    p.add_argument("--calibration-trajectories", type=int, default=None, metavar="N",
+                   help="training-grid trajectories the scene-specialised row is calibrated on "
+                        "(default: %d)" % _CALIBRATION_TRAJECTORIES)
     p.add_argument("--generalisation", action="store_true",
                    help="also scenes outside the training ranges")
     p.add_argument("--gen-cases", type=int, default=20, help="generalisation cases per group")

@@ -21,7 +21,7 @@ from ..model import load
 from ..protocol import FRAME_EVERY, SIM_ROWS, split_protocol
 from .report import Report, write_results
 from .run import TEST_CASES, Curve, ModelSpec, evaluate, generalisation_cases, simulate_cases
-from .timing import timing_table
+from .timing import CALIBRATION_TRAJECTORIES, timing_table
 
 
 def default_out_dir() -> str:
@@ -37,7 +37,11 @@ def command_line(args: Any = None) -> str:
     parts = ["tpnet eval"] + [f"--weights {w}" for w in args.weights]
     for flag, value in (("--baselines-only", args.baselines_only), ("--data", args.data),
                         ("--cases", args.cases), ("--horizon", args.horizon),
-                        ("--generalisation", args.generalisation), ("--out", args.out)):
+                        ("--generalisation", args.generalisation),
+                        ("--no-specialized", getattr(args, "no_specialized", False)),
+                        ("--calibration-trajectories",
+                         getattr(args, "calibration_trajectories", None)),
+                        ("--out", args.out)):
         if value is True:
             parts.append(flag)
         elif value not in (None, False):
@@ -65,6 +69,10 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
         raise ValueError(f"--cases: must be >= 1, got {args.cases}")
     if args.horizon is not None and args.horizon < 1:
         raise ValueError(f"--horizon: must be >= 1, got {args.horizon}")
+    n_cal = getattr(args, "calibration_trajectories", None)
+    n_cal = CALIBRATION_TRAJECTORIES if n_cal is None else n_cal
+    if n_cal < 1:
+        raise ValueError(f"--calibration-trajectories: must be >= 1, got {n_cal}")
     out_dir = args.out or default_out_dir()
     names = [Path(w).name for w in args.weights]
     models = [ModelSpec(f"TP-Net {n if names.count(n) == 1 else w}", load(w, dtype="float32"))
@@ -101,7 +109,9 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
         print("timing ...", file=log)
         timing = timing_table(frames, cases, [gal] if gal else [], m=t_m,
                               horizon=min(80, horizon), repeats=args.repeats,
-                              peers=not args.no_peers, progress=progress)
+                              peers=not args.no_peers,
+                              specialized=not getattr(args, "no_specialized", False),
+                              calibration_trajectories=n_cal, progress=progress)
     gen: dict[str, list[Curve]] = {}
     if args.generalisation:
         for g, gc in generalisation_cases(args.gen_cases).items():

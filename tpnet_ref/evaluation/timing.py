@@ -1,13 +1,15 @@
 """Error against run time: every way of obtaining the next frames, timed and scored in one run.
 
-Rows: the network in NumPy float64/float32 (and, with the ``crosscheck`` extra, PyTorch and
-onnxruntime), the two baselines, and the simulator itself at its reference step and coarser ones.
+Rows: the network in NumPy float64/float32, optionally float32 scene-specialised (calibrated on
+training-grid trajectories, :mod:`tpnet_ref.specialize`), with the ``crosscheck`` extra PyTorch and
+onnxruntime, the two baselines, and the simulator itself at its reference step and coarser ones.
 """
 from __future__ import annotations
 
 import importlib.util
 import math
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -17,6 +19,12 @@ import numpy as np
 from ..config import normalize
 from ..protocol import FRAME_EVERY, REFERENCE_DT, constant_velocity, copy_last, split_protocol
 from .run import ModelSpec, batched_rollout, errors, progress_bar
+
+#: training-grid trajectories the scene-specialised row is calibrated on (shipped m = 4 model:
+#: 6,768 windows, about 20 s on 2 cores)
+CALIBRATION_TRAJECTORIES = 36
+#: frames of the model's own rollout from each calibration trajectory's first m frames
+CALIBRATION_ROLLOUT = 40
 
 
 @dataclass
@@ -57,7 +65,9 @@ def sim_coarse(case: Sequence[float], dt_factor: int, frames: int, **scene: Any)
 
 def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSpec] = (), *,
                  m: int = 4, horizon: int = 80, repeats: int = 3, dt_factors=(2, 4, 8),
-                 peers: bool = True, progress: bool = False) -> list[TimingRow]:
+                 peers: bool = True, specialized: bool = False,
+                 calibration_trajectories: int = CALIBRATION_TRAJECTORIES,
+                 progress: bool = False) -> list[TimingRow]:
     """Error against run time, measured in one run: one row per way of obtaining the next
     ``horizon`` frames of every case (ordering ``given``).
 
@@ -66,6 +76,14 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
     ``horizon``. The simulator rows start from the case's initial condition (the simulator
     needs the full state, which m point sets do not give) and are timed from t = 0 to the
     last predicted frame; their cost is divided by the ``horizon`` predicted frames.
+
+    ``specialized``: also a row "<label> NumPy float32, scene-specialised" for each model: the
+    float32 network specialised (:meth:`TPNet.specialize`) on the windows of
+    ``calibration_trajectories`` simulated training-grid trajectories and the model's own
+    rollouts from them (:func:`tpnet_ref.specialize.calibration_windows`; never the test cases),
+    calibrated before and outside the timed part, timed like the float32 row. Its note gives the
+    calibration, the fraction of the timed windows that fell back to the full network and the
+    largest difference from the float32 row's predictions.
     """
     frames_n = normalize(np.asarray(frames, dtype=np.float64))
     inputs, targets = split_protocol(frames_n, m, horizon)
@@ -74,13 +92,14 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
 
     def add(name: str, fn_batch: Callable[[], np.ndarray] | None,
             fn_single: Callable[[], Any] | None, note: str = "", reps: int = repeats,
-            kind: str = "model") -> None:
+            kind: str = "model") -> np.ndarray | None:
         tb, pred = _best_time(fn_batch, reps) if fn_batch else (None, None)
         ts = _best_time(fn_single, reps)[0] if fn_single else None
         rows.append(TimingRow(name,
                               None if tb is None else 1e3 * tb / (C * horizon),
                               None if ts is None else 1e3 * ts / horizon,
                               errors(targets, pred), note, kind))
+        return pred
 
     todo = []
     for spec in models:
@@ -88,15 +107,50 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
             continue
         for dt in ("float64", "float32"):
             todo.append((f"{spec.label} NumPy {dt}", spec.model.astype(dt), "numpy"))
+        if specialized:
+            todo.append((f"{spec.label} NumPy float32, scene-specialised",
+                         spec.model.astype("float32"), "specialised"))
         if peers:
             todo.append((f"{spec.label} PyTorch", spec.model.astype("float32"), "torch"))
             todo.append((f"{spec.label} onnxruntime", spec.model.astype("float32"), "onnx"))
+    preds: dict[str, np.ndarray] = {}
     for name, model, kind in progress_bar(todo, progress, len(todo), "timing"):
         if kind == "numpy":
             model.rollout(inputs[0], 2, normalized=True)     # warm caches
-            add(name, lambda mo=model: batched_rollout(mo, inputs, horizon),
-                lambda mo=model: mo.rollout(inputs[0], horizon, normalized=True),
-                "tpnet_ref, windows stepped together (batch) / model.rollout (single)")
+            preds[name] = add(name, lambda mo=model: batched_rollout(mo, inputs, horizon),
+                              lambda mo=model: mo.rollout(inputs[0], horizon, normalized=True),
+                              "tpnet_ref, windows stepped together (batch) / model.rollout "
+                              "(single)")
+        elif kind == "specialised":
+            if model.config.lstm_activation != "relu":
+                rows.append(TimingRow(name, None, None, {}, "not a ReLU-LSTM network: no unit "
+                                                            "stays exactly zero"))
+                continue
+            from ..specialize import calibration_windows
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():        # training-range warnings of the rollouts
+                warnings.simplefilter("ignore")
+                cal = calibration_windows(model, calibration_trajectories,
+                                          rollout=CALIBRATION_ROLLOUT)
+                model = model.specialize(cal)
+            t_cal = time.perf_counter() - t0
+            model.rollout(inputs[0], 2, normalized=True)     # warm caches
+            model.counts.update(windows=0, fallbacks=0)
+            pred = add(name, lambda mo=model: batched_rollout(mo, inputs, horizon),
+                       lambda mo=model: mo.rollout(inputs[0], horizon, normalized=True))
+            n_win, n_fb = model.counts["windows"], model.counts["fallbacks"]
+            note = (f"`TPNet.specialize` calibrated ({t_cal:.0f} s, not timed) on {len(cal):,} "
+                    f"windows of {calibration_trajectories} simulated training-grid "
+                    f"trajectories and the model's own {CALIBRATION_ROLLOUT}-frame rollouts "
+                    f"from them; {n_fb / max(n_win, 1):.1%} of the {n_win:,} timed windows fell "
+                    "back to the full network")
+            ref = preds.get(name.replace(", scene-specialised", ""))
+            if ref is not None:
+                scale = model.config.norm_hi - model.config.norm_lo
+                d = float(np.abs(np.asarray(pred, np.float64) - ref).max()) * scale
+                note += (f"; max abs difference from the float32 row's predictions over the "
+                         f"{horizon}-frame rollouts {d:.1e} world units")
+            rows[-1].note = note
         elif kind == "torch":
             if importlib.util.find_spec("torch") is None:
                 rows.append(TimingRow(name, None, None, {}, "PyTorch not installed"))
@@ -159,4 +213,5 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
     return rows
 
 
-__all__ = ["TimingRow", "sim_coarse", "timing_table"]
+__all__ = ["TimingRow", "sim_coarse", "timing_table", "CALIBRATION_TRAJECTORIES",
+           "CALIBRATION_ROLLOUT"]
