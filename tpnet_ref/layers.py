@@ -209,6 +209,69 @@ def project(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None = None,
     return y.transpose(1, 0, 2).reshape(x.shape[0], -1)
 
 
+def used_columns(x: np.ndarray, start: int = 0, stop: int | None = None) -> int:
+    """How many leading columns of ``x[:, start:stop]`` (``x (R, C)``) can be non-zero: one past
+    the last column with a non-zero (or NaN) entry in any row, 0 when all are zero. The columns
+    after it are exactly zero in every row, so a product ``x @ w`` may leave out the rows of
+    ``w`` they multiply (a ReLU network's activations are mostly zeros, often the same ones)."""
+    cols = x[:, start:stop]
+    nz = np.flatnonzero(cols[0] if cols.shape[0] == 1 else cols.any(axis=0))
+    return int(nz[-1]) + 1 if nz.size else 0
+
+
+def project_spans(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None,
+                  spans: Sequence[tuple[int, int]], small: bool = True) -> np.ndarray:
+    """``x (R, C) @ kernel (C, N)`` -> ``(R, N)`` when the columns of ``x`` outside ``spans``
+    (``[(a, b), ...]``, column ranges) are zero: only those rows of the kernel are read. Like
+    :func:`project`, as one stacked product over the kernel's column ``blocks`` when each block's
+    product is small enough for the BLAS's small-matrix kernels."""
+    rows = x.shape[0]
+    spans = [(a, b) for a, b in spans if b > a]
+    if not spans:
+        return np.zeros((rows, kernel.shape[1]), dtype=x.dtype)
+    widest = max(b - a for a, b in spans)
+    if blocks is None or not small or rows * widest * blocks.shape[2] > SMALL_PRODUCT:
+        out = x[:, spans[0][0]:spans[0][1]] @ kernel[spans[0][0]:spans[0][1]]
+        for a, b in spans[1:]:
+            out += x[:, a:b] @ kernel[a:b]
+        return out
+    acc = np.matmul(x[:, spans[0][0]:spans[0][1]], blocks[:, spans[0][0]:spans[0][1]])
+    for a, b in spans[1:]:
+        acc += np.matmul(x[:, a:b], blocks[:, a:b])          # (N / nb, R, nb)
+    return acc.transpose(1, 0, 2).reshape(rows, -1)
+
+
+def project_layer_norm(h: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: float,
+                       kernel: np.ndarray, blocks: np.ndarray | None, gk: np.ndarray,
+                       bk: np.ndarray, halves: Sequence[tuple[int, int]],
+                       small: bool = True, fold_max: float = 0.85) -> np.ndarray:
+    """``layer_norm(h, gamma, beta, eps) @ kernel`` -> ``(R, N)`` for ``h (R, C)``, reading only
+    the kernel rows of the columns where ``h`` can be non-zero.
+
+    LayerNorm is affine in ``h`` per row: with ``r = 1 / sqrt(var + eps)`` and the row mean
+    ``mu``, ``LN(h) @ K = r * ((h * gamma) @ K) - r * mu * (gamma @ K) + beta @ K``. The zeros
+    of ``h`` (a ReLU LSTM's output is mostly zeros) add nothing to the first product, so each of
+    ``halves`` (the column ranges of the two directions) is cut after its last non-zero column
+    (:func:`used_columns`); ``gk = gamma @ K`` and ``bk = beta @ K`` are computed once at load.
+    Mean and variance are those of :func:`layer_norm`. When the kept columns exceed
+    ``fold_max`` of all, the plain ``layer_norm`` then :func:`project` is used (same result up
+    to rounding, fewer passes)."""
+    spans = [(a, a + used_columns(h, a, b)) for a, b in halves]
+    if sum(b - a for a, b in spans) > fold_max * h.shape[1]:
+        return project(layer_norm(h, gamma, beta, eps), kernel, blocks, small)
+    dt = h.dtype
+    mean = h.mean(axis=-1, keepdims=True)
+    d = h - mean
+    var = np.mean(d * d, axis=-1, keepdims=True)
+    r = (1.0 / np.sqrt(var + dt.type(eps))).astype(dt, copy=False)
+    out = project_spans(h * gamma, kernel, blocks, spans, small)
+    out *= r
+    mean *= r
+    out -= mean * gk
+    out += bk
+    return out
+
+
 def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias: np.ndarray,
                  blocks: np.ndarray | None = None, activation: str = "relu",
                  return_sequences: bool = True, small: bool = True,
@@ -219,22 +282,35 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     The fused kernel the model runs. Its documented specification is :func:`lstm` (one
     direction, written for reading) and :func:`bidirectional_lstm`; ``tests/test_layers.py``
     checks that this function equals them. It computes the same thing faster: one product
-    projects every step of both directions (:func:`project`), the projections are laid out
-    once in step order (step ``s`` is forward time ``s`` and backward time ``T-1-s``), both
-    directions advance together with one batched product per step into the gate buffer (none
-    at step 0, where h = c = 0), and the gates are updated in place. Time-major layout keeps
-    every step's slice contiguous, so nothing is re-laid-out between layers. ``xp`` ``(T, B, 8u)``,
-    when given, is the input projection ``x @ kernel`` (without the bias) computed beforehand,
-    e.g. one frame at a time by a rollout; ``x`` then only gives the shapes.
+    projects every step of both directions (:func:`project`), then :func:`bilstm_steps`.
+    ``xp`` ``(T, B, 8u)``, when given, is the input projection ``x @ kernel`` (without the bias)
+    computed beforehand, e.g. one frame at a time by a rollout; ``x`` then only gives the shapes.
     """
     steps, bsz, _ = x.shape
+    if xp is None:
+        xp = project(x.reshape(steps * bsz, -1), kernel, blocks, small)
+    return bilstm_steps(xp, recurrent, bias, steps, bsz, activation, return_sequences, x.dtype)
+
+
+def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps: int, bsz: int,
+                 activation: str = "relu", return_sequences: bool = True,
+                 dtype: np.dtype | None = None) -> np.ndarray:
+    """The recurrence of :func:`bilstm_fused` from the input projections ``xp (T*B, 8u)`` (rows
+    time-major, without the bias) -> ``(T, B, 2u)`` or ``(B, 2u)``.
+
+    The projections are laid out once in step order (step ``s`` is forward time ``s`` and
+    backward time ``T-1-s``), both directions advance together, and the gates are updated in
+    place. Each direction's recurrent product reads only the rows of ``recurrent`` that the
+    non-zero part of its state multiplies (:func:`used_columns`: a ReLU LSTM's state is mostly
+    zeros, and none at step 0, where h = c = 0). Time-major layout keeps every step's slice
+    contiguous, so nothing is re-laid-out between layers. ``dtype``: of the result (default
+    ``xp``'s).
+    """
     u = recurrent.shape[1]
     relu_act = activation == "relu"
     if not relu_act and activation != "tanh":
         _activation(activation)  # raises the error naming the activation
-    dt = x.dtype
-    if xp is None:
-        xp = project(x.reshape(steps * bsz, -1), kernel, blocks, small)
+    dt = xp.dtype if dtype is None else np.dtype(dtype)
     xp = xp.reshape(steps, bsz, 2, 4 * u)
     xs = np.empty((steps, 2, bsz, 4 * u), dtype=dt)     # input projections in step order
     np.add(xp[:, :, 0], bias[:4 * u], out=xs[:, 0])
@@ -248,8 +324,20 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
             if s == 0:
                 z = xs[0]
             else:
-                z = np.matmul(hs[s - 1], recurrent, out=xs[s - 1])  # reuse the spent buffer
-                z += xs[s]
+                z = xs[s - 1]                           # reuse the spent buffer
+                for d in (0, 1):
+                    hp = hs[s - 1, d]
+                    k = used_columns(hp)
+                    if k == 0:
+                        z[d] = xs[s, d]
+                        continue
+                    if recurrent.dtype != dt:
+                        z[d] = hp[:, :k] @ recurrent[d, :k]
+                    elif bsz == 1:
+                        np.dot(hp[0, :k], recurrent[d, :k], out=z[d, 0])
+                    else:
+                        np.matmul(hp[:, :k], recurrent[d, :k], out=z[d])
+                    z[d] += xs[s, d]
             gates = z[..., :3 * u]                  # -x for i, f, o (negated weights)
             np.exp(gates, out=gates)                # may overflow to inf: 1/(1+inf) = 0
             gates += one

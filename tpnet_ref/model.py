@@ -22,12 +22,13 @@ import math
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from . import layers as L
 from . import specialize as S
+from . import unit_order as U
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from .blas import adaptive, cpu_count, in_one_thread, one_thread, small_products_pay
 from .checks import NonFiniteResultError, as_point_set, as_real_array
@@ -48,6 +49,16 @@ ENGINES = ("numpy", "numba", "auto")
 #: (BLAS products of many rows, split across threads: faster, measured in docs/performance.md)
 ENGINE_MAX_BATCH = 8
 _POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+class _Layer(NamedTuple):
+    """One BiLSTM of the NumPy engine's layout (units in the model's unit order)."""
+
+    fused: L.FusedBiLSTM
+    gamma: np.ndarray          # (2u,) this layer's LayerNorm
+    beta: np.ndarray
+    gk: np.ndarray | None      # (8u,) previous LayerNorm's gamma @ kernel (None for BiLSTM 1)
+    bk: np.ndarray | None      # (8u,) previous LayerNorm's beta @ kernel
 
 
 def _pool(n: int) -> ThreadPoolExecutor:
@@ -82,7 +93,7 @@ class TPNet:
 
     def __init__(self, config: TPNetConfig, params: dict[str, np.ndarray],
                  dtype: Any = "float32", meta: dict[str, Any] | None = None,
-                 engine: str = "numpy") -> None:
+                 engine: str = "numpy", unit_order: dict[str, Any] | None = None) -> None:
         self.config = config
         self.dtype = _as_dtype(dtype)
         #: "numpy" or "numba" (see :data:`ENGINES`)
@@ -109,6 +120,9 @@ class TPNet:
             if not np.isfinite(p).all():
                 raise ValueError(f"parameter {name!r}: contains NaN or infinite values")
             self.params[name] = np.ascontiguousarray(p, dtype=self.dtype)
+        #: the order of each layer's units in the NumPy engine's layout (None: the file's order;
+        #: :mod:`tpnet_ref.unit_order`, :meth:`sort_units`)
+        self.unit_order = U.check(unit_order, config)
         self._prepare()
 
     # ----------------------------------------------------------------- set-up
@@ -129,12 +143,40 @@ class TPNet:
         self._feature_tnet = (tnet("feature_tnet", cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
                               if cfg.feature_transform_trained else None)
         self._mlp2 = stack("mlp2", len(cfg.mlp2))
-        self._lstms = [
-            (L.fuse_bilstm(*(tuple(p[f"lstm{i}.{d}.{k}"] for k in ("kernel", "recurrent", "bias"))
-                             for d in ("fwd", "bwd")), block_rows=cfg.m),
-             p[f"ln{i}.gamma"], p[f"ln{i}.beta"])
-            for i in range(1, len(cfg.lstm_units) + 1)
-        ]
+        # the prediction network, units in the unit order (see tpnet_ref.unit_order): each
+        # direction's gate columns, recurrent rows and bias, the next layer's kernel rows, the
+        # LayerNorm's gamma and beta, and the head's rows follow the order of their layer
+        order = self.unit_order or {}
+        self._global_order = order.get("global")
+        prev = self._global_order
+        self._layers: list[_Layer] = []
+        for i, u in enumerate(cfg.lstm_units, start=1):
+            po = order.get(f"lstm{i}")
+            dirs = []
+            for d, name in enumerate(("fwd", "bwd")):
+                k, r, b = (p[f"lstm{i}.{name}.{x}"] for x in ("kernel", "recurrent", "bias"))
+                if po is not None:
+                    pd = po[d * u:(d + 1) * u] - d * u
+                    cols = np.concatenate([g * u + pd for g in range(4)])
+                    k, r, b = k[:, cols], r[pd][:, cols], b[cols]
+                if prev is not None:
+                    k = k[prev]
+                dirs.append((k, r, b))
+            fused = L.fuse_bilstm(*dirs, block_rows=cfg.m)
+            gamma, beta = p[f"ln{i}.gamma"], p[f"ln{i}.beta"]
+            if po is not None:
+                gamma, beta = gamma[po], beta[po]
+            gk = bk = None
+            if self._layers:      # LayerNorm i-1 folded into this layer's input projection
+                g0, b0 = self._layers[-1].gamma, self._layers[-1].beta
+                wide = fused.kernel.astype(np.float64)
+                gk = (g0.astype(np.float64) @ wide).astype(self.dtype)
+                bk = (b0.astype(np.float64) @ wide).astype(self.dtype)
+            self._layers.append(_Layer(fused, np.ascontiguousarray(gamma),
+                                       np.ascontiguousarray(beta), gk, bk))
+            prev = po
+        self._head_w = p["head.w"] if prev is None else np.ascontiguousarray(p["head.w"][prev])
+        self._lstms_file: list | None = None
         self._small: bool | None = None     # small_products_pay(dtype), asked at first use
         self._nb = None                     # the numba engine's prediction network
         if self.engine == "numba":
@@ -143,10 +185,41 @@ class TPNet:
         self._lo = self.dtype.type(cfg.norm_lo)
         self._scale = self.dtype.type(cfg.norm_hi - cfg.norm_lo)
 
+    @property
+    def _lstms(self) -> list[tuple[L.FusedBiLSTM, np.ndarray, np.ndarray]]:
+        """Each BiLSTM's fused weights and LayerNorm, units in the file's order (for
+        calibration and profiling; predictions use the unit-ordered layout)."""
+        if self.unit_order is None:
+            return [(lay.fused, lay.gamma, lay.beta) for lay in self._layers]
+        if self._lstms_file is None:
+            p = self.params
+            self._lstms_file = [
+                (L.fuse_bilstm(*(tuple(p[f"lstm{i}.{d}.{k}"] for k in ("kernel", "recurrent", "bias"))
+                                 for d in ("fwd", "bwd")), block_rows=self.config.m),
+                 p[f"ln{i}.gamma"], p[f"ln{i}.beta"])
+                for i in range(1, len(self.config.lstm_units) + 1)]
+        return self._lstms_file
+
+    def _copy(self, dtype: Any = None, engine: str | None = None,
+              unit_order: Any = "same") -> "TPNet":
+        out = TPNet(self.config, self.params, self.dtype if dtype is None else dtype, self.meta,
+                    self.engine if engine is None else engine,
+                    self.unit_order if isinstance(unit_order, str) else unit_order)
+        out.threads = self.threads
+        return out
+
+    def sort_units(self, windows: Any, normalized: bool = False) -> "TPNet":
+        """The same network with each layer's units laid out most used first on ``windows``
+        ``(B, m, N, dim)`` (the scene's windows): exact on every input, faster on windows like
+        these (:mod:`tpnet_ref.unit_order`). The order is saved with the model."""
+        out = self._copy(unit_order=U.from_use(U.measure(self, windows, normalized)))
+        if self.specialization is not None:
+            out.specialization = S.SceneHead(out, self.specialization.used)
+        return out
+
     def astype(self, dtype: Any) -> "TPNet":
         """The same network with its parameters in ``dtype`` (float32 or float64)."""
-        out = TPNet(self.config, self.params, dtype, self.meta, self.engine)
-        out.threads = self.threads
+        out = self._copy(dtype=dtype)
         if self.specialization is not None:
             out.specialization = S.SceneHead(out, self.specialization.used)
         return out
@@ -160,16 +233,14 @@ class TPNet:
 
     def with_specialization(self, used: dict[str, np.ndarray] | None) -> "TPNet":
         """A copy of this network specialised to the units ``used`` marks (None: not at all)."""
-        out = TPNet(self.config, self.params, self.dtype, self.meta, self.engine)
-        out.threads = self.threads
+        out = self._copy()
         if used is not None:
             out.specialization = S.SceneHead(out, used)
         return out
 
     def with_engine(self, engine: str) -> "TPNet":
         """The same network (and specialisation) run by ``engine`` ("numpy", "numba", "auto")."""
-        out = TPNet(self.config, self.params, self.dtype, self.meta, engine)
-        out.threads = self.threads
+        out = self._copy(engine=engine)
         if self.specialization is not None:
             out.specialization = S.SceneHead(out, self.specialization.used)
         return out
@@ -193,6 +264,8 @@ class TPNet:
         write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance})
         if self.specialization is not None:        # the masks, beside config and params
             S.write(path, self.specialization.used)
+        if self.unit_order is not None:
+            U.write(path, self.unit_order)
 
     # ------------------------------------------------------------ coordinates
     def normalize(self, x: np.ndarray) -> np.ndarray:
@@ -266,8 +339,11 @@ class TPNet:
             return nb.project(features, parallel=not in_one_thread()).reshape(len(features), -1)
         if self._small is None:
             self._small = small_products_pay(self.dtype)
-        fused = self._lstms[0][0]
-        return L.project(features, fused.kernel, fused.blocks, self._small)
+        if self._global_order is not None:
+            features = features[:, self._global_order]
+        fused = self._layers[0].fused        # kernel rows past the last non-zero feature unread
+        return L.project_spans(features, fused.kernel, fused.blocks,
+                               [(0, L.used_columns(features))], self._small)
 
     def _full_head(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
         batch, m = features.shape[:2]
@@ -284,22 +360,28 @@ class TPNet:
             return y.reshape(-1, self.config.n_out, self.config.dim)
         act = self.config.lstm_activation
         eps = self.config.layer_norm_eps
-        h = features.transpose(1, 0, 2)   # time-major (m, B, k) through the BiLSTMs
-        last = len(self._lstms) - 1
+        if proj1 is None:                 # time-major rows (t, b)
+            proj1 = self.project_frames(features.transpose(1, 0, 2).reshape(m * batch, -1), batch)
+        last = len(self._layers) - 1
         # LayerNorm squares its centred input: a ReLU LSTM output above sqrt(max)/2 would
         # overflow the variance to inf and silently turn the layer's output into beta
         # (finite but wrong), so every LSTM output is checked against that bound.
         limit = np.sqrt(np.finfo(self.dtype).max) / 4
-        if self._small is None:
-            self._small = small_products_pay(self.dtype)
+        xp = proj1
         with np.errstate(over="ignore", invalid="ignore"):
-            for i, (fused, gamma, beta) in enumerate(self._lstms):
-                h = L.bilstm_fused(h, *fused, activation=act, return_sequences=i < last,
-                                   small=self._small, xp=proj1 if i == 0 else None)
+            for i, lay in enumerate(self._layers):
+                h = L.bilstm_steps(xp, lay.fused.recurrent, lay.fused.bias, m, batch, act,
+                                   return_sequences=i < last)
                 if act == "relu" and not h.max() < limit:   # also catches NaN
                     self._overflow(f"BiLSTM {i + 1}")
-                h = L.layer_norm(h, gamma, beta, eps)
-            y = L.dense(h, self.params["head.w"], self.params["head.b"], "sigmoid")
+                if i < last:              # LayerNorm folded into the next input projection
+                    nxt, u = self._layers[i + 1], h.shape[-1] // 2
+                    xp = L.project_layer_norm(h.reshape(m * batch, -1), lay.gamma, lay.beta, eps,
+                                              nxt.fused.kernel, nxt.fused.blocks, nxt.gk, nxt.bk,
+                                              ((0, u), (u, 2 * u)), self._small)
+                else:
+                    h = L.layer_norm(h, lay.gamma, lay.beta, eps)
+            y = L.dense(h, self._head_w, self.params["head.b"], "sigmoid")
         if not np.isfinite(y).all():
             self._overflow("the output layer")
         return y.reshape(-1, self.config.n_out, self.config.dim)
@@ -457,7 +539,8 @@ def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
     see :class:`TPNet`."""
     path = default_weights_path() if path is None else path
     config, params, meta = read_native(path)
-    return S.attach(TPNet(config, params, dtype, meta, engine), path)   # specialised if the file says so
+    order = U.read(path)
+    return S.attach(TPNet(config, params, dtype, meta, engine, unit_order=order), path)   # specialised if the file says so
 
 
 def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""``tpnet specialize``: a scene-specialised copy of a weights file (docs/performance.md)."""
+"""``tpnet specialize`` and ``tpnet sort-units``: a weights file made faster on a scene
+(docs/performance.md)."""
 from __future__ import annotations
 
 import warnings
@@ -21,6 +22,57 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--max-windows", type=int, default=20000,
                    help="use at most this many calibration windows (default 20000)")
     p.set_defaults(func=_cli_specialize)
+
+    q = sub.add_parser("sort-units", help="write the same network with each layer's units laid "
+                                          "out most used first on a scene (exact on every "
+                                          "input, faster on the scene)")
+    q.add_argument("source", nargs="?", default=None,
+                   help="windows to measure use on: a dataset file of `tpnet data` (its training "
+                        "windows) or a .npy (B, m, N, 2) array in world units; default: windows "
+                        "of --trajectories simulated training-grid trajectories and the model's "
+                        "own rollouts from them (never the test cases)")
+    q.add_argument("-o", "--output", required=True, help="native weights file to write")
+    q.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
+    q.add_argument("--trajectories", type=int, default=36,
+                   help="training-grid trajectories when no source is given (default 36)")
+    q.add_argument("--max-windows", type=int, default=20000,
+                   help="use at most this many windows (default 20000)")
+    q.set_defaults(func=_cli_sort_units)
+
+
+def _windows(args: Any, model: Any) -> tuple[np.ndarray, bool, str]:
+    """The windows ``args.source`` names (or simulated training-grid ones), whether they are
+    normalised, and a description for the provenance."""
+    if args.source is None:
+        from ..specialize import calibration_windows
+        n = args.trajectories
+        return calibration_windows(model, n), False, f"{n} training-grid trajectories + rollouts"
+    src = Path(args.source)
+    if not src.is_file():
+        raise FileNotFoundError(f"source not found: {src}")
+    if src.suffix == ".npy":
+        return load_npy(str(src), "source"), False, str(src)
+    from ..data import load_windows
+    windows, _ = load_windows(str(src), "train", normalized=True)
+    return windows, True, f"{src} (training windows)"
+
+
+def _cli_sort_units(args: Any) -> int:
+    from .. import unit_order as U
+    from ..model import load
+
+    out = output_path(args.output, "-o")
+    model = load(args.weights)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        windows, normalized, what = _windows(args, model)
+        windows = np.asarray(windows)[:args.max_windows]
+        use = U.measure(model, windows, normalized)
+    srt = model._copy(unit_order=U.from_use(use))
+    srt.save(out, units_sorted_on=f"{len(windows)} windows: {what}")
+    print(f"wrote {out}: units sorted by use on {len(windows)} windows ({what}); never used: "
+          + ", ".join(f"{k} {int((v == 0).sum())}/{v.size}" for k, v in use.items()))
+    return 0
 
 
 def _cli_specialize(args: Any) -> int:

@@ -1,0 +1,176 @@
+"""Unit order: the NumPy engine's layout with each layer's units most used first. The same
+network on every input (any order), saved and loaded with the model, refused when malformed."""
+from __future__ import annotations
+
+import warnings
+
+import h5py
+import numpy as np
+import pytest
+
+import tpnet_ref
+from tpnet_ref import layers as L
+from tpnet_ref import specialize as S
+from tpnet_ref import unit_order as U
+from tpnet_ref.model import TPNetConfig, init_random
+
+CFG = TPNetConfig(mlp1=(16, 16), mlp2=(16, 32, 48), global_features=24, lstm_units=(32, 16, 16))
+
+
+def _rings(rng, n, m=4):
+    """Windows of a ring of radius 2 (30 points) drifting through the box: ``(n, m, 30, 2)``."""
+    a = np.arange(30) * 2 * np.pi / 30
+    ring = 2 * np.stack([np.sin(a), np.cos(a)], axis=1)
+    start = rng.uniform(8, 37, (n, 1, 1, 2))
+    vel = rng.uniform(-0.6, 0.6, (n, 1, 1, 2))
+    return start + vel * np.arange(m)[None, :, None, None] + ring
+
+
+def _random_order(cfg, rng):
+    order = {"global": rng.permutation(cfg.global_features)}
+    for i, u in enumerate(cfg.lstm_units, 1):
+        order[f"lstm{i}"] = np.concatenate([rng.permutation(u), u + rng.permutation(u)])
+    return order
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_any_unit_order_is_the_same_network(dtype):
+    model = init_random(CFG, seed=3, dtype=dtype)
+    rng = np.random.default_rng(0)
+    perm = model._copy(unit_order=_random_order(CFG, rng))
+    w = rng.uniform(0, 45, (16, 4, 30, 2))
+    tol = 2e-5 if dtype == "float32" else 1e-11
+    np.testing.assert_allclose(perm.predict_batch(w), model.predict_batch(w), rtol=0, atol=tol * 45)
+    np.testing.assert_allclose(perm.predict(w[0]), model.predict(w[0]), rtol=0, atol=tol * 45)
+    np.testing.assert_allclose(perm.rollout(w[1], 6), model.rollout(w[1], 6), rtol=0,
+                               atol=10 * tol * 45)
+    # the file-order layout (calibration, profiling) is untouched by the order
+    for (a, ga, ba), (b, gb, bb) in zip(perm._lstms, model._lstms):
+        np.testing.assert_array_equal(a.kernel, b.kernel)
+        np.testing.assert_array_equal(ga, gb)
+
+
+def test_sorted_shipped_model_equals_the_file_order_and_puts_used_units_first():
+    try:
+        full = tpnet_ref.load()
+    except (FileNotFoundError, ValueError) as exc:
+        pytest.skip(f"shipped weights not available: {exc}")
+    base = full._copy(unit_order=None)
+    rng = np.random.default_rng(0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        srt = base.sort_units(_rings(rng, 64))
+        use = U.measure(base, _rings(rng, 64))
+        w = _rings(np.random.default_rng(1), 32)
+        np.testing.assert_allclose(srt.predict_batch(w), base.predict_batch(w), rtol=0, atol=1e-4)
+        np.testing.assert_allclose(srt.predict(w[0]), base.predict(w[0]), rtol=0, atol=1e-4)
+        np.testing.assert_allclose(srt.rollout(w[1], 10), base.rollout(w[1], 10), rtol=0, atol=1e-3)
+        far = rng.uniform(-500, 500, (4, 4, 30, 2))        # wakes units the order put last
+        np.testing.assert_allclose(srt.predict_batch(far, normalized=False),
+                                   base.predict_batch(far), rtol=0, atol=1e-3)
+    for name, order in srt.unit_order.items():   # used units first, never-used ones last
+        share = use[name][order]
+        if name == "global":
+            assert share[0] > 0 and share[-1] == 0
+        else:
+            u = share.size // 2
+            assert share[:u][0] >= share[:u][-1] and share[u:][0] >= share[u:][-1]
+
+
+def test_permutation_invariance_is_bit_identical_with_an_order():
+    model = init_random(CFG, seed=1)._copy(unit_order=_random_order(CFG, np.random.default_rng(2)))
+    rng = np.random.default_rng(5)
+    w = _rings(rng, 1)[0]
+    shuffled = np.stack([f[rng.permutation(30)] for f in w])
+    assert np.array_equal(model.predict(w), model.predict(shuffled))
+
+
+def test_unit_order_round_trips_through_the_native_file(tmp_path):
+    model = init_random(CFG, seed=2)
+    order = _random_order(CFG, np.random.default_rng(4))
+    perm = model._copy(unit_order=order)
+    path = tmp_path / "w.h5"
+    perm.save(path)
+    back = tpnet_ref.load(path)
+    assert set(back.unit_order) == set(order)
+    for k in order:
+        np.testing.assert_array_equal(back.unit_order[k], order[k])
+    w = np.random.default_rng(0).uniform(5, 40, (3, 4, 30, 2))
+    np.testing.assert_array_equal(back.predict_batch(w), perm.predict_batch(w))
+    for k in back.params:                      # the parameters stay in the file's order
+        np.testing.assert_array_equal(back.params[k], model.params[k])
+    # a specialised copy keeps the order, and saving it keeps both groups
+    spec = back.specialize(_rings(np.random.default_rng(1), 16))
+    assert spec.unit_order is not None
+    S.save(spec, tmp_path / "s.h5")
+    again = tpnet_ref.load(tmp_path / "s.h5")
+    assert again.specialization is not None and again.unit_order is not None
+
+
+@pytest.mark.parametrize("bad, msg", [
+    ({"global": np.arange(5)}, "expected 24 integers"),
+    ({"global": np.zeros(24, int)}, "not a permutation"),
+    ({"lstm2": np.arange(32)[::-1]}, "each direction"),
+    ({"lstm9": np.arange(4)}, "unknown layers"),
+    ({"global": np.linspace(0, 1, 24)}, "expected 24 integers"),
+])
+def test_a_malformed_order_is_refused_in_one_line(bad, msg):
+    with pytest.raises(ValueError, match=msg) as err:
+        init_random(CFG, seed=0)._copy(unit_order=bad)
+    assert "\n" not in str(err.value)
+
+
+def test_a_malformed_order_group_in_a_file_is_refused(tmp_path):
+    path = tmp_path / "w.h5"
+    init_random(CFG, seed=0).save(path)
+    U.write(path, {"global": np.arange(24)[::-1].copy()})
+    assert tpnet_ref.load(path).unit_order["global"][0] == 23
+    with h5py.File(path, "a") as f:
+        del f[U.GROUP]["global"]
+        f[U.GROUP]["global"] = np.ones(24, np.int32)
+    with pytest.raises(ValueError, match="not a permutation"):
+        tpnet_ref.load(path)
+    with h5py.File(path, "a") as f:
+        del f[U.GROUP]["global"]
+        f[U.GROUP]["global"] = np.ones(24, np.float32)
+    with pytest.raises(ValueError, match="is not a unit order"):
+        tpnet_ref.load(path)
+
+
+# ------------------------------------------------------------------ the layers it relies on
+def test_used_columns():
+    x = np.zeros((3, 10), np.float32)
+    assert L.used_columns(x) == 0
+    x[1, 6] = -0.5
+    assert L.used_columns(x) == 7 and L.used_columns(x, 0, 5) == 0 and L.used_columns(x, 5) == 2
+    x[2, 8] = np.nan                                  # NaN counts as non-zero
+    assert L.used_columns(x) == 9
+    assert L.used_columns(x[1:2]) == 7
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("rows", [1, 4, 300])
+def test_project_spans_and_folded_layer_norm_equal_the_plain_products(dtype, rows):
+    rng = np.random.default_rng(rows)
+    c, u4 = 64, 128
+    fused = L.fuse_bilstm(*[(rng.normal(0, 0.2, (c, u4)).astype(dtype),
+                             rng.normal(0, 0.2, (u4 // 4, u4)).astype(dtype),
+                             rng.normal(0, 0.1, u4).astype(dtype)) for _ in range(2)], block_rows=4)
+    h = np.maximum(rng.normal(0, 1, (rows, c)), 0).astype(dtype)
+    h[:, 10:32] = 0                                   # forward half used up to column 10
+    h[:, 50:] = 0                                     # backward half up to column 50
+    tol = 1e-4 if dtype == np.float32 else 1e-11
+    spans = [(0, L.used_columns(h, 0, 32)), (32, 32 + L.used_columns(h, 32))]
+    assert spans[0][1] <= 10 and spans[1][1] <= 50
+    for blocks in (None, fused.blocks):
+        np.testing.assert_allclose(L.project_spans(h, fused.kernel, blocks, spans),
+                                   h @ fused.kernel, rtol=0, atol=tol)
+    gamma = rng.uniform(0.5, 1.5, c).astype(dtype)
+    beta = rng.normal(0, 0.3, c).astype(dtype)
+    gk, bk = gamma @ fused.kernel, beta @ fused.kernel
+    want = L.layer_norm(h, gamma, beta, 1e-3) @ fused.kernel
+    for fold_max in (0.85, 0.0):                      # the folded path and the plain one
+        got = L.project_layer_norm(h, gamma, beta, 1e-3, fused.kernel, fused.blocks, gk, bk,
+                                   ((0, 32), (32, 64)), fold_max=fold_max)
+        assert got.dtype == dtype
+        np.testing.assert_allclose(got, want, rtol=0, atol=10 * tol)
