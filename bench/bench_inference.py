@@ -6,13 +6,16 @@
     python bench/bench_inference.py --blas-kernel SkylakeX   # NumPy's OpenBLAS with this kernel
     python bench/bench_inference.py --no-busy  # skip the B = 1 run beside a spinning process
 
-Every peer runs the same weights (a random network of the released shape, m = 4, N = 30,
-identity transform nets, as every checkpoint of the released code has): tpnet_ref float32 and
-float64, onnxruntime (graph built by ``tpnet_ref.onnx_peer``), PyTorch eager
-(``tpnet_ref.torch_model``). Peers that are not installed are skipped and said so. Also: the
-same network with trained (non-identity) transform nets, an 80-frame rollout against 80
-independent ``predict`` calls, cold start and peak memory in fresh processes. Prints each
-figure, the ratio to each peer and the targets of the performance issue.
+Every peer runs the same weights, the shipped m = 4 model (N = 30, identity transform nets),
+on the same windows of the scene (simulated held-out test cases, normalised; only timed, never
+used to choose anything): tpnet_ref float32 and float64, onnxruntime (graph built by
+``tpnet_ref.onnx_peer``), PyTorch eager (``tpnet_ref.torch_model``). Peers that are not
+installed are skipped and said so. The NumPy engine reads only the weight rows of units that are
+non-zero (exact on every input), so its speed depends on the input: the same comparison on a
+random network of the released shape with uniform random input is printed too. Also: trained
+(non-identity) transform nets, an 80-frame rollout against 80 independent ``predict`` calls,
+cold start and peak memory in fresh processes. Prints each figure, the ratio to each peer and
+the targets of the performance issue.
 """
 from __future__ import annotations
 
@@ -67,6 +70,28 @@ def machine() -> str:
     return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
             f"NumPy {np.__version__} ({describe()}; OPENBLAS_CORETYPE="
             f"{os.environ.get('OPENBLAS_CORETYPE', 'unset')})")
+
+
+#: the test case whose first window is the B = 1 input (and the rollout's start)
+TEST_CASE_B1 = 0
+
+
+def scene_windows(model) -> tuple[np.ndarray, np.ndarray]:
+    """``(1, m, 30, 2)`` and ``(256, m, 30, 2)`` normalised float32 windows of simulated test
+    cases (the scene's inputs; only timed): test case ``TEST_CASE_B1``'s first window, and 32
+    windows spread over each of the first 8 test cases."""
+    from tpnet_ref.protocol import FRAME_EVERY
+    from tpnet_ref.sim.cases import TEST_CASES
+    from tpnet_ref.sim.scene import simulate
+    m = model.config.m
+    wins = []
+    for case in TEST_CASES[:8]:
+        traj = simulate(*case)[::FRAME_EVERY]
+        starts = np.linspace(0, len(traj) - m, 32).astype(int)
+        wins.append(np.stack([traj[s:s + m] for s in starts]))
+    x256 = model.normalize(np.concatenate(wins).astype(np.float32))
+    x1 = model.normalize(simulate(*TEST_CASES[TEST_CASE_B1])[::FRAME_EVERY][:m].astype(np.float32))
+    return x1[None], x256
 
 
 def timeit(fn, min_time: float, min_reps: int = 3) -> float:
@@ -153,8 +178,10 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"machine: {machine()}; threads per peer: {THREADS or 'library default'}")
     cfg = TPNetConfig()
-    m32 = init_random(cfg, seed=0, dtype="float32")
+    m32 = tpnet_ref.load()                # the shipped m = 4 model (with its unit order)
     m32.threads = THREADS                 # None: a large batch is split across every core
+    m_rand = init_random(cfg, seed=0, dtype="float32")
+    m_rand.threads = THREADS
     m64 = m32.astype("float64")
     m_tn = init_random(TPNetConfig(input_transform_trained=True, feature_transform_trained=True),
                        seed=0, dtype="float32")
@@ -168,15 +195,19 @@ def main(argv: list[str] | None = None) -> int:
         nb32 = nb64 = None
         print(f"engine='numba' skipped ({exc})")
     rng = np.random.default_rng(0)
-    x1 = rng.uniform(0.1, 0.9, (1, 4, 30, 2)).astype(np.float32)
-    x256 = rng.uniform(0.1, 0.9, (256, 4, 30, 2)).astype(np.float32)
-    print(f"network: {m32}\n")
+    x1, x256 = scene_windows(m32)
+    r1 = rng.uniform(0.1, 0.9, (1, 4, 30, 2)).astype(np.float32)
+    r256 = rng.uniform(0.1, 0.9, (256, 4, 30, 2)).astype(np.float32)
+    print(f"network: {m32}")
+    print(f"input: windows of simulated test cases (B = 1: {TEST_CASE_B1}, B = 256: 32 windows "
+          f"of each of 8), normalised\n")
 
     rows: dict[str, dict[str, float]] = {}
 
-    def measure(label: str, fn) -> None:
-        lat = timeit(lambda: fn(x1), t_min, 20)
-        thr = 256 / timeit(lambda: fn(x256), t_min * 2, 3)
+    def measure(label: str, fn, inputs=None) -> None:
+        a1, a256 = inputs or (x1, x256)
+        lat = timeit(lambda: fn(a1), t_min, 20)
+        thr = 256 / timeit(lambda: fn(a256), t_min * 2, 3)
         rows[label] = {"b1_ms": lat * 1e3, "b256_per_s": thr}
         print(f"  {label:38s} B=1 {lat * 1e3:7.3f} ms   B=256 {thr:8.1f} windows/s", flush=True)
 
@@ -205,6 +236,12 @@ def main(argv: list[str] | None = None) -> int:
         measure(f"{label} ({note})", fn)
         print(f"  {'':38s} max |peer - tpnet_ref float64| = {diff:.2e}")
         rows[label] = rows.pop(f"{label} ({note})")
+    print("\nthe same on a random network of the released shape, uniform random input:")
+    measure("tpnet_ref float32, random network", lambda x: m_rand.predict_batch(x, normalized=True),
+            (r1, r256))
+    ort_rand = onnx_peer(m_rand)[0]
+    if ort_rand is not None:
+        measure("onnxruntime, random network", ort_rand, (r1, r256))
 
     print("\n80-frame rollout (float32):")
     w0 = x1[0]
@@ -296,6 +333,11 @@ def main(argv: list[str] | None = None) -> int:
                        roll / ort_roll, roll / ort_roll <= 1.0))
     if busy is not None:
         checks.append(("B=1 latency, one core busy / idle (target <= 1.5)", busy, busy <= 1.5))
+    if "onnxruntime, random network" in r:
+        rr, ro = r["tpnet_ref float32, random network"], r["onnxruntime, random network"]
+        checks += [("random network: B=1 latency / onnxruntime", rr["b1_ms"] / ro["b1_ms"], None),
+                   ("random network: B=256 throughput / onnxruntime",
+                    rr["b256_per_s"] / ro["b256_per_s"], None)]
     if "PyTorch eager" in r:
         checks += [("B=1 latency / PyTorch", ours["b1_ms"] / r["PyTorch eager"]["b1_ms"], None),
                    ("B=256 throughput / PyTorch",

@@ -27,17 +27,33 @@ def _rings(rng, n, m=4):
 
 
 def _random_order(cfg, rng):
-    order = {"global": rng.permutation(cfg.global_features)}
-    for i, u in enumerate(cfg.lstm_units, 1):
-        order[f"lstm{i}"] = np.concatenate([rng.permutation(u), u + rng.permutation(u)])
-    return order
+    """A random order of every layer that has one (MLPs, global features, LSTM directions)."""
+    return {name: rng.permutation(n) for name, n in U.sizes(cfg).items()}
+
+
+def test_orders_cover_the_mlps_except_what_a_trained_transform_multiplies():
+    assert "mlp1.1" in U.sizes(CFG) and "mlp2.2" in U.sizes(CFG)
+    tn = TPNetConfig(feature_transform_trained=True)
+    assert "mlp1.1" not in U.sizes(tn) and "mlp1.0" in U.sizes(tn)
+    for cfg in (TPNetConfig(input_transform_trained=True, feature_transform_trained=True), tn):
+        model = init_random(cfg, seed=0)
+        use = U.measure(model, _rings(np.random.default_rng(0), 4))
+        perm = model._copy(unit_order=U.from_use(use))
+        w = _rings(np.random.default_rng(1), 3)
+        np.testing.assert_allclose(perm.predict_batch(w), model.predict_batch(w), rtol=0, atol=1e-3)
 
 
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
-def test_any_unit_order_is_the_same_network(dtype):
+@pytest.mark.parametrize("apart", [False, True])
+def test_any_unit_order_is_the_same_network(dtype, apart):
     model = init_random(CFG, seed=3, dtype=dtype)
     rng = np.random.default_rng(0)
-    perm = model._copy(unit_order=_random_order(CFG, rng))
+    order = _random_order(CFG, rng)
+    if apart:       # LSTM outputs ordered within each direction (no merge after the recurrence)
+        for i, u in enumerate(CFG.lstm_units, 1):
+            order[f"lstm{i}"] = np.concatenate([rng.permutation(u), u + rng.permutation(u)])
+    perm = model._copy(unit_order=order)
+    assert all((lay.merge is None) == apart for lay in perm._layers)
     w = rng.uniform(0, 45, (16, 4, 30, 2))
     tol = 2e-5 if dtype == "float32" else 1e-11
     np.testing.assert_allclose(perm.predict_batch(w), model.predict_batch(w), rtol=0, atol=tol * 45)
@@ -59,8 +75,9 @@ def test_sorted_shipped_model_equals_the_file_order_and_puts_used_units_first():
     rng = np.random.default_rng(0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        srt = base.sort_units(_rings(rng, 64))
-        use = U.measure(base, _rings(rng, 64))
+        cal = _rings(rng, 64)
+        srt = base.sort_units(cal)
+        use = U.measure(base, cal)
         w = _rings(np.random.default_rng(1), 32)
         np.testing.assert_allclose(srt.predict_batch(w), base.predict_batch(w), rtol=0, atol=1e-4)
         np.testing.assert_allclose(srt.predict(w[0]), base.predict(w[0]), rtol=0, atol=1e-4)
@@ -68,13 +85,10 @@ def test_sorted_shipped_model_equals_the_file_order_and_puts_used_units_first():
         far = rng.uniform(-500, 500, (4, 4, 30, 2))        # wakes units the order put last
         np.testing.assert_allclose(srt.predict_batch(far, normalized=False),
                                    base.predict_batch(far), rtol=0, atol=1e-3)
-    for name, order in srt.unit_order.items():   # used units first, never-used ones last
-        share = use[name][order]
-        if name == "global":
-            assert share[0] > 0 and share[-1] == 0
-        else:
-            u = share.size // 2
-            assert share[:u][0] >= share[:u][-1] and share[u:][0] >= share[u:][-1]
+    assert set(srt.unit_order) == set(U.sizes(base.config))
+    for name, order in srt.unit_order.items():   # most used units first
+        assert np.all(np.diff(use[name][order]) <= 0)
+    assert use["global"][srt.unit_order["global"]][-1] == 0    # never-used features last
 
 
 def test_permutation_invariance_is_bit_identical_with_an_order():
@@ -110,7 +124,7 @@ def test_unit_order_round_trips_through_the_native_file(tmp_path):
 @pytest.mark.parametrize("bad, msg", [
     ({"global": np.arange(5)}, "expected 24 integers"),
     ({"global": np.zeros(24, int)}, "not a permutation"),
-    ({"lstm2": np.arange(32)[::-1]}, "each direction"),
+    ({"lstm2": np.arange(1, 33)}, "not a permutation of 0..31"),
     ({"lstm9": np.arange(4)}, "unknown layers"),
     ({"global": np.linspace(0, 1, 24)}, "expected 24 integers"),
 ])

@@ -28,9 +28,15 @@ def sigmoid(x: np.ndarray) -> np.ndarray:
 
 
 def dense(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None,
-          activation: str | None = None) -> np.ndarray:
-    """Fully connected layer. ``x (..., in) @ w (in, out) + b (out,)`` -> ``(..., out)``."""
-    y = x @ w
+          activation: str | None = None, used: bool = False) -> np.ndarray:
+    """Fully connected layer. ``x (..., in) @ w (in, out) + b (out,)`` -> ``(..., out)``.
+    ``used``: ``x (R, in)`` is mostly zeros (a ReLU's output), so only the rows of ``w`` up to
+    the last non-zero column of ``x`` are read (:func:`used_columns`; the same result)."""
+    if used and x.ndim == 2:
+        k = used_columns(x)
+        y = x[:, :k] @ w[:k] if k < x.shape[1] else x @ w
+    else:
+        y = x @ w
     if b is not None:
         y += b
     if activation == "relu":
@@ -42,14 +48,16 @@ def dense(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None,
     return y
 
 
-def pointwise_mlp(x: np.ndarray, layers: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+def pointwise_mlp(x: np.ndarray, layers: Sequence[tuple[np.ndarray, np.ndarray]],
+                  used: bool = False) -> np.ndarray:
     """Shared per-point MLP (the released code's 1x1 convolutions), ReLU after every layer.
 
     ``x (P, C_in)`` -> ``(P, C_out)``; ``layers`` is a list of ``(w (C_i, C_i+1), b (C_i+1,))``.
-    Each point's row is computed independently of the others.
+    Each point's row is computed independently of the others. ``used``: every layer reads only
+    the weight rows of its input's used columns (see :func:`dense`).
     """
     for w, b in layers:
-        x = dense(x, w, b, "relu")
+        x = dense(x, w, b, "relu", used=used and x.shape[-1] > 2)   # not the points' coordinates
     return x
 
 
@@ -67,7 +75,7 @@ def segment_max(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
 
 
 def mlp_max(x: np.ndarray, layers: Sequence[tuple[np.ndarray, np.ndarray]],
-            counts: np.ndarray) -> np.ndarray:
+            counts: np.ndarray, used: bool = False) -> np.ndarray:
     """``segment_max(pointwise_mlp(x, layers), counts)``, the last layer's bias and ReLU applied
     after the max: ``(P, C_in)`` -> ``(F, C_out)``.
 
@@ -75,9 +83,9 @@ def mlp_max(x: np.ndarray, layers: Sequence[tuple[np.ndarray, np.ndarray]],
     nearest, so ``max_n relu(fl(y_n + b)) == relu(fl(max_n y_n + b))`` bit for bit. It saves two
     passes over the widest activation (``P x 512`` in TP-Net).
     """
-    x = pointwise_mlp(x, layers[:-1])
+    x = pointwise_mlp(x, layers[:-1], used)
     w, b = layers[-1]
-    g = segment_max(x @ w, counts)
+    g = segment_max(dense(x, w, used=used), counts)
     g += b
     return relu(g)
 
@@ -219,6 +227,13 @@ def used_columns(x: np.ndarray, start: int = 0, stop: int | None = None) -> int:
     return int(nz[-1]) + 1 if nz.size else 0
 
 
+def used_prefixes(x: np.ndarray) -> list[int]:
+    """:func:`used_columns` of each ``x[d]`` for ``x (D, R, C)`` in one pass (a row of ``D``
+    that is all zeros gives ``C``: every weight row read, still exact)."""
+    nz = (x[:, 0] != 0) if x.shape[1] == 1 else (x != 0).any(axis=1)
+    return (x.shape[2] - np.argmax(nz[:, ::-1], axis=1)).tolist()
+
+
 def project_spans(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None,
                   spans: Sequence[tuple[int, int]], small: bool = True) -> np.ndarray:
     """``x (R, C) @ kernel (C, N)`` -> ``(R, N)`` when the columns of ``x`` outside ``spans``
@@ -325,12 +340,8 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
                 z = xs[0]
             else:
                 z = xs[s - 1]                           # reuse the spent buffer
-                for d in (0, 1):
+                for d, k in enumerate(used_prefixes(hs[s - 1])):
                     hp = hs[s - 1, d]
-                    k = used_columns(hp)
-                    if k == 0:
-                        z[d] = xs[s, d]
-                        continue
                     if recurrent.dtype != dt:
                         z[d] = hp[:, :k] @ recurrent[d, :k]
                     elif bsz == 1:

@@ -59,6 +59,7 @@ class _Layer(NamedTuple):
     beta: np.ndarray
     gk: np.ndarray | None      # (8u,) previous LayerNorm's gamma @ kernel (None for BiLSTM 1)
     bk: np.ndarray | None      # (8u,) previous LayerNorm's beta @ kernel
+    merge: np.ndarray | None   # (2u,) output columns [forward | backward] -> the layer's order
 
 
 def _pool(n: int) -> ThreadPoolExecutor:
@@ -137,26 +138,52 @@ class TPNet:
             return (stack(f"{prefix}.mlp", len(mlp)), stack(f"{prefix}.fc", len(fc)),
                     (p[f"{prefix}.out.w"], p[f"{prefix}.out.b"]))
 
+        order = self.unit_order or {}
+
+        def ordered(prefix: str, n: int, prev: np.ndarray | None):
+            """A per-point MLP's layers, each layer's units (columns, bias, the next layer's
+            rows) in the unit order; also the last layer's order."""
+            out = []
+            for i in range(n):
+                w, b = p[f"{prefix}.{i}.w"], p[f"{prefix}.{i}.b"]
+                po = order.get(f"{prefix}.{i}")
+                if prev is not None:
+                    w = w[prev]
+                if po is not None:
+                    w, b = w[:, po], b[po]
+                out.append((np.ascontiguousarray(w), np.ascontiguousarray(b)))
+                prev = po
+            return out, prev
+
         self._input_tnet = (tnet("input_tnet", cfg.input_tnet_mlp, cfg.input_tnet_fc)
                             if cfg.input_transform_trained else None)
-        self._mlp1 = stack("mlp1", len(cfg.mlp1))
+        self._mlp1, prev = ordered("mlp1", len(cfg.mlp1), None)
         self._feature_tnet = (tnet("feature_tnet", cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
                               if cfg.feature_transform_trained else None)
-        self._mlp2 = stack("mlp2", len(cfg.mlp2))
+        self._mlp2, prev = ordered("mlp2", len(cfg.mlp2), prev)
+        self._global_w = p["global.w"] if prev is None else np.ascontiguousarray(p["global.w"][prev])
         # the prediction network, units in the unit order (see tpnet_ref.unit_order): each
         # direction's gate columns, recurrent rows and bias, the next layer's kernel rows, the
         # LayerNorm's gamma and beta, and the head's rows follow the order of their layer
-        order = self.unit_order or {}
         self._global_order = order.get("global")
         prev = self._global_order
         self._layers: list[_Layer] = []
         for i, u in enumerate(cfg.lstm_units, start=1):
-            po = order.get(f"lstm{i}")
+            po = order.get(f"lstm{i}")         # the outputs' order, both directions together
+            merge = None
+            if po is not None:                 # each direction's units in the same order
+                per_dir = (po[po < u], po[po >= u] - u)
+                pos = np.empty(2 * u, dtype=np.intp)
+                pos[per_dir[0]] = np.arange(u)
+                pos[u + per_dir[1]] = u + np.arange(u)
+                merge = pos[po]                # where each output sits after the recurrence
+                if np.array_equal(merge, np.arange(2 * u)):
+                    merge = None
             dirs = []
             for d, name in enumerate(("fwd", "bwd")):
                 k, r, b = (p[f"lstm{i}.{name}.{x}"] for x in ("kernel", "recurrent", "bias"))
                 if po is not None:
-                    pd = po[d * u:(d + 1) * u] - d * u
+                    pd = per_dir[d]
                     cols = np.concatenate([g * u + pd for g in range(4)])
                     k, r, b = k[:, cols], r[pd][:, cols], b[cols]
                 if prev is not None:
@@ -173,7 +200,7 @@ class TPNet:
                 gk = (g0.astype(np.float64) @ wide).astype(self.dtype)
                 bk = (b0.astype(np.float64) @ wide).astype(self.dtype)
             self._layers.append(_Layer(fused, np.ascontiguousarray(gamma),
-                                       np.ascontiguousarray(beta), gk, bk))
+                                       np.ascontiguousarray(beta), gk, bk, merge))
             prev = po
         self._head_w = p["head.w"] if prev is None else np.ascontiguousarray(p["head.w"][prev])
         self._lstms_file: list | None = None
@@ -302,11 +329,13 @@ class TPNet:
         x = points
         if self._input_tnet is not None:
             x = L.apply_transform(x, L.transform_net(x, counts, *self._input_tnet), counts)
-        h = L.pointwise_mlp(x, self._mlp1)
+        # every product after the first reads only the weight rows up to the last unit that
+        # is non-zero at some point of the block (L.used_columns; exact)
+        h = L.pointwise_mlp(x, self._mlp1, used=True)
         if self._feature_tnet is not None:
             h = L.apply_transform(h, L.transform_net(h, counts, *self._feature_tnet), counts)
-        g = L.mlp_max(h, self._mlp2, counts)
-        return L.dense(g, self.params["global.w"], self.params["global.b"], "relu")
+        g = L.mlp_max(h, self._mlp2, counts, used=True)
+        return L.dense(g, self._global_w, self.params["global.b"], "relu", used=True)
 
     def sequence_head(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
         """Prediction network: ``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1].
@@ -374,11 +403,15 @@ class TPNet:
                                    return_sequences=i < last)
                 if act == "relu" and not h.max() < limit:   # also catches NaN
                     self._overflow(f"BiLSTM {i + 1}")
+                n = h.shape[-1]
+                if lay.merge is not None:     # both directions' outputs in one order
+                    h = np.take(h, lay.merge, axis=-1)
                 if i < last:              # LayerNorm folded into the next input projection
-                    nxt, u = self._layers[i + 1], h.shape[-1] // 2
+                    nxt = self._layers[i + 1]
+                    spans = ((0, n),) if lay.merge is not None else ((0, n // 2), (n // 2, n))
                     xp = L.project_layer_norm(h.reshape(m * batch, -1), lay.gamma, lay.beta, eps,
                                               nxt.fused.kernel, nxt.fused.blocks, nxt.gk, nxt.bk,
-                                              ((0, u), (u, 2 * u)), self._small)
+                                              spans, self._small)
                 else:
                     h = L.layer_norm(h, lay.gamma, lay.beta, eps)
             y = L.dense(h, self._head_w, self.params["head.b"], "sigmoid")

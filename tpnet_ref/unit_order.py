@@ -13,9 +13,10 @@ rounding of LayerNorm's sums): the order only changes the model's private layout
 :meth:`tpnet_ref.model.TPNet.sort_units` measures an order; :func:`write` / :func:`read` keep
 it in the native weights file as a group ``unit_order`` (ignored by readers that do not know it).
 
-Orders: ``{"global": (k,), "lstm1": (2u_1,), ...}`` integer arrays; position ``j`` of the
-layout holds unit ``order[j]`` of the file. An LSTM's order keeps the directions apart: its
-first ``u`` entries permute ``0 .. u-1`` (forward), the last ``u`` permute ``u .. 2u-1``.
+Orders: ``{"mlp1.0": (64,), ..., "global": (k,), "lstm1": (2u_1,), ...}`` integer arrays;
+position ``j`` of the layout holds unit ``order[j]`` of the file. An LSTM's order is that of its
+``2u`` outputs ``[forward | backward]``, both directions together (the LayerNorm, the next
+layer's input rows); each direction's recurrence takes its units in the same relative order.
 """
 from __future__ import annotations
 
@@ -32,14 +33,20 @@ FORMAT = "tpnet_ref.unit_order/1"
 
 
 def sizes(config: Any) -> dict[str, int]:
-    """``{name: units}`` of every layer with an order."""
-    return {"global": config.global_features,
+    """``{name: units}`` of every layer with an order: the per-point MLPs' layers ``mlp1.i``
+    and ``mlp2.i`` (``mlp2.<last>``: the max-pooled features; not ``mlp1.<last>`` when a trained
+    feature transform multiplies it), ``global`` and ``lstm1 ..``."""
+    mlp = {f"mlp1.{i}": n for i, n in enumerate(config.mlp1)}
+    if config.feature_transform_trained:
+        mlp.pop(f"mlp1.{len(config.mlp1) - 1}")
+    mlp.update({f"mlp2.{i}": n for i, n in enumerate(config.mlp2)})
+    return {**mlp, "global": config.global_features,
             **{f"lstm{i}": 2 * u for i, u in enumerate(config.lstm_units, 1)}}
 
 
 def check(order: dict[str, Any] | None, config: Any) -> dict[str, np.ndarray] | None:
-    """``order`` validated against ``config`` (each a permutation of the right size, LSTM
-    directions kept apart) as ``intp`` arrays; None stays None. One-line ``ValueError``."""
+    """``order`` validated against ``config`` (each a permutation of the right size) as ``intp``
+    arrays; None stays None. One-line ``ValueError``."""
     if order is None:
         return None
     want = sizes(config)
@@ -53,30 +60,48 @@ def check(order: dict[str, Any] | None, config: Any) -> dict[str, np.ndarray] | 
         if a.shape != (n,) or a.dtype.kind not in "iu":
             raise ValueError(f"unit order {name!r}: expected {n} integers, got {a.dtype} {a.shape}")
         a = a.astype(np.intp)
-        halves = [a] if name == "global" else [a[:n // 2], a[n // 2:] - n // 2]
-        for part in halves:
-            if not np.array_equal(np.sort(part), np.arange(part.size)):
-                raise ValueError(f"unit order {name!r}: not a permutation"
-                                 + ("" if name == "global" else " of each direction's units"))
+        if not np.array_equal(np.sort(a), np.arange(n)):
+            raise ValueError(f"unit order {name!r}: not a permutation of 0..{n - 1}")
         out[name] = a
     return out
 
 
 def measure(model: Any, windows: Any, normalized: bool = False,
             chunk: int = 256) -> dict[str, np.ndarray]:
-    """Each unit's share of non-zero values on ``windows (B, m, N, dim)`` (global features per
-    frame, LSTM outputs per window and step): ``{name: (units,) float64}`` in the file's order."""
+    """Each unit's share of non-zero values on ``windows (B, m, N, dim)`` (MLP units per point,
+    max-pooled and global features per frame, LSTM outputs per window and step):
+    ``{name: (units,) float64}`` in the file's order."""
     from . import layers as L
+    from .model import canonical_order
     cfg = model.config
     windows = np.asarray(windows)
     if windows.ndim != 4 or windows.shape[1] != cfg.m or len(windows) == 0:
         raise ValueError(f"windows: expected shape (B, m={cfg.m}, N, {cfg.dim}) with B >= 1, "
                          f"got {windows.shape}")
-    counts = {k: np.zeros(n) for k, n in sizes(cfg).items()}
+    want = sizes(cfg)
+    counts = {k: np.zeros(n) for k, n in want.items()}
     p = model.params
+    points = 0
+    # the per-point MLPs' units are measured up to the first trained transform after the points
+    mlps = [] if cfg.input_transform_trained else (
+        [("mlp1", len(cfg.mlp1))] + ([] if cfg.feature_transform_trained else [("mlp2", len(cfg.mlp2))]))
     for s in range(0, len(windows), chunk):
         part = windows[s:s + chunk]
         frames = [f for w in part for f in model._check_window(w, "windows")]
+        if mlps:                                 # the per-point MLPs in the file's order
+            n = np.array([len(f) for f in frames])
+            x = np.concatenate(frames).astype(model.dtype)
+            x = x if normalized else model.normalize(x)
+            x = x[canonical_order(x, n)]
+            points += len(x)
+            for name, width in mlps:
+                for i in range(width):
+                    x = L.dense(x, p[f"{name}.{i}.w"], p[f"{name}.{i}.b"], "relu")
+                    key = f"{name}.{i}"
+                    if name == "mlp2" and i == width - 1:     # max-pooled: per frame
+                        counts[key] += (L.segment_max(x, n) != 0).sum(axis=0)
+                    elif key in want:
+                        counts[key] += (x != 0).sum(axis=0)
         g = model._frames_to_features(frames, normalized).reshape(len(part), cfg.m, -1)
         counts["global"] += (g != 0).sum(axis=(0, 1))
         h = g.transpose(1, 0, 2)
@@ -88,21 +113,16 @@ def measure(model: Any, windows: Any, normalized: bool = False,
                                    activation=cfg.lstm_activation, return_sequences=True)
                 counts[f"lstm{i}"] += (y != 0).sum(axis=(0, 1))
                 h = L.layer_norm(y, p[f"ln{i}.gamma"], p[f"ln{i}.beta"], cfg.layer_norm_eps)
-    n = len(windows) * cfg.m
-    return {k: v / n for k, v in counts.items()}
+    measured = {f"{name}.{i}" for name, width in mlps for i in range(width)} & set(want)
+    frames_n = len(windows) * cfg.m
+    last2 = f"mlp2.{len(cfg.mlp2) - 1}"
+    return {k: v / (points if k.startswith("mlp") and k != last2 else frames_n)
+            for k, v in counts.items() if not k.startswith("mlp") or k in measured}
 
 
 def from_use(use: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The order putting the most used units first (ties: the file's order), per direction."""
-    out = {}
-    for name, share in use.items():
-        if name == "global":
-            out[name] = np.argsort(-share, kind="stable")
-        else:
-            u = share.size // 2
-            out[name] = np.concatenate([np.argsort(-share[:u], kind="stable"),
-                                        u + np.argsort(-share[u:], kind="stable")])
-    return out
+    """The order putting the most used units first (ties: the file's order)."""
+    return {name: np.argsort(-share, kind="stable") for name, share in use.items()}
 
 
 # ------------------------------------------------------------------ native file

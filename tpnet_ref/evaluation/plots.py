@@ -118,7 +118,7 @@ def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
         e = r.err.get(f"Ep_{HEADLINE}")
         if ms is None or e is None:
             continue
-        c = plt.cm.tab10(i % 10)
+        c = plt.cm.tab20(i % 20)       # one colour per row (11+ rows)
         if not e.any():        # the reference itself: no error to draw on a log axis
             ax.axvline(ms, color=c, ls="--", lw=1, label=f"{r.name} (reference, error 0)")
             continue

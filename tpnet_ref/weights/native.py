@@ -227,9 +227,10 @@ def describe(path: str | os.PathLike) -> str:
            f"  coordinates  world units -> (x - {cfg.norm_lo}) / ({cfg.norm_hi} - {cfg.norm_lo})"]
     for key, label in (("producer", "producer"), ("created", "created"), ("hardware", "hardware"),
                        ("data", "data"), ("source", "source"), ("source_format", "source kind"),
-                       ("import_report", "import")):
+                       ("import_report", "import"), ("units_sorted_on", "unit order")):
         if meta.get(key) not in (None, ""):
-            out.append(f"  {label:13s}{meta[key]}")
+            pre = "most used first on " if key == "units_sorted_on" else ""
+            out.append(f"  {label:13s}{pre}{meta[key]}")
     try:
         val = json.loads(meta.get("val", "{}") or "{}")
     except (TypeError, ValueError):
