@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from . import layers as L
-from .weights.hdf5 import attr, safe_dataset, safe_group
+from .weights.hdf5 import read_vectors, write_vectors
 
 #: name of the HDF5 group that holds a specialisation in the native weights file
 GROUP = "specialization"
@@ -266,40 +266,20 @@ def fraction_used(used: dict[str, np.ndarray]) -> dict[str, tuple[int, int]]:
 def write(path: str | os.PathLike, used: dict[str, np.ndarray], **attrs: Any) -> None:
     """Add the masks as group ``specialization`` (uint8 datasets, ``format`` attribute) to an
     existing native weights file; any existing group of that name is replaced."""
-    import h5py
-    with h5py.File(path, "a") as f:
-        if GROUP in f:
-            del f[GROUP]
-        g = f.create_group(GROUP)
-        g.attrs["format"] = FORMAT
-        for k, v in attrs.items():
-            g.attrs[k] = v
-        for k, v in used.items():
-            g.create_dataset(k, data=np.asarray(v, dtype=np.uint8))
+    write_vectors(path, GROUP, FORMAT, used, np.uint8, **attrs)
 
 
 def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
     """The masks of a native weights file's ``specialization`` group, or None without one. The
     file is untrusted: links, external storage and oversized datasets are refused
     (:mod:`tpnet_ref.weights.hdf5`)."""
-    import h5py
-    where = str(path)
-    with h5py.File(path, "r") as f:
-        if GROUP not in f:
-            return None
-        g = safe_group(f, GROUP, where)
-        if attr(g, "format", where) not in (FORMAT, FORMAT.encode()):
-            raise ValueError(f"{path}: group {GROUP!r} is not a {FORMAT} specialisation")
-        out = {}
-        for k in g:
-            d = safe_dataset(g, k, where)
-            if d.ndim != 1 or d.size > 1 << 20 or d.dtype.kind not in "uib":
-                raise ValueError(f"{path}: {GROUP}/{k} is not a mask")
-            a = np.asarray(d[()])
-            if not np.isin(a, (0, 1)).all():
-                raise ValueError(f"{path}: {GROUP}/{k} holds values other than 0 and 1")
-            out[k] = a.astype(bool)
-        return out
+    masks = read_vectors(path, GROUP, FORMAT, "mask", kinds="uib")
+    if masks is None:
+        return None
+    for k, a in masks.items():
+        if not np.isin(a, (0, 1)).all():
+            raise ValueError(f"{path}: {GROUP}/{k} holds values other than 0 and 1")
+    return {k: a.astype(bool) for k, a in masks.items()}
 
 
 def save(model: Any, path: str | os.PathLike, **provenance: Any) -> None:

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .weights.hdf5 import attr, safe_dataset, safe_group
+from .weights.hdf5 import read_vectors, write_vectors
 
 #: name of the HDF5 group that holds a unit order in the native weights file
 GROUP = "unit_order"
@@ -129,37 +129,14 @@ def from_use(use: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 def write(path: str | os.PathLike, order: dict[str, np.ndarray], **attrs: Any) -> None:
     """Add ``order`` as group ``unit_order`` (int32 datasets) to an existing native weights
     file, replacing any group of that name."""
-    import h5py
-    with h5py.File(path, "a") as f:
-        if GROUP in f:
-            del f[GROUP]
-        g = f.create_group(GROUP)
-        g.attrs["format"] = FORMAT
-        for k, v in attrs.items():
-            g.attrs[k] = v
-        for k, v in order.items():
-            g.create_dataset(k, data=np.asarray(v, dtype=np.int32))
+    write_vectors(path, GROUP, FORMAT, order, np.int32, **attrs)
 
 
 def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
     """The ``unit_order`` group of a native weights file, or None without one. The file is
     untrusted: links, external storage, oversized or non-integer datasets are refused (the
     values are checked against the config by :func:`check`)."""
-    import h5py
-    where = str(path)
-    with h5py.File(path, "r") as f:
-        if GROUP not in f:
-            return None
-        g = safe_group(f, GROUP, where)
-        if attr(g, "format", where) not in (FORMAT, FORMAT.encode()):
-            raise ValueError(f"{path}: group {GROUP!r} is not a {FORMAT} unit order")
-        out = {}
-        for k in g:
-            d = safe_dataset(g, k, where)
-            if d.ndim != 1 or d.size > 1 << 20 or d.dtype.kind not in "iu":
-                raise ValueError(f"{path}: {GROUP}/{k} is not a unit order")
-            out[k] = np.asarray(d[()])
-        return out
+    return read_vectors(path, GROUP, FORMAT, "unit order")
 
 
 __all__ = ["GROUP", "FORMAT", "sizes", "check", "measure", "from_use", "write", "read"]

@@ -162,6 +162,45 @@ def read_array(group: Any, name: str, shape: tuple[int, ...], where: str) -> np.
     return arr
 
 
+def write_vectors(path: str | os.PathLike, group: str, fmt: str, vectors: dict[str, Any],
+                  dtype: Any, **attrs: Any) -> None:
+    """Add ``vectors`` (name -> 1-D array, stored as ``dtype``) as group ``group`` with attribute
+    ``format = fmt`` (and ``attrs``) to an existing HDF5 file, replacing a group of that name."""
+    import h5py
+    with h5py.File(path, "a") as f:
+        if group in f:
+            del f[group]
+        g = f.create_group(group)
+        g.attrs["format"] = fmt
+        for k, v in attrs.items():
+            g.attrs[k] = v
+        for k, v in vectors.items():
+            g.create_dataset(k, data=np.asarray(v, dtype=dtype))
+
+
+def read_vectors(path: str | os.PathLike, group: str, fmt: str, what: str,
+                 kinds: str = "iu") -> dict[str, np.ndarray] | None:
+    """The 1-D integer datasets (dtype kinds ``kinds``) of group ``group`` of an untrusted HDF5
+    file whose ``format`` attribute is ``fmt``, or None without the group. Links, external
+    storage, other formats, other dtypes and more than 2^20 values are refused (``what`` names
+    the content in the one-line error)."""
+    import h5py
+    where = str(path)
+    with h5py.File(path, "r") as f:
+        if group not in f:
+            return None
+        g = safe_group(f, group, where)
+        if attr(g, "format", where) not in (fmt, fmt.encode()):
+            raise ValueError(f"{path}: group {group!r} is not a {fmt} {what}")
+        out = {}
+        for k in g:
+            d = safe_dataset(g, k, where)
+            if d.ndim != 1 or d.size > 1 << 20 or d.dtype.kind not in kinds:
+                raise ValueError(f"{path}: {group}/{k} is not a {what}")
+            out[k] = np.asarray(d[()])
+        return out
+
+
 def open_h5(path: str | os.PathLike) -> Any:
     """``h5py.File(path, "r")``; a missing file is ``FileNotFoundError``, anything unreadable
     ``ValueError``."""
