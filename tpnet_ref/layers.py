@@ -211,10 +211,7 @@ def project(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None = None,
     product as one stacked product over the blocks, each small enough for the BLAS to skip
     packing the weights (measured 2-4x faster for R = 4; :func:`tpnet_ref.blas.small_products_pay`
     decides ``small`` once per process)."""
-    if blocks is None or not small or x.shape[0] * blocks.shape[1] * blocks.shape[2] > SMALL_PRODUCT:
-        return x @ kernel
-    y = np.matmul(x, blocks)                        # (N / nb, R, nb)
-    return y.transpose(1, 0, 2).reshape(x.shape[0], -1)
+    return project_spans(x, kernel, blocks, [(0, x.shape[1])], small)
 
 
 def used_columns(x: np.ndarray, start: int = 0, stop: int | None = None) -> int:
@@ -244,21 +241,22 @@ def project_spans(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None,
     spans = [(a, b) for a, b in spans if b > a]
     if not spans:
         return np.zeros((rows, kernel.shape[1]), dtype=x.dtype)
-    widest = max(b - a for a, b in spans)
-    if blocks is None or not small or rows * widest * blocks.shape[2] > SMALL_PRODUCT:
-        out = x[:, spans[0][0]:spans[0][1]] @ kernel[spans[0][0]:spans[0][1]]
-        for a, b in spans[1:]:
-            out += x[:, a:b] @ kernel[a:b]
-        return out
-    acc = np.matmul(x[:, spans[0][0]:spans[0][1]], blocks[:, spans[0][0]:spans[0][1]])
-    for a, b in spans[1:]:
-        acc += np.matmul(x[:, a:b], blocks[:, a:b])          # (N / nb, R, nb)
-    return acc.transpose(1, 0, 2).reshape(rows, -1)
+    stacked = (blocks is not None and small
+               and rows * max(b - a for a, b in spans) * blocks.shape[2] <= SMALL_PRODUCT)
+    w = blocks if stacked else kernel               # the kernel rows: axis -2 of both
+    acc = None
+    for a, b in spans:
+        part = np.matmul(x[:, a:b], w[..., a:b, :])   # (N / nb, R, nb) stacked, else (R, N)
+        if acc is None:
+            acc = part
+        else:
+            acc += part
+    return acc.transpose(1, 0, 2).reshape(rows, -1) if stacked else acc
 
 
 def project_layer_norm(h: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: float,
                        kernel: np.ndarray, blocks: np.ndarray | None, gk: np.ndarray,
-                       bk: np.ndarray, halves: Sequence[tuple[int, int]],
+                       bk: np.ndarray, ranges: Sequence[tuple[int, int]],
                        small: bool = True, fold_max: float = 0.85) -> np.ndarray:
     """``layer_norm(h, gamma, beta, eps) @ kernel`` -> ``(R, N)`` for ``h (R, C)``, reading only
     the kernel rows of the columns where ``h`` can be non-zero.
@@ -266,19 +264,15 @@ def project_layer_norm(h: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: 
     LayerNorm is affine in ``h`` per row: with ``r = 1 / sqrt(var + eps)`` and the row mean
     ``mu``, ``LN(h) @ K = r * ((h * gamma) @ K) - r * mu * (gamma @ K) + beta @ K``. The zeros
     of ``h`` (a ReLU LSTM's output is mostly zeros) add nothing to the first product, so each of
-    ``halves`` (the column ranges of the two directions) is cut after its last non-zero column
-    (:func:`used_columns`); ``gk = gamma @ K`` and ``bk = beta @ K`` are computed once at load.
-    Mean and variance are those of :func:`layer_norm`. When the kept columns exceed
-    ``fold_max`` of all, the plain ``layer_norm`` then :func:`project` is used (same result up
-    to rounding, fewer passes)."""
-    spans = [(a, a + used_columns(h, a, b)) for a, b in halves]
+    ``ranges`` (column ranges: all outputs in the layer's unit order, or each direction's) is cut
+    after its last non-zero column (:func:`used_columns`); ``gk = gamma @ K`` and
+    ``bk = beta @ K`` are computed once at load. Mean and variance are :func:`layer_norm`'s.
+    When the kept columns exceed ``fold_max`` of all, the plain ``layer_norm`` then
+    :func:`project` is used (same result up to rounding, fewer passes)."""
+    spans = [(a, a + used_columns(h, a, b)) for a, b in ranges]
     if sum(b - a for a, b in spans) > fold_max * h.shape[1]:
         return project(layer_norm(h, gamma, beta, eps), kernel, blocks, small)
-    dt = h.dtype
-    mean = h.mean(axis=-1, keepdims=True)
-    d = h - mean
-    var = np.mean(d * d, axis=-1, keepdims=True)
-    r = (1.0 / np.sqrt(var + dt.type(eps))).astype(dt, copy=False)
+    mean, _, r = _norm_stats(h, eps)
     out = project_spans(h * gamma, kernel, blocks, spans, small)
     out *= r
     mean *= r
@@ -394,15 +388,22 @@ def bidirectional_lstm(x: np.ndarray, fwd: tuple[np.ndarray, np.ndarray, np.ndar
     return np.concatenate([f[:, -1], b[:, 0]], axis=-1)
 
 
+def _norm_stats(x: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """LayerNorm's statistics over the last axis: the mean, ``x - mean`` and
+    ``r = 1 / sqrt(var + eps)`` (biased variance), the last two in ``x``'s dtype."""
+    mean = x.mean(axis=-1, keepdims=True)
+    d = x - mean
+    var = np.mean(d * d, axis=-1, keepdims=True)
+    return mean, d, (1.0 / np.sqrt(var + x.dtype.type(eps))).astype(x.dtype, copy=False)
+
+
 def layer_norm(x: np.ndarray, gamma: np.ndarray, beta: np.ndarray, eps: float) -> np.ndarray:
     """Layer normalisation over the last axis (Keras: biased variance, ``eps`` inside the sqrt).
 
     ``x (..., C)`` -> ``(..., C)``: ``(x - mean) / sqrt(var + eps) * gamma + beta``.
     """
-    mean = x.mean(axis=-1, keepdims=True)
-    d = x - mean
-    var = np.mean(d * d, axis=-1, keepdims=True)
-    d *= (1.0 / np.sqrt(var + x.dtype.type(eps))).astype(x.dtype, copy=False)
+    _, d, r = _norm_stats(x, eps)
+    d *= r
     d *= gamma
     d += beta
     return d

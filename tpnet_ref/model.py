@@ -227,29 +227,29 @@ class TPNet:
                 for i in range(1, len(self.config.lstm_units) + 1)]
         return self._lstms_file
 
-    def _copy(self, dtype: Any = None, engine: str | None = None,
-              unit_order: Any = "same") -> "TPNet":
+    def _copy(self, dtype: Any = None, engine: str | None = None, unit_order: Any = "same",
+              used: Any = "same") -> "TPNet":
+        """This network with the given changes ("same": this one's unit order / specialisation
+        masks; None: none)."""
         out = TPNet(self.config, self.params, self.dtype if dtype is None else dtype, self.meta,
                     self.engine if engine is None else engine,
                     self.unit_order if isinstance(unit_order, str) else unit_order)
         out.threads = self.threads
+        if isinstance(used, str):
+            used = None if self.specialization is None else self.specialization.used
+        if used is not None:
+            out.specialization = S.SceneHead(out, used)
         return out
 
     def sort_units(self, windows: Any, normalized: bool = False) -> "TPNet":
         """The same network with each layer's units laid out most used first on ``windows``
         ``(B, m, N, dim)`` (the scene's windows): exact on every input, faster on windows like
         these (:mod:`tpnet_ref.unit_order`). The order is saved with the model."""
-        out = self._copy(unit_order=U.from_use(U.measure(self, windows, normalized)))
-        if self.specialization is not None:
-            out.specialization = S.SceneHead(out, self.specialization.used)
-        return out
+        return self._copy(unit_order=U.from_use(U.measure(self, windows, normalized)))
 
     def astype(self, dtype: Any) -> "TPNet":
         """The same network with its parameters in ``dtype`` (float32 or float64)."""
-        out = self._copy(dtype=dtype)
-        if self.specialization is not None:
-            out.specialization = S.SceneHead(out, self.specialization.used)
-        return out
+        return self._copy(dtype=dtype)
 
     def specialize(self, windows: Any, normalized: bool = False) -> "TPNet":
         """The same network computing only the units that ``windows`` ``(B, m, N, dim)`` (the
@@ -260,17 +260,11 @@ class TPNet:
 
     def with_specialization(self, used: dict[str, np.ndarray] | None) -> "TPNet":
         """A copy of this network specialised to the units ``used`` marks (None: not at all)."""
-        out = self._copy()
-        if used is not None:
-            out.specialization = S.SceneHead(out, used)
-        return out
+        return self._copy(used=used)
 
     def with_engine(self, engine: str) -> "TPNet":
         """The same network (and specialisation) run by ``engine`` ("numpy", "numba", "auto")."""
-        out = self._copy(engine=engine)
-        if self.specialization is not None:
-            out.specialization = S.SceneHead(out, self.specialization.used)
-        return out
+        return self._copy(engine=engine)
 
     @property
     def num_params(self) -> int:
@@ -428,16 +422,21 @@ class TPNet:
             + remedy)
 
     # ------------------------------------------------------------ public API
-    def _frames_to_features(self, frames: list[np.ndarray], normalized: bool) -> np.ndarray:
-        """Validated frames (each ``(N_i, dim)``) -> their global features ``(F, k)``."""
+    def _canonical_points(self, frames: list[np.ndarray],
+                          normalized: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Validated frames (each ``(N_i, dim)``) -> their points in model coordinates, each
+        frame in canonical order, ``(P, dim)``, and the points per frame ``(F,)``."""
         counts = np.fromiter((f.shape[0] for f in frames), dtype=np.intp, count=len(frames))
         pts = np.concatenate(frames, axis=0).astype(self.dtype, copy=False)
         if not normalized:
             pts = self.normalize(pts)
         else:
             pts = pts + self.dtype.type(0.0)  # a copy, and -0.0 -> +0.0 for a canonical order
-        pts = pts[canonical_order(pts, counts)]
-        return self.frame_features(pts, counts)
+        return pts[canonical_order(pts, counts)], counts
+
+    def _frames_to_features(self, frames: list[np.ndarray], normalized: bool) -> np.ndarray:
+        """Validated frames (each ``(N_i, dim)``) -> their global features ``(F, k)``."""
+        return self.frame_features(*self._canonical_points(frames, normalized))
 
     def _check_window(self, window: Any, name: str) -> list[np.ndarray]:
         m, dim = self.config.m, self.config.dim

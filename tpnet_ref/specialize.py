@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from . import layers as L
+from .unit_order import measure
 from .weights.hdf5 import read_vectors, write_vectors
 
 #: name of the HDF5 group that holds a specialisation in the native weights file
@@ -46,24 +47,8 @@ def calibrate(model: Any, windows: np.ndarray, normalized: bool = False,
     if cfg.lstm_activation != "relu":
         raise ValueError("specialize: only a ReLU-LSTM network has units that stay exactly zero "
                          f"(this one uses {cfg.lstm_activation!r})")
-    windows = np.asarray(windows)
-    if windows.ndim != 4 or windows.shape[1] != cfg.m or len(windows) == 0:
-        raise ValueError(f"windows: expected shape (B, m={cfg.m}, N, {cfg.dim}) with B >= 1, "
-                         f"got {windows.shape}")
-    used = {"global": np.zeros(cfg.global_features, bool)}
-    used.update({f"lstm{i}": np.zeros(2 * u, bool) for i, u in enumerate(cfg.lstm_units, 1)})
-    for s in range(0, len(windows), chunk):
-        part = windows[s:s + chunk]
-        frames = [f for w in part for f in model._check_window(w, "windows")]
-        g = model._frames_to_features(frames, normalized).reshape(len(part), cfg.m, -1)
-        used["global"] |= (g != 0).any(axis=(0, 1))
-        h = g.transpose(1, 0, 2)
-        with np.errstate(over="ignore", invalid="ignore"):
-            for i, (fused, gamma, beta) in enumerate(model._lstms, 1):
-                y = L.bilstm_fused(h, *fused, activation="relu", return_sequences=True)
-                used[f"lstm{i}"] |= (y != 0).any(axis=(0, 1))
-                h = L.layer_norm(y, gamma, beta, cfg.layer_norm_eps)
-    return used
+    use = measure(model, windows, normalized, chunk, mlp=False)
+    return {k: v > 0 for k, v in use.items()}
 
 
 def calibration_cases(n_trajectories: int = 36, seed: int = 0) -> np.ndarray:

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from . import layers as L
 from .weights.hdf5 import read_vectors, write_vectors
 
 #: name of the HDF5 group that holds a unit order in the native weights file
@@ -66,13 +67,12 @@ def check(order: dict[str, Any] | None, config: Any) -> dict[str, np.ndarray] | 
     return out
 
 
-def measure(model: Any, windows: Any, normalized: bool = False,
-            chunk: int = 256) -> dict[str, np.ndarray]:
+def measure(model: Any, windows: Any, normalized: bool = False, chunk: int = 256,
+            mlp: bool = True) -> dict[str, np.ndarray]:
     """Each unit's share of non-zero values on ``windows (B, m, N, dim)`` (MLP units per point,
     max-pooled and global features per frame, LSTM outputs per window and step):
-    ``{name: (units,) float64}`` in the file's order."""
-    from . import layers as L
-    from .model import canonical_order
+    ``{name: (units,) float64}`` in the file's order. ``mlp=False``: the global features and
+    LSTMs only."""
     cfg = model.config
     windows = np.asarray(windows)
     if windows.ndim != 4 or windows.shape[1] != cfg.m or len(windows) == 0:
@@ -83,36 +83,31 @@ def measure(model: Any, windows: Any, normalized: bool = False,
     p = model.params
     points = 0
     # the per-point MLPs' units are measured up to the first trained transform after the points
-    mlps = [] if cfg.input_transform_trained else (
+    mlps = [] if cfg.input_transform_trained or not mlp else (
         [("mlp1", len(cfg.mlp1))] + ([] if cfg.feature_transform_trained else [("mlp2", len(cfg.mlp2))]))
     for s in range(0, len(windows), chunk):
         part = windows[s:s + chunk]
         frames = [f for w in part for f in model._check_window(w, "windows")]
-        if mlps:                                 # the per-point MLPs in the file's order
-            n = np.array([len(f) for f in frames])
-            x = np.concatenate(frames).astype(model.dtype)
-            x = x if normalized else model.normalize(x)
-            x = x[canonical_order(x, n)]
-            points += len(x)
-            for name, width in mlps:
-                for i in range(width):
-                    x = L.dense(x, p[f"{name}.{i}.w"], p[f"{name}.{i}.b"], "relu")
-                    key = f"{name}.{i}"
-                    if name == "mlp2" and i == width - 1:     # max-pooled: per frame
-                        counts[key] += (L.segment_max(x, n) != 0).sum(axis=0)
-                    elif key in want:
-                        counts[key] += (x != 0).sum(axis=0)
-        g = model._frames_to_features(frames, normalized).reshape(len(part), cfg.m, -1)
+        pts, n = model._canonical_points(frames, normalized)
+        x = pts                                  # the per-point MLPs in the file's order
+        points += len(x)
+        for name, width in mlps:
+            for i in range(width):
+                x = L.dense(x, p[f"{name}.{i}.w"], p[f"{name}.{i}.b"], "relu")
+                key = f"{name}.{i}"
+                if name == "mlp2" and i == width - 1:     # max-pooled: per frame
+                    counts[key] += (L.segment_max(x, n) != 0).sum(axis=0)
+                elif key in want:
+                    counts[key] += (x != 0).sum(axis=0)
+        g = model.frame_features(pts, n).reshape(len(part), cfg.m, -1)
         counts["global"] += (g != 0).sum(axis=(0, 1))
         h = g.transpose(1, 0, 2)
         with np.errstate(over="ignore", invalid="ignore"):
-            for i in range(1, len(cfg.lstm_units) + 1):
-                fwd, bwd = (tuple(p[f"lstm{i}.{d}.{k}"] for k in ("kernel", "recurrent", "bias"))
-                            for d in ("fwd", "bwd"))
-                y = L.bilstm_fused(h, *L.fuse_bilstm(fwd, bwd),
-                                   activation=cfg.lstm_activation, return_sequences=True)
+            for i, (fused, gamma, beta) in enumerate(model._lstms, 1):     # the file's order
+                y = L.bilstm_fused(h, *fused, activation=cfg.lstm_activation,
+                                   return_sequences=True)
                 counts[f"lstm{i}"] += (y != 0).sum(axis=(0, 1))
-                h = L.layer_norm(y, p[f"ln{i}.gamma"], p[f"ln{i}.beta"], cfg.layer_norm_eps)
+                h = L.layer_norm(y, gamma, beta, cfg.layer_norm_eps)
     measured = {f"{name}.{i}" for name, width in mlps for i in range(width)} & set(want)
     frames_n = len(windows) * cfg.m
     last2 = f"mlp2.{len(cfg.mlp2) - 1}"

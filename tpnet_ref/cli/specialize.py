@@ -11,16 +11,21 @@ import numpy as np
 from .files import load_npy, output_path
 
 
+def _output_args(p: Any, what: str) -> None:
+    """The arguments both commands share: -o, --weights, --max-windows."""
+    p.add_argument("-o", "--output", required=True, help="native weights file to write")
+    p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
+    p.add_argument("--max-windows", type=int, default=20000,
+                   help=f"use at most this many {what} (default 20000)")
+
+
 def add_cli(sub: Any) -> None:
     p = sub.add_parser("specialize", help="write a model that computes only the units a scene "
                                           "uses (exact on every input: other windows run in full)")
     p.add_argument("source", help="calibration windows: a dataset file of `tpnet data` (its "
                                   "training windows, never the test cases) or a .npy (B, m, N, 2) "
                                   "array of windows in world units")
-    p.add_argument("-o", "--output", required=True, help="native weights file to write")
-    p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
-    p.add_argument("--max-windows", type=int, default=20000,
-                   help="use at most this many calibration windows (default 20000)")
+    _output_args(p, "calibration windows")
     p.set_defaults(func=_cli_specialize)
 
     q = sub.add_parser("sort-units", help="write the same network with each layer's units laid "
@@ -31,42 +36,46 @@ def add_cli(sub: Any) -> None:
                         "windows) or a .npy (B, m, N, 2) array in world units; default: windows "
                         "of --trajectories simulated training-grid trajectories and the model's "
                         "own rollouts from them (never the test cases)")
-    q.add_argument("-o", "--output", required=True, help="native weights file to write")
-    q.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
+    _output_args(q, "windows")
     q.add_argument("--trajectories", type=int, default=36,
                    help="training-grid trajectories when no source is given (default 36)")
-    q.add_argument("--max-windows", type=int, default=20000,
-                   help="use at most this many windows (default 20000)")
     q.set_defaults(func=_cli_sort_units)
 
 
-def _windows(args: Any, model: Any) -> tuple[np.ndarray, bool, str]:
-    """The windows ``args.source`` names (or simulated training-grid ones), whether they are
-    normalised, and a description for the provenance."""
-    if args.source is None:
+def _prepare(args: Any) -> tuple[Path | None, Path, Any]:
+    """The checked source (None: simulate), the output path and the model to start from; a
+    missing source is reported before anything is loaded."""
+    from ..model import load
+    src = None if args.source is None else Path(args.source)
+    if src is not None and not src.is_file():
+        raise FileNotFoundError(f"source not found: {src}")
+    return src, output_path(args.output, "-o"), load(args.weights)
+
+
+def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool, str]:
+    """At most ``--max-windows`` windows from ``src`` (or simulated training-grid ones), whether
+    they are normalised, and a description for the provenance."""
+    if src is None:
         from ..specialize import calibration_windows
         n = args.trajectories
-        return calibration_windows(model, n), False, f"{n} training-grid trajectories + rollouts"
-    src = Path(args.source)
-    if not src.is_file():
-        raise FileNotFoundError(f"source not found: {src}")
-    if src.suffix == ".npy":
-        return load_npy(str(src), "source"), False, str(src)
-    from ..data import load_windows
-    windows, _ = load_windows(str(src), "train", normalized=True)
-    return windows, True, f"{src} (training windows)"
+        windows, normalized = calibration_windows(model, n), False
+        what = f"{n} training-grid trajectories + rollouts"
+    elif src.suffix == ".npy":
+        windows, normalized, what = load_npy(str(src), "source"), False, str(src)
+    else:
+        from ..data import load_windows
+        windows, _ = load_windows(str(src), "train", normalized=True)
+        normalized, what = True, f"{src} (training windows)"
+    return np.asarray(windows)[:args.max_windows], normalized, what
 
 
 def _cli_sort_units(args: Any) -> int:
     from .. import unit_order as U
-    from ..model import load
 
-    out = output_path(args.output, "-o")
-    model = load(args.weights)
+    src, out, model = _prepare(args)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        windows, normalized, what = _windows(args, model)
-        windows = np.asarray(windows)[:args.max_windows]
+        windows, normalized, what = _windows(args, src, model)
         use = U.measure(model, windows, normalized)
     srt = model._copy(unit_order=U.from_use(use))
     srt.save(out, units_sorted_on=f"{len(windows)} windows: {what}")
@@ -77,21 +86,9 @@ def _cli_sort_units(args: Any) -> int:
 
 def _cli_specialize(args: Any) -> int:
     from .. import specialize as S
-    from ..model import load
 
-    src = Path(args.source)
-    if not src.is_file():
-        raise FileNotFoundError(f"source not found: {src}")
-    out = output_path(args.output, "-o")
-    model = load(args.weights)
-    if src.suffix == ".npy":
-        windows = load_npy(str(src), "source")
-        normalized = False
-    else:
-        from ..data import load_windows
-        windows, _ = load_windows(str(src), "train", normalized=True)
-        normalized = True
-    windows = np.asarray(windows)[:args.max_windows]
+    src, out, model = _prepare(args)
+    windows, normalized, _ = _windows(args, src, model)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         spec = model.specialize(windows, normalized=normalized)
