@@ -325,24 +325,23 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
     np.add(xp[:, :, 0], bias[:4 * u], out=xs[:, 0])
     np.add(xp[::-1, :, 1], bias[4 * u:], out=xs[:, 1])
     c = np.empty((2, bsz, u), dtype=dt)
-    tmp = np.empty((2, bsz, u), dtype=dt)
     hs = np.empty((steps, 2, bsz, u), dtype=dt)         # h after each step
     one = dt.type(1.0)
+    mixed = recurrent.dtype != dt
     with np.errstate(over="ignore"):
         for s in range(steps):
-            if s == 0:
-                z = xs[0]
-            else:
-                z = xs[s - 1]                           # reuse the spent buffer
-                for d, k in enumerate(used_prefixes(hs[s - 1])):
-                    hp = hs[s - 1, d]
-                    if recurrent.dtype != dt:
-                        z[d] = hp[:, :k] @ recurrent[d, :k]
+            z = xs[s]                                   # gates computed in place
+            if s:                                       # + h @ recurrent (h = c = 0 at step 0)
+                hp = hs[s - 1]
+                zr = xs[s - 1]                          # the spent buffer takes the products
+                for d, k in enumerate(used_prefixes(hp)):
+                    if mixed:
+                        zr[d] = hp[d, :, :k] @ recurrent[d, :k]
                     elif bsz == 1:
-                        np.dot(hp[0, :k], recurrent[d, :k], out=z[d, 0])
+                        np.dot(hp[d, 0, :k], recurrent[d, :k], out=zr[d, 0])
                     else:
-                        np.matmul(hp[:, :k], recurrent[d, :k], out=z[d])
-                    z[d] += xs[s, d]
+                        np.matmul(hp[d, :, :k], recurrent[d, :k], out=zr[d])
+                z += zr
             gates = z[..., :3 * u]                  # -x for i, f, o (negated weights)
             np.exp(gates, out=gates)                # may overflow to inf: 1/(1+inf) = 0
             gates += one
@@ -352,12 +351,12 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
                 np.maximum(g, 0, out=g)
             else:
                 np.tanh(g, out=g)
+            np.multiply(z[..., :u], g, out=g)       # i * g
             if s == 0:                              # c = i*g
-                np.multiply(z[..., :u], g, out=c)
+                c[...] = g
             else:                                   # c = f*c + i*g
                 c *= z[..., u:2 * u]
-                np.multiply(z[..., :u], g, out=tmp)
-                c += tmp
+                c += g
             h = hs[s]                               # h = o * act(c)
             if relu_act:
                 np.maximum(c, 0, out=h)
