@@ -1,26 +1,40 @@
 """The optional Numba engine: TP-Net's prediction network (BiLSTMs, LayerNorms, head) as one
 compiled function. ``TPNet(..., engine="numba")`` or ``model.with_engine("numba")``; needs numba
-(the ``metrics`` extra). The NumPy path (:func:`tpnet_ref.layers.bilstm_fused`, specified by
-:func:`tpnet_ref.layers.lstm`) is the reference; ``tests/test_engine_numba.py`` checks they agree.
+(the ``metrics`` extra). The NumPy path (:func:`tpnet_ref.layers.bilstm_steps`,
+:func:`tpnet_ref.layers.project_layer_norm`, specified by :func:`tpnet_ref.layers.lstm`) is the
+reference; ``tests/test_engine_numba.py`` checks they agree.
 
 What it does that NumPy cannot:
 
-- one call per prediction instead of ~130 NumPy calls (plus one for BiLSTM 1's input projection,
-  which a rollout computes once per frame): the gates, cell and output of each unit are computed
-  in the loop that finishes its pre-activations, LayerNorm and head included;
-- weights laid out at load for the products they feed: each direction's input kernel as each
-  unit's four gate rows ``(u, 4, C)`` (four dot products with contiguous rows, every weight row
-  read once for four input rows); the recurrent matrix as Keras stores it ``(u, 4u)``, row ``k``
-  added ``h[k]`` times into the ``4u`` pre-activations, and rows with ``h[k] == 0`` not read at
-  all (a ReLU LSTM's state is often half zeros; skipping whole 8 KB rows keeps the reads
-  sequential);
-- the two directions of a layer run in parallel (``prange`` over the direction: each direction's
-  whole recurrence on one thread, no synchronisation between steps).
+- one call per prediction instead of ~100 NumPy calls (plus one for BiLSTM 1's input
+  projection, which a rollout computes once per frame): the gates, cell and output of each unit
+  are computed in the loop that finishes its pre-activations, LayerNorm and head included;
+- every product reads only the weight rows that a non-zero input multiplies, row by row, not
+  only up to the last used one (a ReLU network's activations are mostly zeros, not always the
+  same ones): BiLSTM 1's input projection (the global features), every recurrent product (the
+  state ``h``), and BiLSTM 2's and 3's input projections, whose input is a LayerNorm output (no
+  zeros): LayerNorm is affine per row, so with ``r = 1 / sqrt(var + eps)`` and the row mean
+  ``mu``, ``LN(h) @ K = r * ((h * gamma) @ K) - r * mu * (gamma @ K) + beta @ K``, and
+  ``h * gamma`` has ``h``'s zeros (``gamma @ K`` and ``beta @ K + bias`` computed at load in
+  float64). With tanh (no zeros) LayerNorm is applied first, then the plain product;
+- the products run in a small register-blocked kernel (:func:`_strip_kernel`, written in LLVM
+  IR): up to :data:`GROUP_ROWS` input rows (the m steps of a window, or the windows of a small
+  batch) times one strip of :data:`STRIP_BYTES` of weight columns, the accumulators in
+  registers; each weight row that some row of the group multiplies by a non-zero is read once.
+  The weights are laid out at load in such strips (``(n_strips, C, S)``, each strip's rows
+  contiguous), the four gates of ``S / 4`` units in each (units padded to a multiple of
+  ``S / 4`` with zero columns);
+- with ``parallel``, the two directions of a layer on two threads (``prange``).
 
-Determinism: every number is computed by one thread in a fixed order (the same compiled code
-whatever the thread count), so the result does not depend on the thread count (bit for bit) or
-on the other windows of a batch; the canonical point order before the extractor keeps permutation invariance exact.
-Products accumulate in the model's dtype (as the BLAS does); LayerNorm statistics in float64.
+Determinism: each output number is one chain of fused multiply-adds (``llvm.fma``, explicit,
+not left to the compiler) over the group's non-zero inputs in increasing order, starting from
++0. An input that is zero in this row but not in another row of its group adds ``fma(0, w, s)
+= s`` exactly (the weights are finite and a sum that starts at +0 is never -0), so a row's
+result is the same bits whatever the other rows of its group: the result does not depend on the
+other windows of a batch, nor on the thread count (each number is computed by one thread, by the
+same code); the canonical point order before the extractor keeps permutation invariance exact.
+Element-wise work uses no fast-math flags. Products accumulate in the model's dtype (as the BLAS
+does); LayerNorm statistics in float64.
 """
 from __future__ import annotations
 
@@ -32,20 +46,179 @@ import numpy as np
 from .extras import require
 
 numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
-from numba import njit, prange  # noqa: E402
+from llvmlite import ir  # noqa: E402
+from numba import njit, prange, types  # noqa: E402
+from numba.core import cgutils  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
 
-def unit_rows(w: np.ndarray) -> np.ndarray:
-    """Keras gate-fused columns ``(C, 4u)`` (gates i, f, c, o) or a bias ``(4u,)`` -> each unit's
-    four gate rows side by side, ``(u, 4, C)`` or ``(u, 4)``: the pre-activations of one unit
-    are four dot products with contiguous rows."""
-    u = w.shape[-1] // 4
-    if w.ndim == 1:
-        return np.ascontiguousarray(w.reshape(4, u).T)
-    return np.ascontiguousarray(w.reshape(w.shape[0], 4, u).transpose(2, 1, 0))
+#: bytes of weight columns per strip: 4 vectors of 64 bytes (64 float32 or 32 float64 columns,
+#: the gates of 16 or 8 units); a group of GROUP_ROWS rows keeps 4 x GROUP_ROWS accumulator
+#: vectors in registers
+STRIP_BYTES = 256
+#: input rows that share each weight row read (one window's m = 4 steps at B = 1)
+GROUP_ROWS = 4
+_VECTOR_BYTES = 64
+#: the product kernel asks for the weight row this many rows ahead in the list (the rows it
+#: reads are scattered: the hardware prefetcher alone leaves it waiting on memory)
+PREFETCH_ROWS = 8
 
 
-# ------------------------------------------------------------------ kernels (plain functions,
-# compiled below twice: serially and with the directions in parallel)
+def strip_units(dtype: Any) -> int:
+    """Units per strip: ``STRIP_BYTES / 4`` gate columns of ``dtype`` per gate."""
+    return STRIP_BYTES // np.dtype(dtype).itemsize // 4
+
+
+def padded_units(u: int, nb: int) -> int:
+    """``u`` rounded up to a multiple of ``nb`` (units per strip)."""
+    return -(-u // nb) * nb
+
+
+def strips(w: np.ndarray, nb: int) -> np.ndarray:
+    """A Keras gate-fused matrix ``(C, 4u)`` (gates i, f, c, o) -> strips ``(up / nb, C, 4 nb)``
+    with ``up = padded_units(u, nb)``: strip ``s`` holds gate ``g`` of unit ``s * nb + jj`` at
+    column ``g * nb + jj``, padded units' columns zero. A vector ``(4u,)`` -> ``(4 up,)`` in the
+    same column order."""
+    vec = w.ndim == 1
+    w2 = w[None] if vec else w
+    c_in, u = w2.shape[0], w2.shape[1] // 4
+    up = padded_units(u, nb)
+    pad = np.zeros((c_in, 4, up), dtype=w.dtype)
+    pad[:, :, :u] = w2.reshape(c_in, 4, u)
+    out = pad.reshape(c_in, 4, up // nb, nb).transpose(2, 0, 1, 3).reshape(up // nb, c_in, 4 * nb)
+    return out.ravel() if vec else np.ascontiguousarray(out)
+
+
+# ------------------------------------------------------------------ the product kernel
+
+def _strip_kernel(rows: int):
+    """An intrinsic ``k(x, r0, kb, act, n, out, c0)``: for ``r`` in ``r0 .. r0 + rows - 1``,
+    ``out[r, c0 : c0 + S] = sum over i < n of x[r, act[i]] * kb[act[i], :]``, each column one
+    chain of ``llvm.fma`` in increasing ``i`` from +0, for ``x (R, C)``, one strip
+    ``kb (C, S)`` (C-contiguous, ``S * itemsize == STRIP_BYTES``), ``act`` the indices of the
+    inputs to add, ``out`` 2-D with contiguous rows. The ``rows x S`` accumulators stay in
+    registers (vectors of 64 bytes)."""
+
+    @intrinsic
+    def kernel(typingctx, x, r0, kb, act, n, out, c0):
+        ok = (isinstance(x, types.Array) and isinstance(kb, types.Array)
+              and isinstance(out, types.Array) and x.ndim == kb.ndim == out.ndim == 2
+              and x.dtype == kb.dtype == out.dtype and kb.layout == "C"
+              and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
+        if not ok:
+            return None
+        sig = types.void(x, r0, kb, act, n, out, c0)
+
+        def codegen(context, builder, signature, args):
+            xt, r0t, kt, at, nt, ot, c0t = signature.args
+            xa, ka, aa, oa = (context.make_array(t)(context, builder, v) for t, v in
+                              ((xt, args[0]), (kt, args[2]), (at, args[3]), (ot, args[5])))
+            elt = context.get_value_type(xt.dtype)
+            size = xt.dtype.bitwidth // 8
+            lanes = _VECTOR_BYTES // size
+            nvec = STRIP_BYTES // _VECTOR_BYTES
+            vty = ir.VectorType(elt, lanes)
+            intp = context.get_value_type(types.intp)
+            i8p = ir.IntType(8).as_pointer()
+            fma = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(vty, [vty] * 3), f"llvm.fma.v{lanes}f{size * 8}")
+            zero = ir.Constant(vty, [ir.Constant(elt, 0.0)] * lanes)
+            undef = ir.Constant(vty, ir.Undefined)
+            splat = ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes)
+            i32_0 = ir.Constant(ir.IntType(32), 0)
+            accs = [[cgutils.alloca_once_value(builder, zero) for _ in range(nvec)]
+                    for _ in range(rows)]
+            r0i = context.cast(builder, args[1], r0t, types.intp)
+            ni = context.cast(builder, args[4], nt, types.intp)
+            c0i = context.cast(builder, args[6], c0t, types.intp)
+            width = ir.Constant(intp, nvec * lanes)
+
+            def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
+                stride = builder.extract_value(arr.strides, 0)
+                p = builder.gep(builder.bitcast(arr.data, i8p), [builder.mul(row, stride)])
+                return builder.bitcast(p, elt.as_pointer())
+
+            xrows = [row_ptr(xa, builder.add(r0i, ir.Constant(intp, r))) for r in range(rows)]
+            prefetch = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(ir.VoidType(), [i8p] + [ir.IntType(32)] * 3),
+                "llvm.prefetch.p0")
+            last = builder.sub(ni, ir.Constant(intp, 1))
+            ahead = ir.Constant(intp, PREFETCH_ROWS)
+            i32 = [ir.Constant(ir.IntType(32), v) for v in (0, 3, 1)]   # read, keep, data
+            with cgutils.for_range(builder, ni) as loop:
+                k = builder.load(builder.gep(aa.data, [loop.index]))
+                ia = builder.add(loop.index, ahead)          # the row PREFETCH_ROWS ahead
+                ia = builder.select(builder.icmp_signed("<", ia, ni), ia, last)
+                pa = builder.bitcast(builder.gep(ka.data, [builder.mul(
+                    builder.load(builder.gep(aa.data, [ia])), width)]), i8p)
+                for line in range(0, STRIP_BYTES, 64):
+                    builder.call(prefetch, [builder.gep(pa, [ir.Constant(intp, line)])] + i32)
+                wrow = builder.gep(ka.data, [builder.mul(k, width)])
+                ws = [builder.load(builder.bitcast(builder.gep(wrow, [ir.Constant(intp, v * lanes)]),
+                                                   vty.as_pointer()), align=size)
+                      for v in range(nvec)]
+                for r in range(rows):
+                    a = builder.load(builder.gep(xrows[r], [k]))
+                    av = builder.shuffle_vector(builder.insert_element(undef, a, i32_0), undef,
+                                                splat)
+                    for v in range(nvec):
+                        acc = builder.load(accs[r][v])
+                        builder.store(builder.call(fma, [av, ws[v], acc]), accs[r][v])
+            for r in range(rows):
+                p = builder.gep(row_ptr(oa, builder.add(r0i, ir.Constant(intp, r))), [c0i])
+                for v in range(nvec):
+                    q = builder.bitcast(builder.gep(p, [ir.Constant(intp, v * lanes)]),
+                                        vty.as_pointer())
+                    builder.store(builder.load(accs[r][v]), q, align=size)
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return kernel
+
+
+_K1, _K2, _K3, _K4 = (_strip_kernel(r) for r in range(1, GROUP_ROWS + 1))
+
+
+@njit(cache=True, nogil=True)
+def _active(x, r0, g, act):
+    """The columns ``k`` of ``x (R, C)`` that are non-zero (or NaN) in some row ``r0 .. r0+g-1``,
+    in increasing order, into ``act``; returns how many."""
+    n = 0
+    for k in range(x.shape[1]):
+        for r in range(r0, r0 + g):
+            if x[r, k] != 0:
+                act[n] = k
+                n += 1
+                break
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _product(x, r0, g, kern, act, n, out):
+    """``out[r] = sum over i < n of x[r, act[i]] * K[act[i]]`` for rows ``r0 .. r0+g-1``
+    (``g <= GROUP_ROWS``), ``K`` in strips ``kern (n_strips, C, S)``, ``out (R, n_strips*S)``."""
+    wid = kern.shape[2]
+    for s in range(kern.shape[0]):
+        if g == 4:
+            _K4(x, r0, kern[s], act, n, out, s * wid)
+        elif g == 3:
+            _K3(x, r0, kern[s], act, n, out, s * wid)
+        elif g == 2:
+            _K2(x, r0, kern[s], act, n, out, s * wid)
+        else:
+            _K1(x, r0, kern[s], act, n, out, s * wid)
+
+
+@njit(cache=True, nogil=True)
+def _project_dir(x, kern, out):
+    """One direction's product ``out = x @ K`` (no bias) for ``x (R, C)``, rows in groups of
+    ``GROUP_ROWS``, each reading only the kernel rows of its non-zero inputs."""
+    rows = x.shape[0]
+    act = np.empty(x.shape[1], dtype=np.intp)
+    for r0 in range(0, rows, GROUP_ROWS):
+        g = min(GROUP_ROWS, rows - r0)
+        _product(x, r0, g, kern, act, _active(x, r0, g, act), out)
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _sigmoid(x, one):
@@ -60,149 +233,146 @@ def _act(x, relu, zero):
     return np.tanh(x)
 
 
-@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _dot4(w, x0, x1, x2, x3, zero):
-    """Four dot products with one row ``w``, read once: ``(w . x0, w . x1, w . x2, w . x3)``,
-    vectorised (partial sums in a fixed order: the same machine code, hence the same bits, on
-    every thread and for every row)."""
-    a0 = zero
-    a1 = zero
-    a2 = zero
-    a3 = zero
-    for k in range(w.shape[0]):
-        wk = w[k]
-        a0 += wk * x0[k]
-        a1 += wk * x1[k]
-        a2 += wk * x2[k]
-        a3 += wk * x3[k]
-    return a0, a1, a2, a3
-
-
 @njit(cache=True, nogil=True)
-def _project_dir(x, k, bias, out, d):
-    """One direction's input projection: ``out[r, d, j, g] = x[r] . k[j, g] + bias[j, g]`` for
-    every row, ``x (R, C)``, kernel rows ``k (u, 4, C)``, ``bias (u, 4)``, ``out (R, 2, u, 4)``.
-    Rows go four at a time (each weight row read once per four; a last group of fewer repeats
-    its last row), so every row's result comes from the same code whatever ``R`` is."""
-    zero = bias[0, 0] - bias[0, 0]
-    rows = x.shape[0]
-    for r0 in range(0, rows, 4):
-        r1 = min(r0 + 1, rows - 1)
-        r2 = min(r0 + 2, rows - 1)
-        r3 = min(r0 + 3, rows - 1)
-        x0, x1, x2, x3 = x[r0], x[r1], x[r2], x[r3]
-        for j in range(k.shape[0]):
-            for g in range(4):
-                a0, a1, a2, a3 = _dot4(k[j, g], x0, x1, x2, x3, zero)
-                bj = bias[j, g]
-                out[r0, d, j, g] = a0 + bj
-                out[r1, d, j, g] = a1 + bj
-                out[r2, d, j, g] = a2 + bj
-                out[r3, d, j, g] = a3 + bj
-
-
-@njit(cache=True, nogil=True)
-def _recur_dir(xs, rec, out, d, steps, bsz, relu, one):
+def _recur_dir(xs, rec, hs, d, u, steps, bsz, relu, one):
     """One direction's recurrence over ``steps`` steps of ``bsz`` windows.
 
-    ``xs (T*B, 2, u, 4)`` input projections with bias (row ``t*B + b``), ``rec (u, 4u)`` the
-    recurrent matrix as Keras stores it (row ``k``: what ``h[k]`` adds to the 4u gate
-    pre-activations), ``out (T*B, 2u)`` receives ``h`` at columns ``d*u ..`` (Keras's
-    re-aligned backward output: row ``t`` of the backward direction is its state after
-    consuming steps ``T-1 .. t``). Each window is computed on its own, and only the rows of
-    ``rec`` whose ``h[k]`` is non-zero are read (whole contiguous rows: a ReLU LSTM's state is
-    often half zeros)."""
-    u = rec.shape[0]
-    n4 = rec.shape[1]
+    ``xs (T*B, 4 up)`` this direction's input projections with bias (row ``t*B + b``, columns
+    in strips), ``rec (n_strips, u, S)`` the recurrent matrix in strips (row ``k``: what
+    ``h[k]`` adds to the pre-activations), ``hs (T*B, 2u)`` receives ``h`` at columns
+    ``d*u ..`` (Keras's re-aligned backward output: row ``t`` of the backward direction is its
+    state after consuming steps ``T-1 .. t``). Windows go in groups of ``GROUP_ROWS``; each
+    step reads only the rows of ``rec`` that a non-zero ``h[k]`` of the group multiplies."""
+    nst, _, wid = rec.shape
+    nb = wid // 4
+    up = nst * nb
     zero = one - one
-    h = np.zeros(u, dtype=out.dtype)
-    c = np.zeros(u, dtype=out.dtype)
-    acc = np.empty(n4, dtype=out.dtype)
-    for b in range(bsz):
-        h[:] = 0
-        c[:] = 0
-        for s in range(steps):
-            t = s if d == 0 else steps - 1 - s
-            acc[:] = 0
-            if s > 0:
-                for k in range(u):
-                    hv = h[k]
-                    if hv != 0:
-                        w = rec[k]
-                        for q in range(n4):
-                            acc[q] += hv * w[q]
-            z = xs[t * bsz + b, d]
-            for j in range(u):
-                zi = acc[j] + z[j, 0]
-                zf = acc[u + j] + z[j, 1]
-                zc = acc[2 * u + j] + z[j, 2]
-                zo = acc[3 * u + j] + z[j, 3]
-                cc = _sigmoid(zf, one) * c[j] + _sigmoid(zi, one) * _act(zc, relu, zero)
-                c[j] = cc
-                hh = _sigmoid(zo, one) * _act(cc, relu, zero)
-                h[j] = hh
-                out[t * bsz + b, d * u + j] = hh
+    dt = hs.dtype
+    h = np.zeros((bsz, up), dtype=dt)
+    c = np.zeros((bsz, up), dtype=dt)
+    acc = np.zeros((bsz, nst * wid), dtype=dt)
+    act = np.empty(up, dtype=np.intp)
+    for s in range(steps):
+        t = s if d == 0 else steps - 1 - s
+        for b0 in range(0, bsz, GROUP_ROWS):
+            g = min(GROUP_ROWS, bsz - b0)
+            if s > 0:                         # h = 0 at the first step
+                _product(h, b0, g, rec, act, _active(h, b0, g, act), acc)
+            for b in range(b0, b0 + g):
+                z = xs[t * bsz + b]
+                ab = acc[b]
+                for j in range(u):
+                    q = j // nb
+                    q = q * wid + (j - q * nb)          # gate i of unit j
+                    zi = ab[q] + z[q]
+                    zf = ab[q + nb] + z[q + nb]
+                    zc = ab[q + 2 * nb] + z[q + 2 * nb]
+                    zo = ab[q + 3 * nb] + z[q + 3 * nb]
+                    cc = _sigmoid(zf, one) * c[b, j] + _sigmoid(zi, one) * _act(zc, relu, zero)
+                    c[b, j] = cc
+                    hh = _sigmoid(zo, one) * _act(cc, relu, zero)
+                    h[b, j] = hh
+                    hs[t * bsz + b, d * u + j] = hh
 
 
-def _head_impl(xp1, kernels, recs, biases, gammas, betas, head_w, head_b, steps, bsz,
-               relu, one, eps, limit):
-    """The prediction network after BiLSTM 1's input projection ``xp1 (T*B, 2, u, 4)``
-    (row ``t*B + b``) -> ``(y (B, n_out*dim), bad)``; ``bad`` is ``l + 1`` when the ReLU
-    output of layer ``l`` reached ``limit`` (or NaN), else 0 (the caller raises)."""
+@njit(cache=True, nogil=True)
+def _finish_dir(out, rr, rmu, gk, cst):
+    """``out[r] = rr[r] * out[r] - rmu[r] * gk + cst`` (the LayerNorm folded into the product:
+    ``rr = 1 / sqrt(var + eps)``, ``rmu = rr * mean``, ``gk = gamma @ K``,
+    ``cst = beta @ K + bias``); with ``rr`` empty (no fold), ``out[r] += cst``."""
+    fold = rr.shape[0] > 0
+    for r in range(out.shape[0]):
+        o = out[r]
+        if fold:
+            a, m = rr[r], rmu[r]
+            for q in range(o.shape[0]):
+                o[q] = a * o[q] - m * gk[q] + cst[q]
+        else:
+            for q in range(o.shape[0]):
+                o[q] += cst[q]
+
+
+@njit(cache=True, nogil=True)
+def _norm_rows(src, gamma, beta, relu, li, limit, one, eps, x, rr, rmu, bad):
+    """LayerNorm statistics of each row of ``src (R, 2u)`` (float64 sums, the mean and
+    ``1 / sqrt(var + eps)`` rounded to the model's dtype), and ``bad`` set to ``li + 1`` (if
+    still 0) when a ReLU output reached ``limit`` (or is NaN). With ``rr`` of length ``R``
+    (the fold): ``x = src * gamma``, ``rr``, ``rmu = rr * mean``; else ``x = LN(src)``."""
+    cast = np.empty(1, dtype=src.dtype)
+    n = src.shape[1]
+    fold = rr.shape[0] > 0
+    for r in range(src.shape[0]):
+        row = src[r]
+        s1 = 0.0
+        for q in range(n):
+            v = row[q]
+            if relu and not v < limit:
+                bad = li + 1 if bad == 0 else bad
+            s1 += v
+        cast[0] = s1 / n                     # the mean in the model's dtype
+        mean = cast[0]
+        s2 = 0.0
+        for q in range(n):
+            dv = row[q] - mean
+            s2 += dv * dv
+        cast[0] = s2 / n
+        cast[0] = one / np.sqrt(cast[0] + eps)
+        rstd = cast[0]
+        if fold:
+            for q in range(n):
+                x[r, q] = row[q] * gamma[q]
+            rr[r] = rstd
+            rmu[r] = rstd * mean
+        else:
+            for q in range(n):
+                x[r, q] = (row[q] - mean) * rstd * gamma[q] + beta[q]
+    return bad
+
+
+def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head_b, steps,
+               bsz, relu, one, eps, limit):
+    """The prediction network after BiLSTM 1's input projection ``xp1 (T*B, 2, 4 up)`` (row
+    ``t*B + b``, bias included, columns in strips) -> ``(y (B, n_out*dim), bad)``; ``bad`` is
+    ``l + 1`` when the ReLU output of layer ``l`` reached ``limit`` (or NaN), else 0 (the
+    caller raises). ``gks[l]``/``csts[l]`` ``(2, 4 up)``: ``gamma_{l-1} @ K_l`` and
+    ``beta_{l-1} @ K_l + bias_l`` (ReLU: LayerNorm folded), or unused and ``bias_l`` (tanh)."""
     dt = xp1.dtype
     nl = len(recs)
+    rows = steps * bsz
     bad = 0
-    x = np.empty((steps * bsz, 1), dtype=dt)          # LayerNorm output of the previous layer
     xs = xp1
-    last = np.empty((bsz, 1), dtype=dt)
-    cast = np.empty(1, dtype=dt)
+    x = np.empty((rows, 1), dtype=dt)                  # the next layer's input
+    rr = np.empty(rows if relu else 0, dtype=dt)
+    rmu = np.empty(rows if relu else 0, dtype=dt)
+    hs = np.empty((rows, 1), dtype=dt)
     for li in range(nl):
-        rec = recs[li]
-        u = rec.shape[1]       # (2, u, 4u)
+        rec = recs[li]                                  # (2, n_strips, u, S)
+        u = units[li]
         if li > 0:
-            xs = np.empty((steps * bsz, 2, u, 4), dtype=dt)
-        out = np.empty((steps * bsz, 2 * u), dtype=dt)
+            xs = np.empty((rows, 2, rec.shape[1] * rec.shape[3]), dtype=dt)
+        hs = np.empty((rows, 2 * u), dtype=dt)
         for d in prange(2):
             if li > 0:
-                _project_dir(x, kernels[li][d], biases[li][d], xs, d)
-            _recur_dir(xs, rec[d], out, d, steps, bsz, relu, one)
-        gamma, beta = gammas[li], betas[li]
+                _project_dir(x, kernels[li][d], xs[:, d])
+                _finish_dir(xs[:, d], rr, rmu, gks[li][d], csts[li][d])
+            _recur_dir(xs[:, d], rec[d], hs, d, u, steps, bsz, relu, one)
         if li < nl - 1:
-            src = out
-        else:                     # last layer: forward state at T-1, backward at 0
-            src = np.empty((bsz, 2 * u), dtype=dt)
-            for b in range(bsz):
-                for q in range(u):
-                    src[b, q] = out[(steps - 1) * bsz + b, q]
-                    src[b, u + q] = out[b, u + q]
-        y = np.empty_like(src)
-        for r in range(src.shape[0]):
-            s1 = 0.0
-            for q in range(2 * u):
-                v = src[r, q]
-                if relu and not v < limit:
-                    bad = li + 1 if bad == 0 else bad
-                s1 += v
-            cast[0] = s1 / (2 * u)                     # the mean in the model's dtype
-            mean = cast[0]
-            s2 = 0.0
-            for q in range(2 * u):
-                dv = src[r, q] - mean
-                s2 += dv * dv
-            cast[0] = s2 / (2 * u)
-            cast[0] = one / np.sqrt(cast[0] + eps)
-            rstd = cast[0]
-            for q in range(2 * u):
-                y[r, q] = (src[r, q] - mean) * rstd * gamma[q] + beta[q]
-        if li < nl - 1:
-            x = y
-        else:
-            last = y
-    n = head_w.shape[1]
-    res = np.empty((bsz, n), dtype=dt)
+            x = np.empty((rows, 2 * u), dtype=dt)
+            bad = _norm_rows(hs, gammas[li], betas[li], relu, li, limit, one, eps, x, rr, rmu,
+                             bad)
+    # last layer: forward state at T-1, backward at 0, LayerNorm, head
+    u = hs.shape[1] // 2
+    src = np.empty((bsz, 2 * u), dtype=dt)
     for b in range(bsz):
-        for o in range(n):
-            res[b, o] = 0
+        for q in range(u):
+            src[b, q] = hs[(steps - 1) * bsz + b, q]
+            src[b, u + q] = hs[b, u + q]
+    last = np.empty((bsz, 2 * u), dtype=dt)
+    bad = _norm_rows(src, gammas[nl - 1], betas[nl - 1], relu, nl - 1, limit, one, eps, last,
+                     rr[:0], rmu[:0], bad)
+    n = head_w.shape[1]
+    res = np.zeros((bsz, n), dtype=dt)
+    for b in range(bsz):
         for q in range(head_w.shape[0]):
             v = last[b, q]
             for o in range(n):
@@ -213,9 +383,11 @@ def _head_impl(xp1, kernels, recs, biases, gammas, betas, head_w, head_b, steps,
 
 
 def _project_impl(x, kernel, bias, out):
-    """BiLSTM 1's input projection of rows ``x (R, C)`` -> ``out (R, 2, u, 4)`` (bias added)."""
+    """BiLSTM 1's input projection of rows ``x (R, C)`` -> ``out (R, 2, 4 up)`` (bias added)."""
+    empty = bias[0, :0]
     for d in prange(2):
-        _project_dir(x, kernel[d], bias[d], out, d)
+        _project_dir(x, kernel[d], out[:, d])
+        _finish_dir(out[:, d], empty, empty, empty, bias[d])
 
 
 _head_serial = njit(cache=True, nogil=True)(_head_impl)
@@ -230,47 +402,81 @@ _PARALLEL = threading.Lock()
 class NumbaHead:
     """A model's prediction network laid out for the kernels above (built once per model)."""
 
-    def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype) -> None:
-        self.dtype = np.dtype(dtype)
+    def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype,
+                 unit_order: dict[str, np.ndarray] | None = None) -> None:
+        self.dtype = dt = np.dtype(dtype)
         self.relu = config.lstm_activation == "relu"
         if not self.relu and config.lstm_activation != "tanh":
             raise ValueError(f"unknown LSTM activation {config.lstm_activation!r}: "
                              "expected 'relu' or 'tanh'")
-        kernels, recs, biases = [], [], []
+        nb = strip_units(dt)
+        order = unit_order or {}
+        # the global features' order (BiLSTM 1's kernel rows; project() takes the file's order)
+        self.feature_order = order.get("global")
+        prev = self.feature_order
+        kernels, recs, gks, csts, gammas, betas = [], [], [], [], [], []
         for i, u in enumerate(config.lstm_units, start=1):
-            lay = {k: np.stack([unit_rows(params[f"lstm{i}.{d}.{k}"]) for d in ("fwd", "bwd")])
-                   for k in ("kernel", "bias")}
-            kernels.append(lay["kernel"])             # (2, u, 4, C)
-            recs.append(np.stack([params[f"lstm{i}.{d}.recurrent"] for d in ("fwd", "bwd")]))
-            biases.append(lay["bias"])                # (2, u, 4)
-        self.kernels, self.recs, self.biases = tuple(kernels), tuple(recs), tuple(biases)
-        n = len(config.lstm_units)
-        self.gammas = tuple(params[f"ln{i}.gamma"] for i in range(1, n + 1))
-        self.betas = tuple(params[f"ln{i}.beta"] for i in range(1, n + 1))
-        self.head_w, self.head_b = params["head.w"], params["head.b"]
-        t = self.dtype.type
+            po = order.get(f"lstm{i}")
+            per_dir = ((np.arange(u), np.arange(u)) if po is None else
+                       (po[po < u], po[po >= u] - u))
+            ks, rs, gs, cs = [], [], [], []
+            for d, name in enumerate(("fwd", "bwd")):
+                cols = np.concatenate([g * u + per_dir[d] for g in range(4)])
+                k, r, b = (np.asarray(params[f"lstm{i}.{name}.{x}"], dtype=np.float64)
+                           for x in ("kernel", "recurrent", "bias"))
+                k, r, b = k[:, cols], r[per_dir[d]][:, cols], b[cols]
+                if prev is not None:
+                    k = k[prev]
+                ks.append(strips(k, nb))
+                rs.append(strips(r, nb))
+                if i > 1 and self.relu:     # LayerNorm i-1 folded into this projection
+                    gs.append(strips(gammas[-1].astype(np.float64) @ k, nb))
+                    cs.append(strips(betas[-1].astype(np.float64) @ k + b, nb))
+                else:
+                    gs.append(np.zeros(4 * padded_units(u, nb)))
+                    cs.append(strips(b, nb))
+            prev = np.concatenate([per_dir[0], u + per_dir[1]])   # this layer's outputs
+            gammas.append(np.asarray(params[f"ln{i}.gamma"], dtype=np.float64)[prev])
+            betas.append(np.asarray(params[f"ln{i}.beta"], dtype=np.float64)[prev])
+            kernels.append(np.ascontiguousarray(np.stack(ks), dtype=dt))   # (2, n_strips, C, S)
+            recs.append(np.ascontiguousarray(np.stack(rs), dtype=dt))      # (2, n_strips, u, S)
+            gks.append(np.ascontiguousarray(np.stack(gs), dtype=dt))       # (2, 4 up)
+            csts.append(np.ascontiguousarray(np.stack(cs), dtype=dt))      # (2, 4 up)
+        self.kernels, self.recs = tuple(kernels), tuple(recs)
+        self.gks, self.csts = tuple(gks), tuple(csts)
+        self.units = tuple(int(u) for u in config.lstm_units)
+        self.gammas = tuple(np.ascontiguousarray(g, dtype=dt) for g in gammas)
+        self.betas = tuple(np.ascontiguousarray(b, dtype=dt) for b in betas)
+        self.head_w = np.ascontiguousarray(np.asarray(params["head.w"])[prev], dtype=dt)
+        self.head_b = np.ascontiguousarray(params["head.b"], dtype=dt)
+        t = dt.type
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
-        self.limit = t(np.sqrt(np.finfo(self.dtype).max) / 4)
+        self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
 
     def project(self, x: np.ndarray, parallel: bool = False) -> np.ndarray:
-        """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, u, 4)``."""
+        """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, 4 up)``
+        (each direction's columns in strips, ``up`` the units padded to whole strips)."""
         k = self.kernels[0]
-        out = np.empty((x.shape[0], 2, k.shape[1], 4), dtype=self.dtype)
+        out = np.empty((x.shape[0], 2, k.shape[1] * k.shape[3]), dtype=self.dtype)
+        if self.feature_order is not None:
+            x = x[:, self.feature_order]
         x = np.ascontiguousarray(x, dtype=self.dtype)
         if parallel and _PARALLEL.acquire(blocking=False):
             try:
-                _project_parallel(x, k, self.biases[0], out)
+                _project_parallel(x, k, self.csts[0], out)
             finally:
                 _PARALLEL.release()
         else:
-            _project_serial(x, k, self.biases[0], out)
+            _project_serial(x, k, self.csts[0], out)
         return out
 
     def __call__(self, xp1: np.ndarray, steps: int, batch: int,
                  parallel: bool = False) -> tuple[np.ndarray, int]:
-        """The network from BiLSTM 1's projection ``xp1 (T*B, 2, u, 4)`` (rows time-major)
-        -> ``(y (B, n_out*dim) in [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0."""
-        args = (np.ascontiguousarray(xp1), self.kernels, self.recs, self.biases, self.gammas,
+        """The network from BiLSTM 1's projection ``xp1`` (:meth:`project`'s rows, time-major,
+        ``T*B`` of them, any shape with ``8 up`` numbers per row) -> ``(y (B, n_out*dim) in
+        [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0."""
+        xp1 = np.ascontiguousarray(xp1, dtype=self.dtype).reshape(steps * batch, 2, -1)
+        args = (xp1, self.kernels, self.recs, self.gks, self.csts, self.units, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
         if parallel and _PARALLEL.acquire(blocking=False):
@@ -281,4 +487,4 @@ class NumbaHead:
         return _head_serial(*args)
 
 
-__all__ = ["NumbaHead", "unit_rows"]
+__all__ = ["NumbaHead", "STRIP_BYTES", "GROUP_ROWS", "strip_units", "padded_units", "strips"]

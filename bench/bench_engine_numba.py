@@ -1,0 +1,88 @@
+"""B = 1 latency and 80-frame rollout of the shipped model: NumPy engine, Numba engine and
+onnxruntime, alternating call by call (ratios from medians of the same minutes).
+
+    python bench/bench_engine_numba.py [--reps 6] [--one-thread] [--no-ort]
+
+Inputs as in ``bench_inference.py`` (normalised windows of simulated test cases): B = 1 on the
+64 windows ``x256[::4]``, each window once per repeat and engine; the prediction network alone
+(``sequence_head`` on precomputed global features) on the same windows; and the rollout of 80
+frames from test case 0's first window. ``--one-thread``: everything inside
+:func:`tpnet_ref.blas.one_thread` (one-thread BLAS; the Numba engine then runs its serial kernels).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
+
+import tpnet_ref  # noqa: E402
+from bench_inference import scene_windows  # noqa: E402
+from tpnet_ref.blas import one_thread  # noqa: E402
+
+
+def alternate(calls: dict, inputs: list, reps: int) -> dict[str, float]:
+    """Median seconds of each of ``calls`` (name -> fn(input)), alternating call by call."""
+    t: dict[str, list[float]] = {k: [] for k in calls}
+    for _ in range(reps):
+        for x in inputs:
+            for k, f in calls.items():
+                t0 = time.perf_counter()
+                f(x)
+                t[k].append(time.perf_counter() - t0)
+    return {k: float(np.median(v)) for k, v in t.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--reps", type=int, default=6, help="passes over the 64 windows")
+    ap.add_argument("--rollouts", type=int, default=8, help="80-frame rollouts per engine")
+    ap.add_argument("--one-thread", action="store_true", help="inside blas.one_thread()")
+    ap.add_argument("--no-ort", action="store_true", help="leave out onnxruntime")
+    args = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    npy = tpnet_ref.load()
+    nb = npy.with_engine("numba")
+    x1, x256 = scene_windows(npy)
+    ws = list(x256[::4])
+    calls = {"numpy": lambda w: npy.predict(w, normalized=True),
+             "numba": lambda w: nb.predict(w, normalized=True)}
+    if not args.no_ort:
+        from tpnet_ref.onnx_peer import onnx_session
+        sess = onnx_session(npy)
+        calls["onnxruntime"] = lambda w: sess.run(None, {"window": w[None]})
+    feats = [npy._frames_to_features(list(w), True)[None] for w in ws]
+    heads = {"numpy": lambda g: npy.sequence_head(g), "numba": lambda g: nb.sequence_head(g)}
+    ctx = one_thread() if args.one_thread else contextlib.nullcontext()
+    with ctx:
+        for f in list(calls.values()):          # warm-up (compilation, caches)
+            f(ws[0])
+        for f in heads.values():
+            f(feats[0])
+        r = alternate(calls, ws, args.reps)
+        h = alternate(heads, feats, args.reps)
+        roll = alternate({k: (lambda x, mm=mm: mm.rollout(x, 80, normalized=True))
+                          for k, mm in (("numpy", npy), ("numba", nb))}, [x1[0]], args.rollouts)
+    print(f"{'one-thread BLAS' if args.one_thread else 'default threads'}; "
+          f"{len(ws)} windows x {args.reps} reps")
+    base = r.get("onnxruntime")
+    for k, v in r.items():
+        extra = f"  {v / base:.3f}x onnxruntime" if base else ""
+        print(f"B=1 predict   {k:12s} {v * 1e3:7.3f} ms{extra}  {v / r['numpy']:.3f}x numpy")
+    for k, v in h.items():
+        print(f"B=1 head      {k:12s} {v * 1e3:7.3f} ms  {v / h['numpy']:.3f}x numpy")
+    for k, v in roll.items():
+        print(f"rollout/frame {k:12s} {v / 80 * 1e3:7.3f} ms  {v / roll['numpy']:.3f}x numpy")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
