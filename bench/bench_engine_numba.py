@@ -51,6 +51,11 @@ def main(argv: list[str] | None = None) -> int:
     warnings.simplefilter("ignore")
     npy = tpnet_ref.load()
     nb = npy.with_engine("numba")
+    if getattr(nb._nb, "feature_order", None) is None and nb.unit_order is not None:
+        # model.py does not pass its unit order to the engine yet: lay the engine out in it here
+        from tpnet_ref.engine_numba import NumbaHead
+        nb._nb = NumbaHead(nb.config, nb.params, nb.dtype, nb.unit_order)
+        print("(engine laid out in the model's unit order by this script)")
     x1, x256 = scene_windows(npy)
     ws = list(x256[::4])
     calls = {"numpy": lambda w: npy.predict(w, normalized=True),

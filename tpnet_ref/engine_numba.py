@@ -49,7 +49,7 @@ numba = require("numba", "metrics", "the Numba inference engine (engine='numba')
 from llvmlite import ir  # noqa: E402
 from numba import njit, prange, types  # noqa: E402
 from numba.core import cgutils  # noqa: E402
-from numba.extending import intrinsic  # noqa: E402
+from numba.extending import intrinsic, overload  # noqa: E402
 
 #: bytes of weight columns per strip: 4 vectors of 64 bytes (64 float32 or 32 float64 columns,
 #: the gates of 16 or 8 units); a group of GROUP_ROWS rows keeps 4 x GROUP_ROWS accumulator
@@ -220,10 +220,74 @@ def _project_dir(x, kern, out):
         _product(x, r0, g, kern, act, _active(x, r0, g, act), out)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@intrinsic
+def _pow2_of(typingctx, k):
+    """``2 ** n`` for a float ``k = n + 1.5 * 2 ** mant`` (``n`` an integer in ``k``'s low
+    mantissa bits, the float's exponent range): the bits, no conversion (so a loop of it
+    vectorises, and a NaN ``k`` gives some number, not undefined behaviour)."""
+    if not isinstance(k, types.Float):
+        return None
+
+    def codegen(context, builder, signature, args):
+        bits = k.bitwidth
+        ity = ir.IntType(bits)
+        mant, bias = (23, 127) if bits == 32 else (52, 1023)
+        ftype, itype = (np.float32, np.int32) if bits == 32 else (np.float64, np.int64)
+        shift = int(np.array(1.5 * 2.0 ** mant, dtype=ftype).view(itype))
+        n = builder.sub(builder.bitcast(args[0], ity), ir.Constant(ity, shift))
+        e = builder.shl(builder.add(n, ir.Constant(ity, bias)), ir.Constant(ity, mant))
+        return builder.bitcast(e, context.get_value_type(k))
+
+    return k(k), codegen
+
+
+def _exp_neg(t):
+    """``exp(t)`` for ``t <= 0`` (or NaN), branch-free so that the gate loops vectorise (libm's
+    ``exp`` is a call per number); compiled per dtype below."""
+
+
+def _exp_neg_impl(dtype: Any, lowest: float, ln2_hi: float, ln2_lo: float, degree: int):
+    """``exp(t)`` for ``t <= 0`` in ``dtype``: ``t = n ln2 + r`` (Cody-Waite, ``|r| <= ln2/2``),
+    ``exp(r)`` by its Taylor polynomial of ``degree`` (truncation below half an ulp), times
+    ``2 ** n``; 0 below ``lowest`` (where ``exp`` leaves the normal range); within 1 ulp of
+    libm's (``tests/test_engine_numba.py``)."""
+    f = np.dtype(dtype).type
+    log2e, shifter = f(1 / np.log(2.0)), f(1.5 * 2.0 ** np.finfo(dtype).nmant)
+    lo, hi_, lo_ = f(lowest), f(ln2_hi), f(ln2_lo)
+    coef = tuple(f(1 / np.prod(np.arange(1.0, i + 1))) for i in range(degree, -1, -1))
+    zero = f(0)
+
+    def impl(t):
+        tc = lo if t < lo else t               # NaN stays NaN
+        k = tc * log2e + shifter               # n rounded, in k's low bits
+        n = k - shifter
+        r = (tc - n * hi_) - n * lo_
+        p = coef[0]
+        for c in coef[1:]:
+            p = p * r + c
+        e = p * _pow2_of(k)
+        return zero if t < lo else e
+
+    return impl
+
+
+_EXP_NEG = {types.float32: _exp_neg_impl(np.float32, -87.33, 0.693359375, -2.12194440e-4, 7),
+            types.float64: _exp_neg_impl(np.float64, -708.39, 6.93147180369123816490e-01,
+                                         1.90821492927058770002e-10, 13)}
+
+
+@overload(_exp_neg)
+def _exp_neg_overload(t):
+    return _EXP_NEG.get(t)
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _sigmoid(x, one):
-    e = np.exp(-abs(x))
-    return one / (one + e) if x >= 0 else e / (one + e)
+    """The logistic function, never overflowing: ``1 / (1 + e)`` or ``e / (1 + e)`` with
+    ``e = exp(-|x|)`` (one division, the numerator selected: vectorises)."""
+    pos = x >= 0
+    e = _exp_neg(-x if pos else x)         # not abs(): numba's goes through float64
+    return (one if pos else e) / (one + e)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -233,12 +297,42 @@ def _act(x, relu, zero):
     return np.tanh(x)
 
 
-@njit(cache=True, nogil=True)
-def _recur_dir(xs, rec, hs, d, u, steps, bsz, relu, one):
+def _gates_impl(relu):
+    """The gates of every unit from its pre-activations ``ab + z`` (both ``(4 up,)`` in strips),
+    updating the cell ``c (up,)`` and writing ``h (up,)``; units ``>= u`` (padding) untouched.
+    One loop per strip (``nb`` units), vectorised: the activation is fixed per compiled loop."""
+
+    def gates(ab, z, c, h, nb, u, one):
+        zero = one - one
+        n1 = np.uint64(nb)                     # unsigned indices: no negative-index
+        n2, n3 = n1 + n1, n1 + n1 + n1         # wrap-around, so the loop vectorises
+        for st in range(-(-u // nb)):
+            q0 = np.uint64(st * 4 * nb)
+            j0 = np.uint64(st * nb)
+            for jj in range(np.uint64(min(nb, u - st * nb))):
+                q = q0 + jj
+                j = j0 + jj
+                zi = ab[q] + z[q]
+                zf = ab[q + n1] + z[q + n1]
+                zc = ab[q + n2] + z[q + n2]
+                zo = ab[q + n3] + z[q + n3]
+                cc = _sigmoid(zf, one) * c[j] + _sigmoid(zi, one) * _act(zc, relu, zero)
+                c[j] = cc
+                h[j] = _sigmoid(zo, one) * _act(cc, relu, zero)
+
+    return njit(cache=True, nogil=True, error_model="numpy")(gates)
+
+
+_gates_relu = _gates_impl(True)
+_gates_tanh = _gates_impl(False)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
     """One direction's recurrence over ``steps`` steps of ``bsz`` windows.
 
-    ``xs (T*B, 4 up)`` this direction's input projections with bias (row ``t*B + b``, columns
-    in strips), ``rec (n_strips, u, S)`` the recurrent matrix in strips (row ``k``: what
+    ``xs[:, d] (T*B, 4 up)`` this direction's input projections with bias (row ``t*B + b``,
+    columns in strips), ``rec (n_strips, u, S)`` the recurrent matrix in strips (row ``k``: what
     ``h[k]`` adds to the pre-activations), ``hs (T*B, 2u)`` receives ``h`` at columns
     ``d*u ..`` (Keras's re-aligned backward output: row ``t`` of the backward direction is its
     state after consuming steps ``T-1 .. t``). Windows go in groups of ``GROUP_ROWS``; each
@@ -259,30 +353,22 @@ def _recur_dir(xs, rec, hs, d, u, steps, bsz, relu, one):
             if s > 0:                         # h = 0 at the first step
                 _product(h, b0, g, rec, act, _active(h, b0, g, act), acc)
             for b in range(b0, b0 + g):
-                z = xs[t * bsz + b]
-                ab = acc[b]
-                for j in range(u):
-                    q = j // nb
-                    q = q * wid + (j - q * nb)          # gate i of unit j
-                    zi = ab[q] + z[q]
-                    zf = ab[q + nb] + z[q + nb]
-                    zc = ab[q + 2 * nb] + z[q + 2 * nb]
-                    zo = ab[q + 3 * nb] + z[q + 3 * nb]
-                    cc = _sigmoid(zf, one) * c[b, j] + _sigmoid(zi, one) * _act(zc, relu, zero)
-                    c[b, j] = cc
-                    hh = _sigmoid(zo, one) * _act(cc, relu, zero)
-                    h[b, j] = hh
-                    hs[t * bsz + b, d * u + j] = hh
+                row = t * bsz + b
+                if relu:
+                    _gates_relu(acc[b], xs[row, d], c[b], h[b], nb, u, one)
+                else:
+                    _gates_tanh(acc[b], xs[row, d], c[b], h[b], nb, u, one)
+                hs[row, d * u:(d + 1) * u] = h[b, :u]
 
 
 @njit(cache=True, nogil=True)
-def _finish_dir(out, rr, rmu, gk, cst):
-    """``out[r] = rr[r] * out[r] - rmu[r] * gk + cst`` (the LayerNorm folded into the product:
+def _finish_dir(out, d, rr, rmu, gk, cst):
+    """``out[r, d] = rr[r] * out[r, d] - rmu[r] * gk + cst`` (the LayerNorm folded into the product:
     ``rr = 1 / sqrt(var + eps)``, ``rmu = rr * mean``, ``gk = gamma @ K``,
-    ``cst = beta @ K + bias``); with ``rr`` empty (no fold), ``out[r] += cst``."""
+    ``cst = beta @ K + bias``); with ``rr`` empty (no fold), ``out[r, d] += cst``."""
     fold = rr.shape[0] > 0
     for r in range(out.shape[0]):
-        o = out[r]
+        o = out[r, d]
         if fold:
             a, m = rr[r], rmu[r]
             for q in range(o.shape[0]):
@@ -354,8 +440,8 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
         for d in prange(2):
             if li > 0:
                 _project_dir(x, kernels[li][d], xs[:, d])
-                _finish_dir(xs[:, d], rr, rmu, gks[li][d], csts[li][d])
-            _recur_dir(xs[:, d], rec[d], hs, d, u, steps, bsz, relu, one)
+                _finish_dir(xs, d, rr, rmu, gks[li][d], csts[li][d])
+            _recur_dir(xs, d, rec[d], hs, u, steps, bsz, relu, one)
         if li < nl - 1:
             x = np.empty((rows, 2 * u), dtype=dt)
             bad = _norm_rows(hs, gammas[li], betas[li], relu, li, limit, one, eps, x, rr, rmu,
@@ -387,11 +473,11 @@ def _project_impl(x, kernel, bias, out):
     empty = bias[0, :0]
     for d in prange(2):
         _project_dir(x, kernel[d], out[:, d])
-        _finish_dir(out[:, d], empty, empty, empty, bias[d])
+        _finish_dir(out, d, empty, empty, empty, bias[d])
 
 
-_head_serial = njit(cache=True, nogil=True)(_head_impl)
-_head_parallel = njit(cache=True, nogil=True, parallel=True)(_head_impl)
+_head_serial = njit(cache=True, nogil=True, error_model="numpy")(_head_impl)
+_head_parallel = njit(cache=True, nogil=True, parallel=True, error_model="numpy")(_head_impl)
 _project_serial = njit(cache=True, nogil=True)(_project_impl)
 _project_parallel = njit(cache=True, nogil=True, parallel=True)(_project_impl)
 
