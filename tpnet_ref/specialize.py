@@ -107,54 +107,54 @@ def _layout(keep: np.ndarray, order: np.ndarray | None, u: int):
     """One BiLSTM's units. ``keep (2u,)``: used units, file order [forward | backward];
     ``order``: the model's unit order of the layer (None: the file's).
 
-    Returns ``rec (2, n)``: each direction's computed units, its kept ones in the unit order,
-    then dropped ones (in the unit order) until both directions have ``n`` (computed in full,
-    always exact); ``drop (2, u - n)``: the others (guarded); and the layer's outputs as the next
-    layer reads them, kept ones in the unit order then the padding: ``out_d``, ``out_pos``
-    (direction, position in ``rec``) and ``out_file`` (index in the file's 2u outputs)."""
+    Returns per direction the computed units ``rec[d]`` (its kept units in the unit order; one
+    dropped unit, computed in full, when it keeps none) and the dropped ones ``drop[d]``
+    (guarded), and the layer's outputs in the order the next layer reads them (the unit order):
+    ``out_d``, ``out_pos`` (direction, position in ``rec``) and ``out_file`` (index in the
+    file's 2u outputs)."""
     po = np.arange(2 * u) if order is None else np.asarray(order, dtype=np.intp)
-    n = max(int(keep[:u].sum()), int(keep[u:].sum()), 1)
     rec, drop = [], []
+    computed = np.zeros(2 * u, bool)
     for d in range(2):
         pd = po[(po >= d * u) & (po < (d + 1) * u)] - d * u     # this direction, unit order
-        k = keep[d * u + pd]
-        r = np.concatenate([pd[k], pd[~k][:n - int(k.sum())]])
-        rec.append(r)
-        drop.append(np.setdiff1d(np.arange(u), r))
-    computed = np.zeros(2 * u, bool)
-    computed[rec[0]] = computed[u + rec[1]] = True
-    out_file = np.concatenate([po[computed[po] & keep[po]], po[computed[po] & ~keep[po]]])
+        r = pd[keep[d * u + pd]]
+        rec.append(r if r.size else pd[:1])
+        drop.append(np.setdiff1d(np.arange(u), rec[d]))
+        computed[d * u + rec[d]] = True
+    out_file = po[computed[po]]
     out_d = (out_file >= u).astype(np.intp)
-    pos = np.empty((2, u), np.intp)
+    pos = np.zeros((2, u), np.intp)
     for d in range(2):
-        pos[d, rec[d]] = np.arange(n)
-    return np.array(rec), np.array(drop), out_d, pos[out_d, out_file - u * out_d], out_file
+        pos[d, rec[d]] = np.arange(rec[d].size)
+    return rec, drop, out_d, pos[out_d, out_file - u * out_d], out_file
 
 
 class _Layer(NamedTuple):
-    """One BiLSTM of a :class:`SceneHead`. Each direction's product columns are
-    ``[g of the dropped units (nd) | o | i | f | g of the computed units (nk each)]`` (width
-    ``W``; the sigmoid gates' columns negated); the input rows ``[1 | mean * rstd | inputs]``
-    (bias, the previous LayerNorm folded in: ``aug`` = 2; BiLSTM 1: ``[1 | inputs]``)."""
+    """One BiLSTM of a :class:`SceneHead`. Direction ``d``'s pre-activations are the columns
+    ``off[d] : off[d] + width[d]`` of the input projection, ``[g of the dropped units (nd) |
+    o | i | f | g of the computed units (nk each)]`` (the sigmoid gates' columns negated), and
+    its recurrent product's. The input rows are ``[1 | mean * rstd | inputs]`` (bias and the
+    previous LayerNorm folded in, ``aug`` = 2; BiLSTM 1: ``[1 | global features]``)."""
 
-    nk: int
-    nd: int
-    width: int
+    nk: tuple[int, int]
+    nd: tuple[int, int]
+    width: tuple[int, int]
+    off: tuple[int, int]
     aug: int
-    kernel: np.ndarray             # (2, aug + C, Wp): W padded to whole column blocks
-    blocks: np.ndarray             # (2, Wp / nb, aug + C, nb): the kernel's column blocks
-    recurrent: np.ndarray          # (2, nk, W)
-    src_d: np.ndarray              # (C,) inputs: direction and position of the previous
-    src_pos: np.ndarray            #      layer's unit (BiLSTM 1: src_pos = global feature)
+    kernel: np.ndarray             # (aug + C, Wp): both directions, padded to whole blocks
+    blocks: np.ndarray             # (Wp / nb, aug + C, nb): the kernel's column blocks
+    recurrent: tuple[np.ndarray, np.ndarray]    # (nk[d], width[d])
+    src: np.ndarray                # (T, C): step of the previous layer's state each input is
+    src_d: np.ndarray              # (C,)    and its direction and position there (BiLSTM 1:
+    src_pos: np.ndarray            # (C,)    src_pos is the global feature)
     n_in: int                      # units under the previous LayerNorm (2u; 0 for BiLSTM 1)
 
 
-def _step_of(src_d: np.ndarray, steps: int) -> np.ndarray:
-    """``(2, T, C)``: the step whose state of direction ``src_d[j]`` a direction ``dd`` of the
-    next layer reads at its step ``s`` (time ``s`` forward, ``T-1-s`` backward)."""
-    s = np.arange(steps)[None, :, None]
-    same = np.arange(2)[:, None, None] == src_d[None, None, :]
-    return np.where(same, s, steps - 1 - s)
+def _sources(out_d: np.ndarray, steps: int) -> np.ndarray:
+    """``(T, C)``: the step after which direction ``out_d[j]``'s state is the layer's output
+    ``j`` at time ``t`` (``t`` forward, ``T-1-t`` backward)."""
+    t = np.arange(steps)[:, None]
+    return np.where(out_d[None, :] == 0, t, steps - 1 - t)
 
 
 class SceneHead:
@@ -164,11 +164,10 @@ class SceneHead:
 
     Like the full NumPy engine it reads only the weight rows that non-zero inputs multiply:
     computed units in the model's unit order (most used first), each recurrent product cut
-    after its direction's last non-zero state unit, each input projection after the last
-    non-zero input (as column blocks, :func:`tpnet_ref.layers.fuse_bilstm`), LayerNorm folded into
-    the next input projection. One window (B = 1) runs on buffers kept per thread with the
-    recurrent rows stored under the steps' input projections, so one matrix-vector product per
-    direction and step gives the whole pre-activation."""
+    after its direction's last non-zero state unit, the input projection of both directions
+    after the last non-zero input (as column blocks, see :func:`tpnet_ref.layers.fuse_bilstm`),
+    LayerNorm folded into the next input projection. One window (B = 1) runs on buffers kept
+    per thread (:class:`_Run1`)."""
 
     def __init__(self, model: Any, used: dict[str, np.ndarray]) -> None:
         cfg, p, dt = model.config, model.params, model.dtype
@@ -192,54 +191,58 @@ class SceneHead:
         self.g_drop = np.flatnonzero(~g)
         self.layers: list[_Layer] = []
         src_file = self.g_keep
-        src_d, src_pos = np.zeros(len(src_file), np.intp), self.g_keep
+        src = np.broadcast_to(np.arange(T)[:, None], (T, src_file.size))
+        src_d, src_pos = np.zeros(src_file.size, np.intp), self.g_keep
         ln = None                               # previous LayerNorm (gamma, beta), file order
         n_in = 0
         for i, u in enumerate(cfg.lstm_units, 1):
             rec, drop, out_d, out_pos, out_file = _layout(self.used[f"lstm{i}"],
                                                           order.get(f"lstm{i}"), u)
-            nk, nd = rec.shape[1], drop.shape[1]
-            width, aug, c_in = nd + 4 * nk, (1 if ln is None else 2), len(src_file)
+            nk = tuple(r.size for r in rec)
+            nd = tuple(u - n for n in nk)
+            width = tuple(a + 4 * n for a, n in zip(nd, nk))
+            off = (0, width[0])
+            aug, c_in = (1 if ln is None else 2), src_file.size
             nb = max(1, min(BLOCK_COLUMNS, SMALL_PRODUCT // (T * (aug + c_in))))
-            wp = -(-width // nb) * nb
-            kernel = np.zeros((2, aug + c_in, wp))
-            recurrent = np.empty((2, nk, width))
-            sign = np.ones(width)
-            sign[nd:nd + 3 * nk] = -1.0
+            wp = -(-sum(width) // nb) * nb
+            kernel = np.zeros((aug + c_in, wp))
+            recurrent = []
             for d, name in enumerate(("fwd", "bwd")):
                 k, r, b = (p[f"lstm{i}.{name}.{x}"].astype(np.float64)
                            for x in ("kernel", "recurrent", "bias"))
                 # Keras gates i, f, c, o -> g of the dropped | o, i, f, g of the computed
                 cols = np.concatenate([2 * u + drop[d], 3 * u + rec[d], rec[d], u + rec[d],
                                        2 * u + rec[d]])
-                kc = k[:, cols]
+                sign = np.ones(cols.size)
+                sign[nd[d]:nd[d] + 3 * nk[d]] = -1.0
+                kc = k[:, cols] * sign
                 if ln is None:
-                    rows = [b[cols][None], kc[src_file]]
+                    rows = [b[cols][None] * sign, kc[src_file]]
                 else:   # LN(h) @ K = r*(h @ gamma K) - r*mean*(gamma @ K) + beta @ K
                     gamma, beta = ln
-                    rows = [(b[cols] + beta @ kc)[None], -(gamma @ kc)[None],
+                    rows = [(b[cols] * sign + beta @ kc)[None], -(gamma @ kc)[None],
                             gamma[src_file, None] * kc[src_file]]
-                kernel[d, :, :width] = np.concatenate(rows) * sign
-                recurrent[d] = r[rec[d]][:, cols] * sign
+                kernel[:, off[d]:off[d] + width[d]] = np.concatenate(rows)
+                recurrent.append(np.ascontiguousarray(r[rec[d]][:, cols] * sign, dtype=dt))
             kernel = kernel.astype(dt)
-            blocks = np.ascontiguousarray(
-                kernel.reshape(2, aug + c_in, wp // nb, nb).transpose(0, 2, 1, 3))
-            self.layers.append(_Layer(nk, nd, width, aug, kernel, blocks, recurrent.astype(dt),
-                                      src_d, src_pos, n_in))
+            blocks = np.ascontiguousarray(kernel.reshape(aug + c_in, wp // nb, nb).transpose(1, 0, 2))
+            self.layers.append(_Layer(nk, nd, width, off, aug, kernel, blocks, tuple(recurrent),
+                                      np.ascontiguousarray(src), src_d, src_pos, n_in))
             ln = (p[f"ln{i}.gamma"].astype(np.float64), p[f"ln{i}.beta"].astype(np.float64))
-            src_file, src_d, src_pos, n_in = out_file, out_d, out_pos, 2 * u
+            src_file, src, src_d, src_pos, n_in = out_file, _sources(out_d, T), out_d, out_pos, 2 * u
         gamma, beta = ln
         hw, hb = p["head.w"].astype(np.float64), p["head.b"].astype(np.float64)
         # negated: the output is 1 / (1 + exp(x @ head_w))
         self.head_w = (-np.concatenate([(hb + beta @ hw)[None], -(gamma @ hw)[None],
                                         gamma[src_file, None] * hw[src_file]])).astype(dt)
-        self.head_src = (src_d, src_pos, n_in)
+        self.head_src = (src_d, src_pos, n_in)     # final states: step T-1 of both directions
         self._small: bool | None = None
         self._local = threading.local()
 
     def num_params(self) -> int:
         """Parameters the specialised head reads (guards included)."""
-        n = sum(ly.kernel[:, :, :ly.width].size + ly.recurrent.size for ly in self.layers)
+        n = sum(ly.kernel[:, :sum(ly.width)].size + sum(r.size for r in ly.recurrent)
+                for ly in self.layers)
         return int(n + self.head_w.size)
 
     def __call__(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -264,65 +267,67 @@ class SceneHead:
             / self.dtype.type(n)
         return mean, (1.0 / np.sqrt(var + self.eps)).astype(self.dtype, copy=False)
 
+    def _project(self, ly: _Layer, xa: np.ndarray, k: int, out: np.ndarray) -> None:
+        """``out (R, Wp) = xa[:, :k] @ kernel[:k]``, as one stacked product over the kernel's
+        column blocks when each is small enough (:func:`tpnet_ref.layers.project_spans`)."""
+        rows, nb = xa.shape[0], ly.blocks.shape[2]
+        if self._small and rows * k * nb <= SMALL_PRODUCT:
+            np.matmul(xa[:, :k], ly.blocks[:, :k],
+                      out=out.reshape(rows, -1, nb).transpose(1, 0, 2))
+        else:
+            np.matmul(xa[:, :k], ly.kernel[:k], out=out)
+
     def _batch(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Any batch ``f (B, T, k)``, buffers made per call."""
         dt, T, one = self.dtype, self.steps, self.dtype.type(1.0)
         bsz = f.shape[0]
         ok = ~(f[..., self.g_drop] != 0).any(axis=(1, 2))
-        tsel = np.array([np.arange(T), np.arange(T)[::-1]])
         h = None
         for li, ly in enumerate(self.layers):
-            nk, nd, width, aug = ly.nk, ly.nd, ly.width, ly.aug
-            if li == 0:                                 # (2, T, B, C): each direction's order
-                x = f[:, tsel][..., ly.src_pos].transpose(1, 2, 0, 3)
+            if li == 0:                                 # (T, B, C)
+                x = f[..., ly.src_pos].transpose(1, 0, 2)
             else:
-                x = h[ly.src_d, _step_of(ly.src_d, T), :, ly.src_pos]    # (2, T, C, B)
-                x = np.ascontiguousarray(x.transpose(0, 1, 3, 2))
-            c_in = x.shape[-1]
-            xa = np.empty((2, T, bsz, aug + c_in), dt)
+                x = h[ly.src_d, ly.src, :, ly.src_pos].transpose(0, 2, 1)    # (T, C, B) ->
+            c_in, aug = x.shape[-1], ly.aug
+            xa = np.empty((T, bsz, aug + c_in), dt)
             xa[..., 0] = one
             if li == 0:
                 xa[..., 1:] = x
             else:
+                x = np.ascontiguousarray(x)
                 mean, r = self._stats(x, ly.n_in)
                 np.multiply(mean, r, out=xa[..., 1])
                 np.multiply(x, r[..., None], out=xa[..., 2:])
-            k = aug + L.used_columns(x[0].reshape(T * bsz, c_in))
-            wp = ly.kernel.shape[2]
-            wz = max(wp, width + nk)
-            z_all = np.empty((2, T + 1, bsz, wz), dt)    # pre-activations; [W:W+nk] c of the step before
-            zin = z_all.reshape(2, (T + 1) * bsz, wz)[:, :T * bsz, :wp]
-            xin = xa.reshape(2, T * bsz, aug + c_in)[..., :k]
-            nb = ly.blocks.shape[3]
-            if self._small and T * bsz * k * nb <= SMALL_PRODUCT:
-                np.matmul(xin[:, None], ly.blocks[:, :, :k],
-                          out=zin.reshape(2, T * bsz, wp // nb, nb).transpose(0, 2, 1, 3))
-            else:
-                np.matmul(xin, ly.kernel[:, :k], out=zin)
-            h = np.empty((2, T, bsz, nk), dt)
-            tmp = np.empty((2, bsz, width), dt)
-            rec = ly.recurrent
-            for s in range(T):
-                z = z_all[:, s]
-                if s:
-                    for d, kk in enumerate(L.used_prefixes(h[:, s - 1])):
-                        np.matmul(h[d, s - 1, :, :kk], rec[d, :kk], out=tmp[d])
-                    z[..., :width] += tmp
-                e = z[..., nd:nd + 3 * nk]               # 1 + exp(-x): o, i, f
-                np.exp(e, out=e)
-                e += one
-                g = z[..., nd + 3 * nk:width]
-                np.maximum(g, 0, out=g)
-                c = z_all[:, s + 1, :, width:width + nk]
-                if s == 0:                               # c = i relu(g)
-                    np.divide(g, z[..., nd + nk:nd + 2 * nk], out=c)
-                else:                                    # c = i relu(g) + f c
-                    gc = z[..., nd + 3 * nk:width + nk]
-                    np.divide(gc, z[..., nd + nk:nd + 3 * nk], out=gc)
-                    np.add(gc[..., :nk], gc[..., nk:], out=c)
-                np.divide(c, z[..., nd:nd + nk], out=h[:, s])   # h = o c (c >= 0)
-            if nd:      # a dropped unit's cell pre-activation > 0 (or NaN): it would wake up
-                ok &= z_all[:, :T, :, :nd].max(axis=(0, 1, 3)) <= 0
+            k = aug + L.used_columns(np.ascontiguousarray(x).reshape(T * bsz, c_in))
+            proj = np.empty((T * bsz, ly.kernel.shape[1]), dt)
+            self._project(ly, xa.reshape(T * bsz, -1), k, proj)
+            proj = proj.reshape(T, bsz, -1)
+            h = np.zeros((2, T, bsz, max(ly.nk)), dt)
+            for d in range(2):
+                nk, nd, width, rec = ly.nk[d], ly.nd[d], ly.width[d], ly.recurrent[d]
+                z_all = np.empty((T + 1, bsz, width + nk), dt)   # [W:W+nk]: c of the step before
+                z_all[:T, :, :width] = (proj if d == 0 else proj[::-1])[..., ly.off[d]:ly.off[d] + width]
+                hd = h[d, :, :, :nk]
+                for s in range(T):
+                    z = z_all[s]
+                    if s:
+                        kk = L.used_columns(hd[s - 1])
+                        z[:, :width] += hd[s - 1, :, :kk] @ rec[:kk]
+                    e = z[:, nd:nd + 3 * nk]                 # 1 + exp(-x): o, i, f
+                    np.exp(e, out=e)
+                    e += one
+                    g = z[:, nd + 3 * nk:width]
+                    np.maximum(g, 0, out=g)
+                    c = z_all[s + 1, :, width:]
+                    if s == 0:                               # c = i relu(g)
+                        np.divide(g, z[:, nd + nk:nd + 2 * nk], out=c)
+                    else:                                    # c = i relu(g) + f c
+                        gc = z[:, nd + 3 * nk:]
+                        np.divide(gc, z[:, nd + nk:nd + 3 * nk], out=gc)
+                        np.add(g, z[:, width:], out=c)
+                    np.divide(c, z[:, nd:nd + nk], out=hd[s])     # h = o c (c >= 0)
+                if nd:      # a dropped unit's cell pre-activation > 0 (or NaN): it would wake up
+                    ok &= z_all[:T, :, :nd].max(axis=(0, 2)) <= 0
             ok &= h.max(axis=(0, 1, 3)) < self.limit
         src_d, src_pos, n_in = self.head_src
         x = np.ascontiguousarray(h[src_d, T - 1, :, src_pos].T)    # (B, C)
@@ -343,10 +348,14 @@ class SceneHead:
 class _Run1:
     """One thread's buffers and views for :class:`SceneHead` on one window (B = 1).
 
-    Per BiLSTM and direction ``M (T + nk, Wp)`` holds the steps' input projections (bias
-    included) above the recurrent rows, and ``V (T + 1, T + nk)`` the vector of each step:
-    ``V[s] = [one-hot s | h_{s-1}]``; then ``V[s, s:T+k] @ M[s:T+k]`` is the pre-activation of
-    step ``s`` (``k``: one past the last non-zero unit of ``h_{s-1}``), one product."""
+    Per BiLSTM, ``M (T + nk, Wp)``: the steps' input projections (bias included, rows in time
+    order, both directions' columns) above each direction's recurrent rows, in its columns;
+    ``V (2, T + 1, T + nk)``: the vector of each direction and step, ``[one-hot | h]`` with
+    the one at the step's time and ``h`` the state after the step before. Then
+    ``V[d, s, a:T+k] @ M[a:T+k, cols]`` (``a``: the step's time, ``k``: one past the last
+    non-zero unit of ``h``) is the pre-activation of step ``s`` in those columns: one product
+    per step for the gates, and one per layer (all steps' rows of ``V``) for the dropped units'
+    guards, which need not be known before the layer ends."""
 
     def __init__(self, head: SceneHead) -> None:
         dt, T = head.dtype, head.steps
@@ -355,69 +364,72 @@ class _Run1:
         self.layers = []
         prev = None
         for li, ly in enumerate(head.layers):
-            nk, nd, width, aug = ly.nk, ly.nd, ly.width, ly.aug
-            c_in, wp = ly.kernel.shape[1] - aug, ly.kernel.shape[2]
-            nbf, nb = ly.blocks.shape[1], ly.blocks.shape[3]
-            m_all = np.zeros((2, T + nk, wp), dt)
-            m_all[:, T:, :width] = ly.recurrent
-            v_all = np.zeros((2, T + 1, T + nk), dt)
-            v_all[:, np.arange(1, T), np.arange(1, T)] = 1
-            z_all = np.zeros((2, T + 1, width + nk), dt)
-            xa = np.zeros((2, T, aug + c_in), dt)
-            xa[..., 0] = 1
-            if li == 0:     # the kept global features of each direction's steps, then the dropped
-                t = np.array([np.arange(T), np.arange(T)[::-1]])
-                idx = np.concatenate([(t[:, :, None] * head.n_global + ly.src_pos).ravel(),
+            aug, c_in, wp = ly.aug, ly.kernel.shape[0] - ly.aug, ly.kernel.shape[1]
+            nkmax, ndmax = max(ly.nk), max(ly.nd)
+            m_all = np.zeros((T + nkmax, wp), dt)
+            v_all = np.zeros((2, T + 1, T + nkmax), dt)       # v_all[:, 0, T:] stays 0
+            z_all = np.zeros((2, T + 1, 5 * nkmax), dt)       # [o, i, f, g | c before]
+            guard = np.zeros((2, T, ndmax), dt)               # the dropped units' g, all steps
+            steps = [[] for _ in range(T)]
+            guards = []
+            for d in range(2):
+                nk, nd, width, off = ly.nk[d], ly.nd[d], ly.width[d], ly.off[d]
+                m_all[T:T + nk, off:off + width] = ly.recurrent[d]
+                mr = m_all[:, off + nd:off + width]
+                for s in range(T):
+                    t = s if d == 0 else T - 1 - s                 # the step's time
+                    v_all[d, s, t] = 1
+                    z = z_all[d, s]
+                    steps[s].append((
+                        v_all[d, s, t:], v_all[d, s, T:T + nk], mr[t:], z[:4 * nk],
+                        z[:3 * nk],                                         # o, i, f
+                        z[3 * nk:4 * nk],                                   # g
+                        z[3 * nk:5 * nk],                                   # [g | c]
+                        z[nk:3 * nk] if s else z[nk:2 * nk],                # [i | f]
+                        z[4 * nk:5 * nk],                                   # c
+                        z_all[d, s + 1, 4 * nk:5 * nk],                     # c after this step
+                        z[:nk], v_all[d, s + 1, T:T + nk],                  # o, h after this step
+                        mr[t], d))                                          # the step's projection
+                if nd:
+                    guards.append((d, v_all[d, :T], m_all[:, off:off + nd], guard[d, :, :nd]))
+            if li == 0:     # the kept global features at each time, then the dropped ones
+                idx = np.concatenate([(np.arange(T)[:, None] * head.n_global + ly.src_pos).ravel(),
                                       (np.arange(T)[:, None] * head.n_global + head.g_drop).ravel()])
                 xb = np.empty(idx.size, dt)
-            else:           # the previous layer's states, and one more column that is always 0
-                pv = prev[1]
-                flat = (ly.src_d * pv.shape[1] + _step_of(ly.src_d, T) + 1) * pv.shape[2] + T + ly.src_pos
-                idx = np.concatenate([flat, np.zeros((2, T, 1), np.intp)], axis=2)   # pv[0, 0, 0] == 0
+                extra = None
+            else:           # the previous layer's states, and a last column that is always 0
+                pv = prev.shape
+                idx = (ly.src_d * pv[1] + ly.src + 1) * pv[2] + T + ly.src_pos
+                idx = np.concatenate([idx, np.full((T, 1), T, np.intp)], axis=1)   # prev[0, 0, T]
                 xb = np.empty(idx.shape, dt)
-            steps = []
-            for s in range(T):
-                per_d = []
-                for d in range(2):
-                    z = m_all[d, 0] if s == 0 else z_all[d, s]
-                    per_d.append((
-                        v_all[d, s], v_all[d, s, T:], m_all[d, :, :width], z_all[d, s, :width],
-                        z[nd:nd + 3 * nk],                                  # o, i, f
-                        z[nd + 3 * nk:width],                               # g
-                        z[nd + 3 * nk:width + nk] if s else None,           # [g | c]
-                        z[nd + nk:nd + 3 * nk] if s else z[nd + nk:nd + 2 * nk],   # [i | f]
-                        z[width:width + nk] if s else None,                 # c
-                        z_all[d, s + 1, width:], z[nd:nd + nk], v_all[d, s + 1, T:]))
-                steps.append(per_d)
-            extra = None
-            if li:
-                n = ly.n_in
-                wmean = np.zeros(c_in + 1, dt)
-                wmean[:c_in] = 1.0 / n
-                wvar = wmean.copy()
-                wvar[c_in] = (n - c_in) / n        # the units that are 0: (0 - mean)^2 each
-                extra = (wmean, wvar, np.empty((2, T), dt), np.empty((2, T), dt),
-                         np.empty((2, T, c_in + 1), dt))
-            self.layers.append((ly, m_all, v_all, z_all, xa, idx, xb, steps, extra,
-                                m_all[:, :T].reshape(2, T, nbf, nb).transpose(0, 2, 1, 3)))
-            prev = (ly, v_all)
-        ly, pv = prev
+                extra = self._weights(ly.n_in, c_in, (T,))
+            xa = np.zeros((T, aug + c_in), dt)
+            xa[:, 0] = 1
+            self.layers.append((ly, m_all, v_all, xa, idx, xb, steps, extra, guards, guard))
+            prev = v_all
         src_d, src_pos, n = head.head_src
-        c_in = len(src_pos)
-        self.h_idx = np.concatenate([(src_d * pv.shape[1] + T) * pv.shape[2] + T + src_pos, [0]])[None]
-        self.h_x = np.empty((1, c_in + 1), dt)
-        self.h_xa = np.zeros((1, 2 + c_in), dt)
+        self.h_idx = np.concatenate([(src_d * prev.shape[1] + T) * prev.shape[2] + T + src_pos,
+                                     [T]])[None]
+        self.h_x = np.empty(self.h_idx.shape, dt)
+        self.h_xa = np.zeros((1, 1 + self.h_idx.shape[1]), dt)
         self.h_xa[0, 0] = 1
-        wmean = np.zeros(c_in + 1, dt)
-        wmean[:c_in] = 1.0 / n
-        wvar = wmean.copy()
-        wvar[c_in] = (n - c_in) / n
-        self.h_extra = (wmean, wvar, np.empty(1, dt), np.empty(1, dt), np.empty((1, c_in + 1), dt))
+        self.h_extra = self._weights(n, src_pos.size, (1,))
         self.h_y = np.empty(head.head_w.shape[1], dt)
 
+    def _weights(self, n: int, c: int, shape: tuple) -> tuple:
+        """LayerNorm over ``n`` units, ``c`` of them in the buffer (and one more column, always
+        0, for the ``n - c`` zeros): the weights of the mean and of the variance, and buffers."""
+        dt = self.head.dtype
+        wmean = np.zeros(c + 1, dt)
+        wmean[:c] = 1.0 / n
+        wvar = wmean.copy()
+        wvar[c] = (n - c) / n               # (0 - mean)^2 of each unit that is 0
+        return (wmean, wvar, np.empty(shape, dt), np.empty(shape, dt),
+                np.empty(shape + (c + 1,), dt))
+
     def _fold(self, x: np.ndarray, xa: np.ndarray, extra: tuple) -> None:
-        """``xa[..., 1:] = [mean * rstd | x * rstd]`` of the LayerNorm of ``x (..., C + 1)``
-        (its last column 0)."""
+        """``xa[..., 1:] = [mean * rstd | x * rstd]``: LayerNorm of ``x (..., C + 1)`` (its last
+        column 0) to fold into the next product."""
         wmean, wvar, mean, var, d = extra
         np.dot(x, wmean, out=mean)
         np.subtract(x, mean[..., None], out=d)
@@ -431,45 +443,47 @@ class _Run1:
 
     def __call__(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         head, T, one, zero = self.head, self.T, self.one, self.zero
-        exp, add, div, maximum, dot, matmul = np.exp, np.add, np.divide, np.maximum, np.dot, np.matmul
-        small = head._small
-        for li, (ly, m_all, v_all, z_all, xa, idx, xb, steps, extra, m_blocks) in enumerate(self.layers):
-            aug, nd = ly.aug, ly.nd
+        exp, add, div, maximum, matmul, copyto = (np.exp, np.add, np.divide, np.maximum,
+                                                  np.matmul, np.copyto)
+        for li, (ly, m_all, v_all, xa, idx, xb, steps, extra, guards, guard) in enumerate(self.layers):
+            aug = ly.aug
             if li == 0:
                 f.take(idx, mode="clip", out=xb)
-                c_in = xa.shape[2] - 1
-                x = xb[:2 * T * c_in].reshape(2, T, c_in)
-                if head.g_drop.size and xb[2 * T * c_in:].any():
+                n = xa.shape[0] * (xa.shape[1] - 1)
+                x = xb[:n].reshape(T, -1)
+                if head.g_drop.size and xb[n:].any():
                     return self._flagged()
-                np.copyto(xa[..., 1:], x)
+                copyto(xa[:, 1:], x)
             else:
                 prev_v.take(idx, mode="clip", out=xb)
                 self._fold(xb, xa, extra)
-                x = xb[..., :-1]
-            nz = x[0].any(axis=0).nonzero()[0]
-            k = aug + 1 + nz[-1] if len(nz) else aug
-            if small:
-                matmul(xa[:, None, :, :k], ly.blocks[:, :, :k], out=m_blocks)
-            else:
-                matmul(xa[:, :, :k], ly.kernel[:, :k], out=m_all[:, :T])
-            for _, _, _, _, e, g, _, iv, _, c1, eo, h1 in steps[0]:
+                x = xb[:, :-1]
+            nz = x.any(axis=0).nonzero()[0]
+            head._project(ly, xa, aug + 1 + nz[-1] if len(nz) else aug, m_all[:T])
+            for _, _, _, zw, e, g, _, iv, _, c1, eo, h1, proj, _ in steps[0]:
+                copyto(zw, proj)
                 exp(e, out=e)
                 add(e, one, out=e)
                 maximum(g, zero, out=g)
                 div(g, iv, out=c1)
                 div(c1, eo, out=h1)
+            rows = [T, T]           # rows of M the guards read: up to the longest state
             for s in range(1, T):
-                for vrow, h, mr, zw, e, g, gc, iv, c, c1, eo, h1 in steps[s]:
+                for vrow, h, mr, zw, e, g, gc, iv, c, c1, eo, h1, _, d in steps[s]:
                     nz = h.nonzero()[0]
                     k = T + 1 + nz[-1] if len(nz) else T
-                    matmul(vrow[s:k], mr[s:k], out=zw)
+                    if k > rows[d]:
+                        rows[d] = k
+                    matmul(vrow[:k], mr[:k], out=zw)
                     exp(e, out=e)
                     add(e, one, out=e)
                     maximum(g, zero, out=g)
                     div(gc, iv, out=gc)
                     add(g, c, out=c1)
                     div(c1, eo, out=h1)
-            if nd and not (m_all[:, 0, :nd].max() <= 0 and (T == 1 or z_all[:, 1:T, :nd].max() <= 0)):
+            for d, vg, mg, out in guards:     # the dropped units' g at every step
+                matmul(vg[:, :rows[d]], mg[:rows[d]], out=out)
+            if guards and not guard.max() <= 0:
                 return self._flagged()       # a dropped unit would wake up (or NaN)
             if not v_all[:, 1:, T:].max() < head.limit:
                 return self._flagged()
@@ -479,7 +493,7 @@ class _Run1:
         self._fold(x, xa, self.h_extra)
         nz = x[0, :-1].nonzero()[0]
         k = 3 + nz[-1] if len(nz) else 2
-        y = dot(xa[0, :k], head.head_w[:k], out=self.h_y)
+        y = np.dot(xa[0, :k], head.head_w[:k], out=self.h_y)
         exp(y, out=y)
         add(y, one, out=y)
         out = div(one, y)[None]
