@@ -131,10 +131,12 @@ def _layout(keep: np.ndarray, order: np.ndarray | None, u: int):
 
 class _Layer(NamedTuple):
     """One BiLSTM of a :class:`SceneHead`. Direction ``d``'s pre-activations are the columns
-    ``off[d] : off[d] + width[d]`` of the input projection, ``[g of the dropped units (nd) |
-    o | i | f | g of the computed units (nk each)]`` (the sigmoid gates' columns negated), and
-    its recurrent product's. The input rows are ``[1 | mean * rstd | inputs]`` (bias and the
-    previous LayerNorm folded in, ``aug`` = 2; BiLSTM 1: ``[1 | global features]``)."""
+    ``off[d] : off[d] + width[d]`` of the input projection and its recurrent product's:
+    forward ``[g, f, i, o of the computed units (nk each) | g of the dropped units (nd)]``,
+    backward ``[g of the dropped | o, i, f, g of the computed]`` (mirrored, so that the two
+    directions' sigmoid gates, whose columns are negated, can sit side by side in one buffer).
+    The input rows are ``[1 | mean * rstd | inputs]`` (bias and the previous LayerNorm folded
+    in, ``aug`` = 2; BiLSTM 1: ``[1 | global features]``)."""
 
     nk: tuple[int, int]
     nd: tuple[int, int]
@@ -210,11 +212,16 @@ class SceneHead:
             for d, name in enumerate(("fwd", "bwd")):
                 k, r, b = (p[f"lstm{i}.{name}.{x}"].astype(np.float64)
                            for x in ("kernel", "recurrent", "bias"))
-                # Keras gates i, f, c, o -> g of the dropped | o, i, f, g of the computed
-                cols = np.concatenate([2 * u + drop[d], 3 * u + rec[d], rec[d], u + rec[d],
-                                       2 * u + rec[d]])
+                # Keras gates i, f, c, o -> forward: g, f, i, o of the computed | g of the
+                # dropped; backward: g of the dropped | o, i, f, g of the computed
+                gates = [2 * u + rec[d], u + rec[d], rec[d], 3 * u + rec[d]]
+                if d:
+                    gates = gates[::-1]
+                cols = np.concatenate([*gates, 2 * u + drop[d]] if d == 0 else
+                                      [2 * u + drop[d], *gates])
                 sign = np.ones(cols.size)
-                sign[nd[d]:nd[d] + 3 * nk[d]] = -1.0
+                a = nk[d] if d == 0 else nd[d]               # the sigmoid gates' columns
+                sign[a:a + 3 * nk[d]] = -1.0
                 kc = k[:, cols] * sign
                 if ln is None:
                     rows = [b[cols][None] * sign, kc[src_file]]
@@ -305,29 +312,37 @@ class SceneHead:
             h = np.zeros((2, T, bsz, max(ly.nk)), dt)
             for d in range(2):
                 nk, nd, width, rec = ly.nk[d], ly.nd[d], ly.width[d], ly.recurrent[d]
-                z_all = np.empty((T + 1, bsz, width + nk), dt)   # [W:W+nk]: c of the step before
-                z_all[:T, :, :width] = (proj if d == 0 else proj[::-1])[..., ly.off[d]:ly.off[d] + width]
+                # rows of z_all: forward [c before | g, f, i, o | g dropped], backward
+                # [g dropped | o, i, f, g | c before]
+                z_all = np.empty((T + 1, bsz, width + nk), dt)
+                at = nk if d == 0 else 0                  # the projections' columns
+                z_all[:T, :, at:at + width] = \
+                    (proj if d == 0 else proj[::-1])[..., ly.off[d]:ly.off[d] + width]
+                if d == 0:
+                    sig, g0, c0, i0, dvd, dvs, o0, gd = 2 * nk, nk, 0, 3 * nk, 0, 2 * nk, 4 * nk, 5 * nk
+                else:
+                    sig, g0, c0, i0, dvd, dvs, o0, gd = nd, nd + 3 * nk, width, nd + nk, nd + 3 * nk, nd + nk, nd, 0
                 hd = h[d, :, :, :nk]
                 for s in range(T):
                     z = z_all[s]
                     if s:
                         kk = L.used_columns(hd[s - 1])
-                        z[:, :width] += hd[s - 1, :, :kk] @ rec[:kk]
-                    e = z[:, nd:nd + 3 * nk]                 # 1 + exp(-x): o, i, f
+                        z[:, at:at + width] += hd[s - 1, :, :kk] @ rec[:kk]
+                    e = z[:, sig:sig + 3 * nk]               # 1 + exp(-x): o, i, f
                     np.exp(e, out=e)
                     e += one
-                    g = z[:, nd + 3 * nk:width]
+                    g = z[:, g0:g0 + nk]
                     np.maximum(g, 0, out=g)
-                    c = z_all[s + 1, :, width:]
+                    c = z_all[s + 1, :, c0:c0 + nk]
                     if s == 0:                               # c = i relu(g)
-                        np.divide(g, z[:, nd + nk:nd + 2 * nk], out=c)
+                        np.divide(g, z[:, i0:i0 + nk], out=c)
                     else:                                    # c = i relu(g) + f c
-                        gc = z[:, nd + 3 * nk:]
-                        np.divide(gc, z[:, nd + nk:nd + 3 * nk], out=gc)
-                        np.add(g, z[:, width:], out=c)
-                    np.divide(c, z[:, nd:nd + nk], out=hd[s])     # h = o c (c >= 0)
+                        q = z[:, dvd:dvd + 2 * nk]           # [c | g] / [f | i] or [g | c] / [i | f]
+                        np.divide(q, z[:, dvs:dvs + 2 * nk], out=q)
+                        np.add(q[:, :nk], q[:, nk:], out=c)
+                    np.divide(c, z[:, o0:o0 + nk], out=hd[s])     # h = o c (c >= 0)
                 if nd:      # a dropped unit's cell pre-activation > 0 (or NaN): it would wake up
-                    ok &= z_all[:T, :, :nd].max(axis=(0, 2)) <= 0
+                    ok &= z_all[:T, :, gd:gd + nd].max(axis=(0, 2)) <= 0
             ok &= h.max(axis=(0, 1, 3)) < self.limit
         src_d, src_pos, n_in = self.head_src
         x = np.ascontiguousarray(h[src_d, T - 1, :, src_pos].T)    # (B, C)
@@ -354,8 +369,11 @@ class _Run1:
     the one at the step's time and ``h`` the state after the step before. Then
     ``V[d, s, a:T+k] @ M[a:T+k, cols]`` (``a``: the step's time, ``k``: one past the last
     non-zero unit of ``h``) is the pre-activation of step ``s`` in those columns: one product
-    per step for the gates, and one per layer (all steps' rows of ``V``) for the dropped units'
-    guards, which need not be known before the layer ends."""
+    per direction and step for the gates, and one per direction and layer (all steps' rows of
+    ``V``) for the dropped units' guards, which need not be known before the layer ends. Each
+    step's gates sit in one row ``[c, g, f, i, o forward | o, i, f, g, c backward]`` (``c``:
+    the cell state before the step), so that the element-wise work of both directions is
+    mostly one call each."""
 
     def __init__(self, head: SceneHead) -> None:
         dt, T = head.dtype, head.steps
@@ -365,33 +383,38 @@ class _Run1:
         prev = None
         for li, ly in enumerate(head.layers):
             aug, c_in, wp = ly.aug, ly.kernel.shape[0] - ly.aug, ly.kernel.shape[1]
-            nkmax, ndmax = max(ly.nk), max(ly.nd)
-            m_all = np.zeros((T + nkmax, wp), dt)
-            v_all = np.zeros((2, T + 1, T + nkmax), dt)       # v_all[:, 0, T:] stays 0
-            z_all = np.zeros((2, T + 1, 5 * nkmax), dt)       # [o, i, f, g | c before]
-            guard = np.zeros((2, T, ndmax), dt)               # the dropped units' g, all steps
-            steps = [[] for _ in range(T)]
-            guards = []
-            for d in range(2):
-                nk, nd, width, off = ly.nk[d], ly.nd[d], ly.width[d], ly.off[d]
-                m_all[T:T + nk, off:off + width] = ly.recurrent[d]
-                mr = m_all[:, off + nd:off + width]
-                for s in range(T):
+            (n0, n1), (d0, d1), (w0, w1) = ly.nk, ly.nd, ly.width
+            m_all = np.zeros((T + max(n0, n1), wp), dt)
+            m_all[T:T + n0, :w0] = ly.recurrent[0]
+            m_all[T:T + n1, w0:w0 + w1] = ly.recurrent[1]
+            v_all = np.zeros((2, T + 1, T + max(n0, n1)), dt)   # v_all[:, 0, T:] stays 0
+            b = 5 * n0
+            z_all = np.zeros((T + 1, b + 5 * n1), dt)
+            guard = np.zeros((2, T, max(d0, d1)), dt)          # the dropped units' g, all steps
+            # per direction: gates' columns of M, where they go in a row of z_all, the cell
+            # state before ([c | g] / [f | i] forward, [g | c] / [i | f] backward), o
+            cols = [(0, 4 * n0), (w0 + d1, w0 + w1)]
+            at = [(n0, b), (b, b + 4 * n1)]
+            cell = [(0, n0, n0, 3 * n0, 0, 2 * n0, 4 * n0),           # c, dividend, divisor
+                    (b + 4 * n1, b + 3 * n1, b + 3 * n1, b + n1, b + 3 * n1, b + n1, b)]
+            steps = []
+            for s in range(T):
+                z, znext = z_all[s], z_all[s + 1]
+                per_d = []
+                for d, nk in enumerate(ly.nk):
                     t = s if d == 0 else T - 1 - s                 # the step's time
                     v_all[d, s, t] = 1
-                    z = z_all[d, s]
-                    steps[s].append((
-                        v_all[d, s, t:], v_all[d, s, T:T + nk], mr[t:], z[:4 * nk],
-                        z[:3 * nk],                                         # o, i, f
-                        z[3 * nk:4 * nk],                                   # g
-                        z[3 * nk:5 * nk],                                   # [g | c]
-                        z[nk:3 * nk] if s else z[nk:2 * nk],                # [i | f]
-                        z[4 * nk:5 * nk],                                   # c
-                        z_all[d, s + 1, 4 * nk:5 * nk],                     # c after this step
-                        z[:nk], v_all[d, s + 1, T:T + nk],                  # o, h after this step
-                        mr[t], d))                                          # the step's projection
-                if nd:
-                    guards.append((d, v_all[d, :T], m_all[:, off:off + nd], guard[d, :, :nd]))
+                    c, g, _, i, dvd, dvs, o = cell[d]
+                    per_d.append((
+                        v_all[d, s, t:], v_all[d, s, T:T + nk], m_all[t:, cols[d][0]:cols[d][1]],
+                        z[at[d][0]:at[d][1]], m_all[t, cols[d][0]:cols[d][1]],
+                        z[g:g + nk], z[i:i + nk],                           # step 0: c = g / i
+                        z[dvd:dvd + 2 * nk], z[dvs:dvs + 2 * nk],           # later: [c|g] /= [f|i]
+                        z[dvd:dvd + nk], z[dvd + nk:dvd + 2 * nk],          # c = the two halves
+                        znext[c:c + nk], z[o:o + nk], v_all[d, s + 1, T:T + nk], d))
+                steps.append((z[2 * n0:b + 3 * n1], z[n0:b + 4 * n1], per_d))   # sigmoids; g..g
+            guards = [(d, v_all[d, :T], m_all[:, lo:lo + nd], guard[d, :, :nd])
+                      for d, (lo, nd) in enumerate(((4 * n0, d0), (w0, d1))) if nd]
             if li == 0:     # the kept global features at each time, then the dropped ones
                 idx = np.concatenate([(np.arange(T)[:, None] * head.n_global + ly.src_pos).ravel(),
                                       (np.arange(T)[:, None] * head.n_global + head.g_drop).ravel()])
@@ -460,27 +483,30 @@ class _Run1:
                 x = xb[:, :-1]
             nz = x.any(axis=0).nonzero()[0]
             head._project(ly, xa, aug + 1 + nz[-1] if len(nz) else aug, m_all[:T])
-            for _, _, _, zw, e, g, _, iv, _, c1, eo, h1, proj, _ in steps[0]:
-                copyto(zw, proj)
-                exp(e, out=e)
-                add(e, one, out=e)
-                maximum(g, zero, out=g)
-                div(g, iv, out=c1)
-                div(c1, eo, out=h1)
             rows = [T, T]           # rows of M the guards read: up to the longest state
-            for s in range(1, T):
-                for vrow, h, mr, zw, e, g, gc, iv, c, c1, eo, h1, _, d in steps[s]:
-                    nz = h.nonzero()[0]
-                    k = T + 1 + nz[-1] if len(nz) else T
-                    if k > rows[d]:
-                        rows[d] = k
-                    matmul(vrow[:k], mr[:k], out=zw)
-                    exp(e, out=e)
-                    add(e, one, out=e)
-                    maximum(g, zero, out=g)
-                    div(gc, iv, out=gc)
-                    add(g, c, out=c1)
-                    div(c1, eo, out=h1)
+            for s, (sig, gg, per_d) in enumerate(steps):
+                if s == 0:
+                    for _, _, _, zw, proj, *_ in per_d:
+                        copyto(zw, proj)
+                else:
+                    for vrow, h, mr, zw, _, _, _, _, _, _, _, _, _, _, d in per_d:
+                        nz = h.nonzero()[0]
+                        k = T + 1 + nz[-1] if len(nz) else T
+                        if k > rows[d]:
+                            rows[d] = k
+                        matmul(vrow[:k], mr[:k], out=zw)
+                exp(sig, out=sig)           # 1 + exp(-x) of o, i, f of both directions
+                add(sig, one, out=sig)
+                maximum(gg, zero, out=gg)   # relu(g) (the sigmoids between are >= 1)
+                if s == 0:                  # c = relu(g) / (1 + exp(-i)), h = c / (1 + exp(-o))
+                    for _, _, _, _, _, g, i, _, _, _, _, c1, o, h1, _ in per_d:
+                        div(g, i, out=c1)
+                        div(c1, o, out=h1)
+                else:                       # c = relu(g) / (..i) + c / (..f)
+                    for _, _, _, _, _, _, _, q, qd, qa, qb, c1, o, h1, _ in per_d:
+                        div(q, qd, out=q)
+                        add(qa, qb, out=c1)
+                        div(c1, o, out=h1)
             for d, vg, mg, out in guards:     # the dropped units' g at every step
                 matmul(vg[:, :rows[d]], mg[:rows[d]], out=out)
             if guards and not guard.max() <= 0:
