@@ -2,14 +2,22 @@
 and fall back, an exact round trip through the native weights file."""
 from __future__ import annotations
 
+import threading
 import warnings
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import tpnet_ref
+from tpnet_ref import layers as L
 from tpnet_ref import specialize as S
-from tpnet_ref.model import TPNetConfig, init_random
+from tpnet_ref import unit_order as U
+from tpnet_ref.checks import NonFiniteResultError
+from tpnet_ref.model import TPNet, TPNetConfig, init_random
+
+SMALL = TPNetConfig(mlp1=(16, 16), mlp2=(16, 32, 48), global_features=24, lstm_units=(32, 16, 16))
 
 
 def _rings(rng, n, m=4):
@@ -203,3 +211,185 @@ def test_calibration_windows_are_training_grid_windows_and_own_rollouts(monkeypa
                                rtol=0, atol=1e-5)     # rolled out in a batch of 2: BLAS rounding
     with pytest.raises(ValueError, match="n_trajectories"):
         S.calibration_cases(0)
+
+
+# ------------------------------------------------------------ exact on every input
+def _units(model, feats):
+    """Per window, the largest |value| of every unit of the full network (file order): global
+    features ``(B, k)`` and each BiLSTM's outputs ``(B, 2u)`` over all steps."""
+    out = {"global": np.abs(feats).max(axis=1)}
+    h = feats.transpose(1, 0, 2)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i, (fused, gamma, beta) in enumerate(model._lstms, 1):
+            y = L.bilstm_fused(h, *fused, activation="relu", return_sequences=True)
+            out[f"lstm{i}"] = np.abs(y).max(axis=0)
+            h = L.layer_norm(y, gamma, beta, model.config.layer_norm_eps)
+    return out
+
+
+def _check_head(model, used, feats, tol):
+    """The specialised head on ``feats (B, m, k)`` in one batch and window by window: both agree,
+    every window it accepts equals the full head, and every window in which a dropped unit is
+    clearly awake in the full network (or a dropped global feature is not 0) is flagged."""
+    spec = model.with_specialization(used)
+    head = spec.specialization
+    full = _quiet(model._full_head, feats).reshape(len(feats), -1)
+    y, ok = _quiet(head, feats)
+    one = [_quiet(head, feats[b:b + 1]) for b in range(len(feats))]
+    ok1 = np.array([o[0] for _, o in one])
+    np.testing.assert_array_equal(ok1, ok)
+    np.testing.assert_allclose(np.array([v[0] for v, _ in one])[ok], full[ok], rtol=0, atol=tol)
+    np.testing.assert_allclose(y[ok], full[ok], rtol=0, atol=tol)
+    units = _units(model, feats)
+    awake = (units["global"][:, ~used["global"]] != 0).any(axis=1)
+    for name, u in units.items():
+        if name != "global":
+            awake |= (u[:, ~used[name]] > 1e-3).any(axis=1)
+    assert not (ok & awake).any()
+    return ok
+
+
+def _features(model, windows):
+    return _quiet(model._frames_to_features, [f for w in windows for f in w], True).reshape(
+        len(windows), model.config.m, -1)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2 ** 16), dtype=st.sampled_from(["float32", "float64"]),
+       ordered=st.booleans(), n_cal=st.integers(1, 6), extra=st.floats(0.0, 0.5))
+def test_any_masks_any_order_exact_on_accepted_windows_and_flags_woken_units(seed, dtype, ordered,
+                                                                            n_cal, extra):
+    """Masks calibrated on a few windows, some more units kept at random (any superset is a valid
+    specialisation), with or without a random unit order: on fresh windows (many of which wake
+    dropped units) the head agrees with the full network wherever it does not flag."""
+    rng = np.random.default_rng(seed)
+    model = init_random(SMALL, seed=seed % 7, dtype=dtype)
+    if ordered:
+        model = model._copy(unit_order={k: rng.permutation(n) for k, n in U.sizes(SMALL).items()})
+    cal = rng.uniform(0.2, 0.8, (n_cal, 4, 30, 2))
+    used = {k: v | (rng.random(v.shape) < extra)
+            for k, v in S.calibrate(model, cal, normalized=True).items()}
+    wins = np.concatenate([rng.uniform(0.2, 0.8, (3, 4, 30, 2)),     # like the calibration
+                           rng.uniform(-1.0, 2.0, (3, 4, 30, 2)),    # most wake dropped units
+                           cal[:2]])
+    ok = _check_head(model, used, _features(model, wins), 2e-5 if dtype == "float32" else 1e-12)
+    assert ok[-min(2, n_cal):].all()          # the calibration windows themselves never fall back
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_every_unit_kept_or_dropped(dtype):
+    """Extremes: all units kept (nothing guarded) and only one unit per direction kept."""
+    model = init_random(SMALL, seed=2, dtype=dtype)
+    rng = np.random.default_rng(1)
+    feats = _features(model, rng.uniform(0.2, 0.8, (5, 4, 30, 2)))
+    tol = 2e-5 if dtype == "float32" else 1e-12
+    everything = {k: np.ones(n, bool) for k, n in U.sizes(SMALL).items() if not k.startswith("mlp")}
+    assert _check_head(model, everything, feats, tol).all()
+    nothing = {k: np.zeros_like(v) for k, v in everything.items()}
+    _check_head(model, nothing, feats, tol)
+
+
+@pytest.mark.parametrize("ordered", [True, False])
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_shipped_model_with_and_without_unit_order(shipped, scene, ordered, dtype):
+    """The shipped model's masks on its unit-ordered layout and on the file's order, float32 and
+    float64: predictions, batches and rollouts equal the full model's, trip inputs included."""
+    base = shipped if ordered else TPNet(shipped.config, shipped.params)
+    assert (base.unit_order is not None) == ordered
+    base = base.astype(dtype)
+    spec = base.with_specialization(scene.specialization.used)
+    rng = np.random.default_rng(7)
+    w = _rings(rng, 24)
+    w[-4:] = rng.uniform(0, 45, (4, 4, 30, 2))                      # random points
+    w[-6:-4] += 300.0                                               # far outside the box
+    tol = 1e-4 if dtype == "float32" else 1e-9
+    spec.counts.update(windows=0, fallbacks=0)
+    np.testing.assert_allclose(_quiet(spec.predict_batch, w), _quiet(base.predict_batch, w),
+                               rtol=0, atol=tol)
+    assert 0 < spec.counts["fallbacks"] < spec.counts["windows"]
+    for b in (0, 20, 22):
+        np.testing.assert_allclose(_quiet(spec.predict, w[b]), _quiet(base.predict, w[b]),
+                                   rtol=0, atol=tol)
+    np.testing.assert_allclose(_quiet(spec.rollout, w[1], 8), _quiet(base.rollout, w[1], 8),
+                               rtol=0, atol=10 * tol)
+    np.testing.assert_allclose(_quiet(spec.rollout_batch, w[:3], 5),
+                               _quiet(base.rollout_batch, w[:3], 5), rtol=0, atol=10 * tol)
+
+
+def test_one_window_path_equals_the_batch_path_on_the_scene(shipped, scene):
+    feats = _features(shipped, shipped.normalize(_rings(np.random.default_rng(8), 40)))
+    _check_head(shipped, scene.specialization.used, feats, 2e-6)
+
+
+def test_a_network_that_overflows_raises_through_the_specialised_one_too():
+    """An LSTM output beyond the full network's bound makes it refuse (NonFiniteResultError); the
+    specialised network flags the window and so refuses the same way."""
+    model = init_random(SMALL, seed=1, dtype="float32")
+    w = np.random.default_rng(0).uniform(0.2, 0.8, (3, 4, 30, 2))
+    spec = model.specialize(w, normalized=True)
+    big = {k: (v * 1e20 if k.startswith("lstm1") and "kernel" in k else v)
+           for k, v in model.params.items()}
+    huge = TPNet(SMALL, big, "float32")
+    with pytest.raises(NonFiniteResultError):
+        _quiet(huge.predict, w[0], normalized=True)
+    everything = {k: np.ones_like(v) for k, v in spec.specialization.used.items()}
+    for used in (spec.specialization.used, everything):     # no guard: the bound must catch it
+        s = huge.with_specialization(used)
+        with pytest.raises(NonFiniteResultError):
+            _quiet(s.predict, w[0], normalized=True)
+        with pytest.raises(NonFiniteResultError):
+            _quiet(s.predict_batch, w, normalized=True)
+
+
+def test_windows_from_many_threads_at_once(shipped, scene):
+    """One window at a time runs on per-thread buffers: threads do not disturb each other."""
+    feats = _features(shipped, shipped.normalize(_rings(np.random.default_rng(9), 12)))
+    head = scene.specialization
+    want = [_quiet(head, feats[b:b + 1]) for b in range(len(feats))]
+    got = {}
+
+    def work(i):
+        for rep in range(5):
+            for b in range(len(feats)):
+                y, ok = _quiet(head, feats[b:b + 1])
+                got.setdefault((i, b), []).append((y.copy(), ok.copy()))
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for (i, b), runs in got.items():
+        for y, ok in runs:
+            np.testing.assert_array_equal(ok, want[b][1])
+            np.testing.assert_array_equal(y, want[b][0])
+
+
+def test_non_contiguous_features_and_other_dtypes_are_accepted(shipped, scene):
+    feats = _features(shipped, shipped.normalize(_rings(np.random.default_rng(10), 3)))
+    head = scene.specialization
+    wide = np.full(feats.shape[:2] + (2 * feats.shape[2],), 7.0, feats.dtype)
+    wide[..., ::2] = feats
+    for f in (wide[..., ::2], feats.astype(np.float64), np.asfortranarray(feats)):
+        for b in range(len(feats)):
+            y, ok = _quiet(head, f[b:b + 1])
+            y0, ok0 = _quiet(head, feats[b:b + 1])
+            np.testing.assert_array_equal(ok, ok0)
+            np.testing.assert_allclose(y, y0, rtol=0, atol=1e-6)
+
+
+def test_the_saved_masks_are_in_the_file_order_of_units(tmp_path, shipped, scene):
+    """The masks the file keeps are the calibration's, unit by unit in the file's order, however
+    the model lays its units out (the unit order is the layout's business only)."""
+    rng = np.random.default_rng(11)
+    cal = _rings(rng, 50)
+    plain = TPNet(shipped.config, shipped.params)
+    a = _quiet(S.calibrate, shipped, cal)
+    b = _quiet(S.calibrate, plain, cal)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    spec = shipped.with_specialization(a)
+    path = tmp_path / "s.h5"
+    S.save(spec, path)
+    back = S.read(path)
+    for k in a:
+        np.testing.assert_array_equal(back[k], a[k])
