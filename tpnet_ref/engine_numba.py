@@ -58,9 +58,6 @@ STRIP_BYTES = 256
 #: input rows that share each weight row read (one window's m = 4 steps at B = 1)
 GROUP_ROWS = 4
 _VECTOR_BYTES = 64
-#: the product kernel asks for the weight row this many rows ahead in the list (the rows it
-#: reads are scattered: the hardware prefetcher alone leaves it waiting on memory)
-PREFETCH_ROWS = 8
 
 
 def strip_units(dtype: Any) -> int:
@@ -91,27 +88,30 @@ def strips(w: np.ndarray, nb: int) -> np.ndarray:
 # ------------------------------------------------------------------ the product kernel
 
 def _strip_kernel(rows: int):
-    """An intrinsic ``k(x, r0, kb, act, n, out, c0)``: for ``r`` in ``r0 .. r0 + rows - 1``,
-    ``out[r, c0 : c0 + S] = sum over i < n of x[r, act[i]] * kb[act[i], :]``, each column one
+    """An intrinsic ``k(x, r0, rstep, kb, act, n, out, c0)``: for the rows
+    ``r = r0 + i * rstep``, ``i < rows``,
+    ``out[r, c0 : c0 + S] = sum over j < n of x[r, act[j]] * kb[act[j], :]``, each column one
     chain of ``llvm.fma`` in increasing ``i`` from +0, for ``x (R, C)``, one strip
     ``kb (C, S)`` (C-contiguous, ``S * itemsize == STRIP_BYTES``), ``act`` the indices of the
     inputs to add, ``out`` 2-D with contiguous rows. The ``rows x S`` accumulators stay in
     registers (vectors of 64 bytes)."""
 
     @intrinsic
-    def kernel(typingctx, x, r0, kb, act, n, out, c0):
+    def kernel(typingctx, x, r0, rstep, kb, act, n, out, c0):
         ok = (isinstance(x, types.Array) and isinstance(kb, types.Array)
               and isinstance(out, types.Array) and x.ndim == kb.ndim == out.ndim == 2
               and x.dtype == kb.dtype == out.dtype and kb.layout == "C"
               and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
         if not ok:
             return None
-        sig = types.void(x, r0, kb, act, n, out, c0)
+        sig = types.void(x, r0, rstep, kb, act, n, out, c0)
 
         def codegen(context, builder, signature, args):
-            xt, r0t, kt, at, nt, ot, c0t = signature.args
+            xt, kt, at, ot = (signature.args[i] for i in (0, 3, 4, 6))
             xa, ka, aa, oa = (context.make_array(t)(context, builder, v) for t, v in
-                              ((xt, args[0]), (kt, args[2]), (at, args[3]), (ot, args[5])))
+                              ((xt, args[0]), (kt, args[3]), (at, args[4]), (ot, args[6])))
+            r0i, rs, ni, c0i = (context.cast(builder, args[i], signature.args[i], types.intp)
+                                for i in (1, 2, 5, 7))
             elt = context.get_value_type(xt.dtype)
             size = xt.dtype.bitwidth // 8
             lanes = _VECTOR_BYTES // size
@@ -127,9 +127,6 @@ def _strip_kernel(rows: int):
             i32_0 = ir.Constant(ir.IntType(32), 0)
             accs = [[cgutils.alloca_once_value(builder, zero) for _ in range(nvec)]
                     for _ in range(rows)]
-            r0i = context.cast(builder, args[1], r0t, types.intp)
-            ni = context.cast(builder, args[4], nt, types.intp)
-            c0i = context.cast(builder, args[6], c0t, types.intp)
             width = ir.Constant(intp, nvec * lanes)
 
             def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
@@ -137,21 +134,10 @@ def _strip_kernel(rows: int):
                 p = builder.gep(builder.bitcast(arr.data, i8p), [builder.mul(row, stride)])
                 return builder.bitcast(p, elt.as_pointer())
 
-            xrows = [row_ptr(xa, builder.add(r0i, ir.Constant(intp, r))) for r in range(rows)]
-            prefetch = cgutils.get_or_insert_function(
-                builder.module, ir.FunctionType(ir.VoidType(), [i8p] + [ir.IntType(32)] * 3),
-                "llvm.prefetch.p0")
-            last = builder.sub(ni, ir.Constant(intp, 1))
-            ahead = ir.Constant(intp, PREFETCH_ROWS)
-            i32 = [ir.Constant(ir.IntType(32), v) for v in (0, 3, 1)]   # read, keep, data
+            rowi = [builder.add(r0i, builder.mul(rs, ir.Constant(intp, r))) for r in range(rows)]
+            xrows = [row_ptr(xa, rowi[r]) for r in range(rows)]
             with cgutils.for_range(builder, ni) as loop:
                 k = builder.load(builder.gep(aa.data, [loop.index]))
-                ia = builder.add(loop.index, ahead)          # the row PREFETCH_ROWS ahead
-                ia = builder.select(builder.icmp_signed("<", ia, ni), ia, last)
-                pa = builder.bitcast(builder.gep(ka.data, [builder.mul(
-                    builder.load(builder.gep(aa.data, [ia])), width)]), i8p)
-                for line in range(0, STRIP_BYTES, 64):
-                    builder.call(prefetch, [builder.gep(pa, [ir.Constant(intp, line)])] + i32)
                 wrow = builder.gep(ka.data, [builder.mul(k, width)])
                 ws = [builder.load(builder.bitcast(builder.gep(wrow, [ir.Constant(intp, v * lanes)]),
                                                    vty.as_pointer()), align=size)
@@ -164,7 +150,7 @@ def _strip_kernel(rows: int):
                         acc = builder.load(accs[r][v])
                         builder.store(builder.call(fma, [av, ws[v], acc]), accs[r][v])
             for r in range(rows):
-                p = builder.gep(row_ptr(oa, builder.add(r0i, ir.Constant(intp, r))), [c0i])
+                p = builder.gep(row_ptr(oa, rowi[r]), [c0i])
                 for v in range(nvec):
                     q = builder.bitcast(builder.gep(p, [ir.Constant(intp, v * lanes)]),
                                         vty.as_pointer())
@@ -180,44 +166,74 @@ _K1, _K2, _K3, _K4 = (_strip_kernel(r) for r in range(1, GROUP_ROWS + 1))
 
 
 @njit(cache=True, nogil=True)
-def _active(x, r0, g, act):
-    """The columns ``k`` of ``x (R, C)`` that are non-zero (or NaN) in some row ``r0 .. r0+g-1``,
-    in increasing order, into ``act``; returns how many."""
-    n = 0
-    for k in range(x.shape[1]):
-        for r in range(r0, r0 + g):
-            if x[r, k] != 0:
-                act[n] = k
-                n += 1
-                break
-    return n
+def _groups(steps, bsz, per_window):
+    """Row groups ``(first, stride, count)`` of ``T*B`` time-major rows (row ``t*B + b``):
+    ``per_window``: each window's steps, up to ``GROUP_ROWS`` at a time (a window's steps
+    share most of their non-zero inputs); else runs of up to ``GROUP_ROWS`` consecutive rows."""
+    if per_window:
+        chunks = -(-steps // GROUP_ROWS)
+        grp = np.empty((bsz * chunks, 3), dtype=np.intp)
+        for b in range(bsz):
+            for ci in range(chunks):
+                t0 = ci * GROUP_ROWS
+                grp[b * chunks + ci] = (t0 * bsz + b, bsz, min(GROUP_ROWS, steps - t0))
+    else:
+        rows = steps * bsz
+        grp = np.empty((-(-rows // GROUP_ROWS), 3), dtype=np.intp)
+        for gi in range(grp.shape[0]):
+            grp[gi] = (gi * GROUP_ROWS, 1, min(GROUP_ROWS, rows - gi * GROUP_ROWS))
+    return grp
 
 
 @njit(cache=True, nogil=True)
-def _product(x, r0, g, kern, act, n, out):
-    """``out[r] = sum over i < n of x[r, act[i]] * K[act[i]]`` for rows ``r0 .. r0+g-1``
-    (``g <= GROUP_ROWS``), ``K`` in strips ``kern (n_strips, C, S)``, ``out (R, n_strips*S)``."""
+def _active(x, grp, act, ns):
+    """For each row group ``(first, stride, count)`` of ``x (R, C)``, the columns ``k``
+    non-zero (or NaN) in some row of the group, in increasing order, into ``act[group]``, and
+    how many into ``ns[group]``."""
+    for gi in range(grp.shape[0]):
+        r0, rs, g = grp[gi, 0], grp[gi, 1], grp[gi, 2]
+        a = act[gi]
+        n = 0
+        for k in range(x.shape[1]):
+            for i in range(g):
+                if x[r0 + i * rs, k] != 0:
+                    a[n] = k
+                    n += 1
+                    break
+        ns[gi] = n
+
+
+@njit(cache=True, nogil=True)
+def _product(x, kern, grp, act, ns, out):
+    """``out[r] = x[r] @ K`` for every row of ``x (R, C)`` in the groups ``grp``, ``K`` in
+    strips ``kern (n_strips, C, S)``, ``out (R, n_strips * S)``, each group reading the kernel
+    rows of its own non-zero inputs (:func:`_active`'s ``act``, ``ns``): strip by strip, so a
+    strip's rows come from memory for the first group and from cache for the others."""
     wid = kern.shape[2]
     for s in range(kern.shape[0]):
-        if g == 4:
-            _K4(x, r0, kern[s], act, n, out, s * wid)
-        elif g == 3:
-            _K3(x, r0, kern[s], act, n, out, s * wid)
-        elif g == 2:
-            _K2(x, r0, kern[s], act, n, out, s * wid)
-        else:
-            _K1(x, r0, kern[s], act, n, out, s * wid)
+        kb = kern[s]
+        for gi in range(grp.shape[0]):
+            r0, rs, g = grp[gi, 0], grp[gi, 1], grp[gi, 2]
+            a, n = act[gi], ns[gi]
+            if g == 4:
+                _K4(x, r0, rs, kb, a, n, out, s * wid)
+            elif g == 3:
+                _K3(x, r0, rs, kb, a, n, out, s * wid)
+            elif g == 2:
+                _K2(x, r0, rs, kb, a, n, out, s * wid)
+            else:
+                _K1(x, r0, rs, kb, a, n, out, s * wid)
 
 
 @njit(cache=True, nogil=True)
-def _project_dir(x, kern, out):
-    """One direction's product ``out = x @ K`` (no bias) for ``x (R, C)``, rows in groups of
-    ``GROUP_ROWS``, each reading only the kernel rows of its non-zero inputs."""
-    rows = x.shape[0]
-    act = np.empty(x.shape[1], dtype=np.intp)
-    for r0 in range(0, rows, GROUP_ROWS):
-        g = min(GROUP_ROWS, rows - r0)
-        _product(x, r0, g, kern, act, _active(x, r0, g, act), out)
+def _project_dir(x, kern, out, steps, bsz):
+    """One direction's product ``out = x @ K`` (no bias) for the ``T*B`` time-major rows of
+    ``x``, each window's steps in groups reading only the kernel rows of their non-zero inputs."""
+    grp = _groups(steps, bsz, True)
+    act = np.empty((grp.shape[0], x.shape[1]), dtype=np.intp)
+    ns = np.empty(grp.shape[0], dtype=np.intp)
+    _active(x, grp, act, ns)
+    _product(x, kern, grp, act, ns, out)
 
 
 @intrinsic
@@ -345,20 +361,21 @@ def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
     h = np.zeros((bsz, up), dtype=dt)
     c = np.zeros((bsz, up), dtype=dt)
     acc = np.zeros((bsz, nst * wid), dtype=dt)
-    act = np.empty(up, dtype=np.intp)
+    grp = _groups(1, bsz, False)
+    act = np.empty((grp.shape[0], up), dtype=np.intp)
+    ns = np.empty(grp.shape[0], dtype=np.intp)
     for s in range(steps):
         t = s if d == 0 else steps - 1 - s
-        for b0 in range(0, bsz, GROUP_ROWS):
-            g = min(GROUP_ROWS, bsz - b0)
-            if s > 0:                         # h = 0 at the first step
-                _product(h, b0, g, rec, act, _active(h, b0, g, act), acc)
-            for b in range(b0, b0 + g):
-                row = t * bsz + b
-                if relu:
-                    _gates_relu(acc[b], xs[row, d], c[b], h[b], nb, u, one)
-                else:
-                    _gates_tanh(acc[b], xs[row, d], c[b], h[b], nb, u, one)
-                hs[row, d * u:(d + 1) * u] = h[b, :u]
+        if s > 0:                             # h = 0 at the first step
+            _active(h, grp, act, ns)
+            _product(h, rec, grp, act, ns, acc)
+        for b in range(bsz):
+            row = t * bsz + b
+            if relu:
+                _gates_relu(acc[b], xs[row, d], c[b], h[b], nb, u, one)
+            else:
+                _gates_tanh(acc[b], xs[row, d], c[b], h[b], nb, u, one)
+            hs[row, d * u:(d + 1) * u] = h[b, :u]
 
 
 @njit(cache=True, nogil=True)
@@ -439,7 +456,7 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
         hs = np.empty((rows, 2 * u), dtype=dt)
         for d in prange(2):
             if li > 0:
-                _project_dir(x, kernels[li][d], xs[:, d])
+                _project_dir(x, kernels[li][d], xs[:, d], steps, bsz)
                 _finish_dir(xs, d, rr, rmu, gks[li][d], csts[li][d])
             _recur_dir(xs, d, rec[d], hs, u, steps, bsz, relu, one)
         if li < nl - 1:
@@ -468,11 +485,12 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
     return res, bad
 
 
-def _project_impl(x, kernel, bias, out):
-    """BiLSTM 1's input projection of rows ``x (R, C)`` -> ``out (R, 2, 4 up)`` (bias added)."""
+def _project_impl(x, kernel, bias, out, steps, bsz):
+    """BiLSTM 1's input projection of the ``T*B`` time-major rows ``x`` -> ``out (R, 2, 4 up)``
+    (bias added)."""
     empty = bias[0, :0]
     for d in prange(2):
-        _project_dir(x, kernel[d], out[:, d])
+        _project_dir(x, kernel[d], out[:, d], steps, bsz)
         _finish_dir(out, d, empty, empty, empty, bias[d])
 
 
@@ -539,21 +557,25 @@ class NumbaHead:
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
 
-    def project(self, x: np.ndarray, parallel: bool = False) -> np.ndarray:
+    def project(self, x: np.ndarray, parallel: bool = False, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, 4 up)``
-        (each direction's columns in strips, ``up`` the units padded to whole strips)."""
+        (each direction's columns in strips, ``up`` the units padded to whole strips).
+        ``batch``: the rows are ``R / batch`` steps of ``batch`` windows, time-major (only
+        groups the rows that share weight reads; the result is the same whatever it is)."""
         k = self.kernels[0]
-        out = np.empty((x.shape[0], 2, k.shape[1] * k.shape[3]), dtype=self.dtype)
+        rows = x.shape[0]
+        out = np.empty((rows, 2, k.shape[1] * k.shape[3]), dtype=self.dtype)
         if self.feature_order is not None:
             x = x[:, self.feature_order]
         x = np.ascontiguousarray(x, dtype=self.dtype)
+        steps, bsz = (rows // batch, batch) if batch > 0 and rows % batch == 0 else (rows, 1)
         if parallel and _PARALLEL.acquire(blocking=False):
             try:
-                _project_parallel(x, k, self.csts[0], out)
+                _project_parallel(x, k, self.csts[0], out, steps, bsz)
             finally:
                 _PARALLEL.release()
         else:
-            _project_serial(x, k, self.csts[0], out)
+            _project_serial(x, k, self.csts[0], out, steps, bsz)
         return out
 
     def __call__(self, xp1: np.ndarray, steps: int, batch: int,
