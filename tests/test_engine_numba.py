@@ -177,3 +177,231 @@ def test_numpy_engine_imports_no_numba(tmp_path):
             "print('numba' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+# ------------------------------------------------------------------ the zero-skipping engine
+# (products over the non-zero inputs only, LayerNorm folded into BiLSTM 2/3's projections)
+
+from tpnet_ref import engine_numba as EN  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return tpnet_ref.load()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """Frames of two simulated held-out test cases (world units, one frame every 4 rows): the
+    inputs the shipped model sees, with their ReLU zeros."""
+    from tpnet_ref.sim import simulate
+    from tpnet_ref.sim.cases import TEST_CASES
+    return np.stack([simulate(*case, steps=81)[::4] for case in TEST_CASES[:2]])   # (2, 21, 30, 2)
+
+
+def _scene_windows(scene, n, m=4):
+    starts = np.linspace(0, scene.shape[1] - m, n // 2).astype(int)
+    return np.stack([traj[s:s + m] for traj in scene for s in starts])
+
+
+@pytest.mark.parametrize("dtype,atol,roll_atol", [("float32", 1e-4, 2e-3), ("float64", 1e-10, 1e-8)])
+def test_shipped_model_on_scene_windows_equals_numpy(shipped, scene, dtype, atol, roll_atol):
+    ref = shipped.astype(dtype)
+    nb = ref.with_engine("numba")
+    wins = _scene_windows(scene, 8)
+    # the engine reads zeros out of its products: there must be zeros to skip on these windows
+    feats = ref._frames_to_features(list(wins[0]), False)
+    assert (feats == 0).mean() > 0.5
+    for w in wins:
+        np.testing.assert_allclose(nb.predict(w), ref.predict(w), rtol=0, atol=atol)
+    np.testing.assert_allclose(nb.predict_batch(wins), ref.predict_batch(wins), rtol=0, atol=atol)
+    np.testing.assert_allclose(nb.rollout(wins[0], 20), ref.rollout(wins[0], 20), rtol=0,
+                               atol=roll_atol)
+    np.testing.assert_allclose(nb.rollout_batch(wins[:3], 5), ref.rollout_batch(wins[:3], 5),
+                               rtol=0, atol=roll_atol)
+
+
+def _with_order(model, order):
+    """``model`` (engine numba) with its engine laid out in ``order`` (what model.py passes once
+    it hands the engine its unit order)."""
+    out = model.with_engine("numba")
+    out._nb = EN.NumbaHead(out.config, out.params, out.dtype, order)
+    return out
+
+
+@pytest.mark.parametrize("dtype,atol", [("float32", 1e-4), ("float64", 1e-10)])
+def test_unit_order_layout_equals_the_file_order(shipped, scene, dtype, atol):
+    """The engine laid out in the model's unit order (units most used first: the weight rows it
+    reads are clustered) computes the same function, and still bit for bit per window."""
+    assert shipped.unit_order is not None
+    ref = shipped.astype(dtype)
+    plain = _with_order(ref, None)
+    ordered = _with_order(ref, ref.unit_order)
+    assert ordered._nb.feature_order is not None and plain._nb.feature_order is None
+    wins = _scene_windows(scene, 6)
+    y = ordered.predict_batch(wins)
+    np.testing.assert_allclose(y, plain.predict_batch(wins), rtol=0, atol=atol)
+    np.testing.assert_allclose(y, ref.predict_batch(wins), rtol=0, atol=atol)
+    for w, yb in zip(wins, y):
+        assert np.array_equal(ordered.predict(w), yb)
+
+
+@pytest.mark.parametrize("dtype,atol", [("float32", 2e-4), ("float64", 1e-10)])
+def test_random_released_shape_equals_numpy(dtype, atol):
+    ref = init_random(seed=11, dtype=dtype)
+    nb = ref.with_engine("numba")
+    rng = np.random.default_rng(12)
+    wins = _windows(rng, 4)
+    np.testing.assert_allclose(nb.predict_batch(wins), ref.predict_batch(wins), rtol=0, atol=atol)
+    np.testing.assert_allclose(nb.rollout(wins[1], 6), ref.rollout(wins[1], 6), rtol=0,
+                               atol=10 * atol)
+
+
+@pytest.mark.parametrize("dtype,atol", [("float32", 2e-4), ("float64", 1e-10)])
+def test_tanh_released_shape_equals_numpy(dtype, atol):
+    """tanh: no exact zeros (every weight row read), LayerNorm applied, then the plain product."""
+    ref = init_random(dataclasses.replace(TPNetConfig(), lstm_activation="tanh"), seed=13,
+                      dtype=dtype)
+    nb = ref.with_engine("numba")
+    assert not nb._nb.relu
+    wins = _windows(np.random.default_rng(14), 3)
+    np.testing.assert_allclose(nb.predict_batch(wins), ref.predict_batch(wins), rtol=0, atol=atol)
+    for w in wins:
+        np.testing.assert_allclose(nb.predict(w), ref.predict(w), rtol=0, atol=atol)
+
+
+@pytest.mark.parametrize("dtype,scale", [("float32", 1e20), ("float64", 1e160)])
+def test_far_out_input_overflows_like_numpy(shipped, scene, dtype, scale):
+    """A window far outside the training range overflows the ReLU LSTM's state: both engines
+    raise NonFiniteResultError naming the same layer (alone and inside a batch)."""
+    ref = shipped.astype(dtype)
+    nb = ref.with_engine("numba")
+    w = scene[0, :4] * scale
+    msgs = []
+    for model in (ref, nb):
+        with pytest.raises(tpnet_ref.checks.NonFiniteResultError) as e:
+            model.predict(w)
+        msgs.append(str(e.value).split(" at ")[1].split(" (")[0])
+        with pytest.raises(tpnet_ref.checks.NonFiniteResultError):
+            model.predict_batch(np.stack([scene[0, 4:8], w]))
+    assert msgs[0] == msgs[1] and msgs[0].startswith("BiLSTM")
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_every_window_of_a_batch_is_bit_identical_to_it_alone(shipped, scene, dtype):
+    """Each window is computed on its own (a row's sums add exactly its own non-zero inputs,
+    whatever the rows beside it): every batch size the engine runs gives each window the bits
+    it gets alone. A batched rollout's first step too; its later steps' inputs come from the
+    NumPy feature extractor, which runs the batch's new frames through the BLAS together (not
+    bit for bit, as with engine='numpy'), so those agree up to rounding."""
+    nb = _with_order(shipped.astype(dtype), shipped.unit_order)
+    wins = _scene_windows(scene, M.ENGINE_MAX_BATCH)
+    alone = np.stack([nb.predict(w) for w in wins])
+    for b in range(2, M.ENGINE_MAX_BATCH + 1):
+        assert nb._engine_for(b) is not None
+        assert np.array_equal(nb.predict_batch(wins[:b]), alone[:b]), b
+        assert np.array_equal(nb.predict_batch(wins[::-1][:b]), alone[::-1][:b]), b
+    rolls = nb.rollout_batch(wins[:3], 4)
+    for w, r in zip(wins[:3], rolls):
+        single = nb.rollout(w, 4)
+        assert np.array_equal(single[0], r[0])
+        np.testing.assert_allclose(single, r, rtol=0, atol=1e-3 if dtype == "float32" else 1e-9)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_serial_and_parallel_kernels_and_thread_counts_give_the_same_bits(shipped, scene, dtype):
+    import numba
+    head = EN.NumbaHead(shipped.config, shipped.params, np.dtype(dtype), shipped.unit_order)
+    wins = _scene_windows(scene, 4)
+    feats = shipped.astype(dtype)._frames_to_features(
+        [f for w in wins for f in w], False).reshape(4, 4, -1)
+    rows = feats.transpose(1, 0, 2).reshape(16, -1)            # time-major, 4 windows
+    base = head(head.project(rows, batch=4), 4, 4, parallel=False)
+    assert base[1] == 0
+    threads = numba.get_num_threads()
+    try:
+        for n in sorted({1, threads}):
+            numba.set_num_threads(n)
+            for parallel in (False, True):
+                y, bad = head(head.project(rows, parallel, batch=4), 4, 4, parallel)
+                assert bad == 0 and np.array_equal(y, base[0]), (n, parallel)
+    finally:
+        numba.set_num_threads(threads)
+    # the rows' grouping in project() does not change them either
+    assert np.array_equal(head.project(rows, batch=4), head.project(rows))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_product_reads_only_non_zero_inputs_and_rows_are_independent(dtype):
+    """The strip kernel: equal to the float64 product; a row's result is the same bits whatever
+    the other rows of its group (zeros elsewhere, NaN elsewhere); an all-zero input gives +0."""
+    rng = np.random.default_rng(20)
+    nb = EN.strip_units(dtype)
+    c_in, u = 37, 3 * nb - 2                                  # units padded to whole strips
+    w = rng.standard_normal((c_in, 4 * u))
+    kern = EN.strips(w, nb).astype(dtype)
+    x = rng.standard_normal((7, c_in)) * (rng.uniform(size=(7, c_in)) < 0.4)
+    x[2] = 0.0
+    x = x.astype(dtype)
+    out = np.empty((7, 2, kern.shape[0] * kern.shape[2]), dtype=dtype)
+    EN._project_dir(x, kern, out[:, 1], 7, 1)
+    cols = EN.strips(np.arange(1.0, 4 * u + 1), nb).astype(int) - 1   # padding: -1
+    got = np.empty((7, 4 * u), dtype=dtype)
+    got[:, cols[cols >= 0]] = out[:, 1][:, cols >= 0]
+    assert np.all(out[:, 1][:, cols < 0] == 0)
+    tol = 1e-4 if dtype == np.float32 else 1e-12
+    np.testing.assert_allclose(got, x.astype(float) @ w.astype(dtype).astype(float), atol=tol)
+    assert np.all(got[2] == 0) and not np.signbit(got[2]).any()
+    for r in range(7):
+        alone = np.empty((1, 2, out.shape[2]), dtype=dtype)
+        EN._project_dir(x[r:r + 1], kern, alone[:, 1], 1, 1)
+        assert np.array_equal(alone[0, 1], out[r, 1]), r
+    poisoned = x.copy()
+    poisoned[5, 3] = np.nan
+    out2 = np.empty_like(out)
+    EN._project_dir(poisoned, kern, out2[:, 1], 7, 1)
+    assert np.isnan(out2[5, 1]).any()
+    keep = [r for r in range(7) if r != 5]
+    assert np.array_equal(out2[keep, 1], out[keep, 1])
+
+
+def test_strip_layout_round_trip():
+    rng = np.random.default_rng(21)
+    w = rng.standard_normal((5, 4 * 10))
+    s = EN.strips(w, 4)                                       # 10 units -> 12, 3 strips
+    assert s.shape == (3, 5, 16)
+    back = s.transpose(1, 0, 2).reshape(5, 3, 4, 4).transpose(0, 2, 1, 3).reshape(5, 4, 12)
+    np.testing.assert_array_equal(back[:, :, :10], w.reshape(5, 4, 10))
+    assert np.all(back[:, :, 10:] == 0)
+    np.testing.assert_array_equal(EN.strips(w[0], 4), s[:, 0].ravel())
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_vectorised_exp_and_sigmoid_are_within_a_few_ulp(dtype):
+    """The gates' exp (a polynomial, vectorised) within 1.5 ulp of exp where exp(t) is a normal
+    number (0 below), the sigmoid within 4 ulp (NumPy's float32 1 / (1 + exp(-x)): 3.3)."""
+    from numba import njit
+
+    @njit
+    def run(t, e, s, one):
+        for i in range(t.shape[0]):
+            e[i] = EN._exp_neg(-abs(t[i]))
+            s[i] = EN._sigmoid(t[i], one)
+
+    rng = np.random.default_rng(22)
+    t = np.concatenate([rng.standard_normal(20000) * 3, rng.uniform(-800, 800, 20000),
+                        [0.0, -0.0, 1e-30, 30.0, 87.3, 708.3, np.inf, -np.inf]]).astype(dtype)
+    e, s = np.empty_like(t), np.empty_like(t)
+    run(t, e, s, dtype(1))
+    ref_e = np.exp(-np.abs(t.astype(np.float64)))
+    with np.errstate(over="ignore"):
+        ref_s = 1.0 / (1.0 + np.exp(-t.astype(np.float64)))
+    tiny = np.finfo(dtype).tiny
+    normal = ref_e >= 2 * tiny
+    ulp = np.spacing(ref_e.astype(dtype)).astype(np.float64)
+    assert np.all(np.abs(e - ref_e)[normal] <= 1.5 * ulp[normal])
+    assert np.all(e[~normal] <= 2 * tiny) and np.all(e[~normal] >= 0)
+    assert np.all(np.abs(s - ref_s) <= 4 * np.spacing(ref_s.astype(dtype)) + 2 * tiny)
+    nan = np.array([np.nan], dtype=dtype)
+    run(nan, e[:1], s[:1], dtype(1))
+    assert np.isnan(e[0]) and np.isnan(s[0])
