@@ -474,8 +474,10 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
     bad = _norm_rows(src, gammas[nl - 1], betas[nl - 1], relu, nl - 1, limit, one, eps, last,
                      rr[:0], rmu[:0], bad)
     n = head_w.shape[1]
-    res = np.zeros((bsz, n), dtype=dt)
+    res = np.empty((bsz, n), dtype=dt)
     for b in range(bsz):
+        for o in range(n):
+            res[b, o] = 0             # (not np.zeros: a parallel region of its own)
         for q in range(head_w.shape[0]):
             v = last[b, q]
             for o in range(n):
