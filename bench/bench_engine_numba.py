@@ -1,18 +1,23 @@
 """B = 1 latency and 80-frame rollout of the shipped model: NumPy engine, Numba engine and
 onnxruntime, alternating call by call (ratios from medians of the same minutes).
 
-    python bench/bench_engine_numba.py [--reps 6] [--one-thread] [--no-ort]
+    python bench/bench_engine_numba.py [--reps 6] [--one-thread] [--no-ort] [--batches 2,4,8]
 
 Inputs as in ``bench_inference.py`` (normalised windows of simulated test cases): B = 1 on the
 64 windows ``x256[::4]``, each window once per repeat and engine; the prediction network alone
-(``sequence_head`` on precomputed global features) on the same windows; and the rollout of 80
-frames from test case 0's first window. ``--one-thread``: everything inside
-:func:`tpnet_ref.blas.one_thread` (one-thread BLAS; the Numba engine then runs its serial kernels).
+(``sequence_head`` on precomputed global features) on the same windows; the rollout of 80
+frames from test case 0's first window (onnxruntime: a loop of 80 calls); with ``--batches``,
+``predict_batch`` of consecutive windows of ``x256`` in batches of those sizes (the Numba
+engine runs batches up to ``ENGINE_MAX_BATCH``). ``--one-thread``: everything inside
+:func:`tpnet_ref.blas.one_thread` (one-thread BLAS; the Numba engine then runs its serial
+kernels, else the two directions of each layer on two threads). Prints the load average first:
+on a shared machine the figures are only comparable within one run.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 import time
 import warnings
@@ -47,7 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rollouts", type=int, default=8, help="80-frame rollouts per engine")
     ap.add_argument("--one-thread", action="store_true", help="inside blas.one_thread()")
     ap.add_argument("--no-ort", action="store_true", help="leave out onnxruntime")
+    ap.add_argument("--batches", default="", help="comma-separated batch sizes to time too")
     args = ap.parse_args(argv)
+    print("load average:", " ".join(f"{v:.2f}" for v in os.getloadavg()))
     warnings.simplefilter("ignore")
     npy = tpnet_ref.load()
     nb = npy.with_engine("numba")
@@ -74,8 +81,24 @@ def main(argv: list[str] | None = None) -> int:
             f(feats[0])
         r = alternate(calls, ws, args.reps)
         h = alternate(heads, feats, args.reps)
-        roll = alternate({k: (lambda x, mm=mm: mm.rollout(x, 80, normalized=True))
-                          for k, mm in (("numpy", npy), ("numba", nb))}, [x1[0]], args.rollouts)
+        rolls = {k: (lambda x, mm=mm: mm.rollout(x, 80, normalized=True))
+                 for k, mm in (("numpy", npy), ("numba", nb))}
+        if not args.no_ort:
+            def ort_loop(x: np.ndarray) -> None:
+                win = x[None]
+                for _ in range(80):
+                    y = sess.run(None, {"window": win})[0]
+                    win = np.concatenate([win[:, 1:], y[:, None]], axis=1)
+            rolls["onnxruntime"] = ort_loop
+        roll = alternate(rolls, [x1[0]], args.rollouts)
+        batches = {}
+        for b in (int(v) for v in args.batches.split(",") if v):
+            chunks = [x256[i:i + b] for i in range(0, len(x256) - b + 1, max(b, 32))]
+            bc = {"numpy": lambda w: npy.predict_batch(w, normalized=True),
+                  "numba": lambda w: nb.predict_batch(w, normalized=True)}
+            if not args.no_ort:
+                bc["onnxruntime"] = lambda w: sess.run(None, {"window": w})
+            batches[b] = alternate(bc, chunks, args.reps)
     print(f"{'one-thread BLAS' if args.one_thread else 'default threads'}; "
           f"{len(ws)} windows x {args.reps} reps")
     base = r.get("onnxruntime")
@@ -86,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"B=1 head      {k:12s} {v * 1e3:7.3f} ms  {v / h['numpy']:.3f}x numpy")
     for k, v in roll.items():
         print(f"rollout/frame {k:12s} {v / 80 * 1e3:7.3f} ms  {v / roll['numpy']:.3f}x numpy")
+    for b, rb in batches.items():
+        for k, v in rb.items():
+            print(f"B={b:<3d} batch   {k:12s} {v * 1e3:7.3f} ms  {v / rb['numpy']:.3f}x numpy")
     return 0
 
 
