@@ -5,10 +5,12 @@
 
 Calibrates the shipped m = 4 model on windows of simulated training-grid trajectories (every
 window, plus the windows of the model's own 40-frame rollouts from them; never the test cases),
-then checks on the 60 test cases (their simulated windows and the model's own rollout windows)
-and on inputs built to trip every guard: max |specialised - full| in world units (target <=
-1e-4), the fraction of windows that fall back to the full network, and B = 1 latency of both
-on the test windows, interleaved (target: specialised >= 2x faster).
+then checks on the 60 test cases (their simulated windows and the model's own rollout windows,
+in batches and one window at a time) and on inputs built to trip every guard: max |specialised -
+full| in world units (target <= 1e-4) and the fraction of windows that fall back to the full
+network. Then, on 64 test windows, interleaved, medians: B = 1 latency of ``predict`` of both
+(target: specialised >= 2x faster), of the prediction network alone on the same features, and
+where one specialised prediction spends its time (the feature extractor is the full model's).
 """
 from __future__ import annotations
 
@@ -70,19 +72,60 @@ def main(argv: list[str] | None = None) -> int:
         fallback[name] = spec.counts["fallbacks"] / spec.counts["windows"]
         print(f"{name:36s} {len(w):6d} {d:26.2e} {fallback[name]:9.2%}")
 
-    # B = 1 latency on the scene's windows, interleaved, medians
+    # one window at a time (the specialised head's own path for B = 1) on part of them
+    sub = sim_w[np.random.default_rng(3).choice(len(sim_w), 300, replace=False)]
+    spec.counts.update(windows=0, fallbacks=0)
+    d = max(float(np.abs(spec.predict(w) - full.predict(w)).max()) for w in sub)
+    worst = max(worst, d)
+    print(f"{'test cases, simulated, one at a time':36s} {len(sub):6d} {d:26.2e} "
+          f"{spec.counts['fallbacks'] / spec.counts['windows']:9.2%}")
+
+    # B = 1 latency on the scene's windows, medians of 5 rounds of 64 windows. In runs: each round
+    # runs each of them on the 64 windows in turn (its weights as warm as its own working set
+    # allows, as in use); alternating: full and specialised on each window in turn (each evicts
+    # the other's weights from the cache)
     sample = sim_w[np.random.default_rng(2).choice(len(sim_w), 64, replace=False)]
-    tf, ts = [], []
+    feats = [full._frames_to_features(list(w), False).reshape(1, m, -1) for w in sample]
+    jobs = {"full": lambda i: full.predict(sample[i]), "spec": lambda i: spec.predict(sample[i]),
+            "full head": lambda i: full.sequence_head(feats[i]),
+            "spec head": lambda i: spec.sequence_head(feats[i]),
+            "features": lambda i: full._frames_to_features(list(sample[i]), False)}
+    t: dict[str, list[float]] = {k: [] for k in (*jobs, "full alt", "spec alt")}
+    stages: dict[str, list[float]] = {}
+    clock = time.perf_counter
     for rep in range(5):
+        for name, job in jobs.items():
+            for i in range(len(sample)):
+                t0 = clock()
+                job(i)
+                t[name].append(clock() - t0)
+        for f in feats:
+            marks: list = []
+            t0 = clock()
+            spec.specialization(f, marks)
+            for label, tm in marks:
+                stages.setdefault(label, []).append(tm - t0)
+                t0 = tm
         for w in sample:
-            t = time.perf_counter()
+            t0 = clock()
             full.predict(w)
-            tf.append(time.perf_counter() - t)
-            t = time.perf_counter()
+            t1 = clock()
             spec.predict(w)
-            ts.append(time.perf_counter() - t)
-    f_ms, s_ms = 1e3 * float(np.median(tf)), 1e3 * float(np.median(ts))
-    print(f"\nB = 1 latency on test-case windows: full {f_ms:.3f} ms, specialised {s_ms:.3f} ms")
+            t["full alt"].append(t1 - t0)
+            t["spec alt"].append(clock() - t1)
+    ms = {k: 1e3 * float(np.median(v)) for k, v in t.items()}
+    f_ms, s_ms = ms["full"], ms["spec"]
+    print(f"\nB = 1 latency on test-case windows: full {f_ms:.3f} ms, specialised {s_ms:.3f} ms "
+          f"(each in runs of 64 windows)")
+    print(f"  alternating window by window: full {ms['full alt']:.3f} ms, specialised "
+          f"{ms['spec alt']:.3f} ms ({ms['full alt'] / ms['spec alt']:.2f}x)")
+    print(f"  prediction network alone, same features: full {ms['full head']:.3f} ms, "
+          f"specialised {ms['spec head']:.3f} ms ({ms['full head'] / ms['spec head']:.2f}x); "
+          f"feature extractor (shared) {ms['features']:.3f} ms")
+    print("  where the specialised prediction network's time goes (medians, one window):")
+    med = {label: 1e6 * float(np.median(v)) for label, v in stages.items()}
+    for label, us in med.items():
+        print(f"    {label:44s} {us:7.0f} us  {us / sum(med.values()):6.1%}")
     print("\ntargets:")
     for label, val, ok in [("max |specialised - full|, world units (target <= 1e-4)", worst,
                             worst <= 1e-4),

@@ -393,3 +393,25 @@ def test_the_saved_masks_are_in_the_file_order_of_units(tmp_path, shipped, scene
     back = S.read(path)
     for k in a:
         np.testing.assert_array_equal(back[k], a[k])
+
+
+def test_stage_marks_copy_and_pickle_change_nothing(shipped, scene):
+    """The profiling hook (bench/bench_specialize.py) marks every stage of one window in order
+    and leaves the result alone; a copied or pickled head (no per-thread buffers) agrees."""
+    import copy
+    import pickle
+    feats = _features(shipped, shipped.normalize(_rings(np.random.default_rng(12), 2)))
+    head = scene.specialization
+    marks = []
+    y, ok = _quiet(head, feats[:1], marks)
+    y0, ok0 = _quiet(head, feats[:1])
+    np.testing.assert_array_equal(y, y0)
+    assert ok[0] and ok0[0]
+    labels = [label for label, _ in marks]
+    assert labels[0] == "BiLSTM 1 input" and labels[-1] == "LayerNorm and dense head"
+    assert len(labels) == 4 * len(shipped.config.lstm_units) + 1
+    assert all(b >= a for (_, a), (_, b) in zip(marks, marks[1:]))
+    for other in (copy.deepcopy(head), pickle.loads(pickle.dumps(head))):
+        y1, ok1 = _quiet(other, feats[:1])
+        np.testing.assert_array_equal(y1, y0)
+        np.testing.assert_array_equal(_quiet(other, feats)[1], _quiet(head, feats)[1])

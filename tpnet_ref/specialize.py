@@ -9,23 +9,31 @@ m = 4 model, training-grid windows and the model's own rollouts: 83 of 128 globa
   cheap);
 - a ReLU-LSTM unit starts with c = h = 0; with ``c_t = f c_{t-1} + i relu(g_t)`` and
   ``h_t = o relu(c_t)`` it stays exactly 0 while its cell pre-activation ``g_t <= 0``. The head
-  computes ``g`` of every dropped unit in the same products as the kept units (one extra column
-  per dropped unit instead of four gates, and only the kept units' recurrent rows) and flags the
-  window as soon as one is ``> 0``;
-- a dropped unit's zero output still enters the LayerNorm (mean and variance over all units) and,
-  through it, the next layer as the affine term ``(0 - mean) rstd gamma_k + beta_k``: folded into
-  the next layer's bias (``beta``) and one vector times ``-mean rstd`` per row (``gamma``).
+  computes ``g`` of every dropped unit (one column per dropped unit instead of four gates, from
+  the kept units' states only) and flags the window if one is ``> 0`` at any step;
+- a dropped unit's zero output still enters the LayerNorm (mean and variance over all units):
+  the statistics count it, and the LayerNorm is folded into the next layer's input projection,
+  ``LN(h) @ K = r (h @ gamma K) - r mean (gamma @ K) + beta @ K`` with the sums over all units
+  (two extra input rows, for the bias and ``r mean``);
+- an LSTM output beyond half the bound above which the full network refuses to answer
+  (``NonFiniteResultError``) flags the window too, and so does a result that is not finite.
 
-A flagged window (or one whose specialised result is not finite) is recomputed by the full
-network, so the output equals the full model's up to rounding on every input.
+A flagged window is recomputed by the full network, so the output equals the full model's up to
+rounding on every input. Like the full NumPy engine, the head reads only the weight rows that
+non-zero inputs multiply: the kept units are laid out in the model's unit order (most used
+first, :mod:`tpnet_ref.unit_order`), each recurrent product stops after its direction's last
+non-zero state unit and each input projection after the last non-zero input.
+
 :meth:`tpnet_ref.model.TPNet.specialize` builds one; :func:`save` / :func:`attach` keep it in the
 native weights file as a group ``specialization`` beside ``config`` and ``params`` (the native
-reader ignores groups it does not know).
+reader ignores groups it does not know); the masks are in the file's order of units, whatever
+the model's layout.
 """
 from __future__ import annotations
 
 import os
 import threading
+import time
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -252,7 +260,16 @@ class SceneHead:
                 for ly in self.layers)
         return int(n + self.head_w.size)
 
-    def __call__(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_local"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _local=threading.local())
+
+    def __call__(self, features: np.ndarray, marks: list | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """``features (B, m, k)`` -> ``(y (B, n_out*dim), ok (B,))``. ``marks``: for profiling a
+        single window, a list that gets ``(stage, time.perf_counter())`` at each stage's end."""
         f = np.asarray(features, dtype=self.dtype)
         if self._small is None:
             self._small = small_products_pay(self.dtype)
@@ -261,7 +278,7 @@ class SceneHead:
                 run = getattr(self._local, "run", None)
                 if run is None:
                     run = self._local.run = _Run1(self)
-                return run(f)
+                return run(f, marks)
             return self._batch(f)
 
     def _stats(self, x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -288,6 +305,8 @@ class SceneHead:
         """Any batch ``f (B, T, k)``, buffers made per call."""
         dt, T, one = self.dtype, self.steps, self.dtype.type(1.0)
         bsz = f.shape[0]
+        if bsz == 0:
+            return np.empty((0, self.head_w.shape[1]), dt), np.empty(0, bool)
         ok = ~(f[..., self.g_drop] != 0).any(axis=(1, 2))
         h = None
         for li, ly in enumerate(self.layers):
@@ -395,8 +414,8 @@ class _Run1:
             # state before ([c | g] / [f | i] forward, [g | c] / [i | f] backward), o
             cols = [(0, 4 * n0), (w0 + d1, w0 + w1)]
             at = [(n0, b), (b, b + 4 * n1)]
-            cell = [(0, n0, n0, 3 * n0, 0, 2 * n0, 4 * n0),           # c, dividend, divisor
-                    (b + 4 * n1, b + 3 * n1, b + 3 * n1, b + n1, b + 3 * n1, b + n1, b)]
+            cell = [(0, n0, 3 * n0, 0, 2 * n0, 4 * n0),         # c, g, i, dividend, divisor, o
+                    (b + 4 * n1, b + 3 * n1, b + n1, b + 3 * n1, b + n1, b)]
             steps = []
             for s in range(T):
                 z, znext = z_all[s], z_all[s + 1]
@@ -404,7 +423,7 @@ class _Run1:
                 for d, nk in enumerate(ly.nk):
                     t = s if d == 0 else T - 1 - s                 # the step's time
                     v_all[d, s, t] = 1
-                    c, g, _, i, dvd, dvs, o = cell[d]
+                    c, g, i, dvd, dvs, o = cell[d]
                     per_d.append((
                         v_all[d, s, t:], v_all[d, s, T:T + nk], m_all[t:, cols[d][0]:cols[d][1]],
                         z[at[d][0]:at[d][1]], m_all[t, cols[d][0]:cols[d][1]],
@@ -464,7 +483,7 @@ class _Run1:
         np.multiply(mean, var, out=xa[..., 1])
         np.multiply(x[..., :-1], var[..., None], out=xa[..., 2:])
 
-    def __call__(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, f: np.ndarray, marks: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         head, T, one, zero = self.head, self.T, self.one, self.zero
         exp, add, div, maximum, matmul, copyto = (np.exp, np.add, np.divide, np.maximum,
                                                   np.matmul, np.copyto)
@@ -482,7 +501,12 @@ class _Run1:
                 self._fold(xb, xa, extra)
                 x = xb[:, :-1]
             nz = x.any(axis=0).nonzero()[0]
+            if marks is not None:
+                marks.append((f"BiLSTM {li + 1} input" + (" (LayerNorm folded)" if li else ""),
+                              time.perf_counter()))
             head._project(ly, xa, aug + 1 + nz[-1] if len(nz) else aug, m_all[:T])
+            if marks is not None:
+                marks.append((f"BiLSTM {li + 1} input projection", time.perf_counter()))
             rows = [T, T]           # rows of M the guards read: up to the longest state
             for s, (sig, gg, per_d) in enumerate(steps):
                 if s == 0:
@@ -507,12 +531,16 @@ class _Run1:
                         div(q, qd, out=q)
                         add(qa, qb, out=c1)
                         div(c1, o, out=h1)
+            if marks is not None:
+                marks.append((f"BiLSTM {li + 1} steps", time.perf_counter()))
             for d, vg, mg, out in guards:     # the dropped units' g at every step
                 matmul(vg[:, :rows[d]], mg[:rows[d]], out=out)
             if guards and not guard.max() <= 0:
                 return self._flagged()       # a dropped unit would wake up (or NaN)
             if not v_all[:, 1:, T:].max() < head.limit:
                 return self._flagged()
+            if marks is not None:
+                marks.append((f"BiLSTM {li + 1} guards", time.perf_counter()))
             prev_v = v_all
         x = prev_v.take(self.h_idx, mode="clip", out=self.h_x)
         xa = self.h_xa
@@ -524,6 +552,8 @@ class _Run1:
         add(y, one, out=y)
         out = div(one, y)[None]
         s = out.sum()
+        if marks is not None:
+            marks.append(("LayerNorm and dense head", time.perf_counter()))
         return out, np.array([s == s])
 
     def _flagged(self) -> tuple[np.ndarray, np.ndarray]:
