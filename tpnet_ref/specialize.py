@@ -382,17 +382,17 @@ class SceneHead:
 class _Run1:
     """One thread's buffers and views for :class:`SceneHead` on one window (B = 1).
 
-    Per BiLSTM, ``M (T + nk, Wp)``: the steps' input projections (bias included, rows in time
-    order, both directions' columns) above each direction's recurrent rows, in its columns;
-    ``V (2, T + 1, T + nk)``: the vector of each direction and step, ``[one-hot | h]`` with
-    the one at the step's time and ``h`` the state after the step before. Then
-    ``V[d, s, a:T+k] @ M[a:T+k, cols]`` (``a``: the step's time, ``k``: one past the last
-    non-zero unit of ``h``) is the pre-activation of step ``s`` in those columns: one product
-    per direction and step for the gates, and one per direction and layer (all steps' rows of
-    ``V``) for the dropped units' guards, which need not be known before the layer ends. Each
-    step's gates sit in one row ``[c, g, f, i, o forward | o, i, f, g, c backward]`` (``c``:
-    the cell state before the step), so that the element-wise work of both directions is
-    mostly one call each."""
+    Per BiLSTM and direction, two contiguous matrices ``[the steps' input projections (T rows,
+    time order, bias included) | the recurrent rows (nk)]``: of its gates' columns and of its
+    dropped units' ``g`` columns; and ``V (2, T + 1, T + nk)``: the vector of each direction and
+    step, ``[one-hot | h]`` with the one at the step's time and ``h`` the state after the step
+    before. Then ``V[d, s, a:T+n] @ gates[d][a:T+n]`` (``a``: the step's time, ``n``: one past
+    the last non-zero unit of ``h``) is the pre-activation of step ``s``: one matrix-vector
+    product per direction and step, reading only the recurrent rows that non-zero units
+    multiply; the dropped units' ``g`` at every step is one product per direction after the
+    layer (all steps' rows of ``V``). Each step's gates sit in one row ``[c, g, f, i, o
+    forward | o, i, f, g, c backward]`` (``c``: the cell state before the step), so that most
+    of the element-wise work of both directions is one call each."""
 
     def __init__(self, head: SceneHead) -> None:
         dt, T = head.dtype, head.steps
@@ -402,17 +402,23 @@ class _Run1:
         prev = None
         for li, ly in enumerate(head.layers):
             aug, c_in, wp = ly.aug, ly.kernel.shape[0] - ly.aug, ly.kernel.shape[1]
-            (n0, n1), (d0, d1), (w0, w1) = ly.nk, ly.nd, ly.width
-            m_all = np.zeros((T + max(n0, n1), wp), dt)
-            m_all[T:T + n0, :w0] = ly.recurrent[0]
-            m_all[T:T + n1, w0:w0 + w1] = ly.recurrent[1]
+            (n0, n1), (d0, d1) = ly.nk, ly.nd
+            proj = np.zeros((T, wp), dt)                        # the input projections
+            gates, drops, copies = [], [], []
+            for d, (nk, nd, off) in enumerate(zip(ly.nk, ly.nd, ly.off)):
+                lo_g, lo_d = (0, 4 * nk) if d == 0 else (nd, 0)     # in this direction's columns
+                for lo, n, out in ((lo_g, 4 * nk, gates), (lo_d, nd, drops)):
+                    a = np.zeros((T + nk, n), dt)                   # [the steps' projections |
+                    a[T:] = ly.recurrent[d][:, lo:lo + n]           #  the recurrent rows]
+                    out.append(a)
+                    if n:
+                        copies.append((a[:T], proj[:, off + lo:off + lo + n]))
             v_all = np.zeros((2, T + 1, T + max(n0, n1)), dt)   # v_all[:, 0, T:] stays 0
             b = 5 * n0
             z_all = np.zeros((T + 1, b + 5 * n1), dt)
             guard = np.zeros((2, T, max(d0, d1)), dt)          # the dropped units' g, all steps
-            # per direction: gates' columns of M, where they go in a row of z_all, the cell
-            # state before ([c | g] / [f | i] forward, [g | c] / [i | f] backward), o
-            cols = [(0, 4 * n0), (w0 + d1, w0 + w1)]
+            # per direction: where its gates go in a row of z_all, the cell state before
+            # ([c | g] / [f | i] forward, [g | c] / [i | f] backward), o
             at = [(n0, b), (b, b + 4 * n1)]
             cell = [(0, n0, 3 * n0, 0, 2 * n0, 4 * n0),         # c, g, i, dividend, divisor, o
                     (b + 4 * n1, b + 3 * n1, b + n1, b + 3 * n1, b + n1, b)]
@@ -425,15 +431,15 @@ class _Run1:
                     v_all[d, s, t] = 1
                     c, g, i, dvd, dvs, o = cell[d]
                     per_d.append((
-                        v_all[d, s, t:], v_all[d, s, T:T + nk], m_all[t:, cols[d][0]:cols[d][1]],
-                        z[at[d][0]:at[d][1]], m_all[t, cols[d][0]:cols[d][1]],
+                        v_all[d, s, t:], v_all[d, s, T:T + nk], gates[d][t:],
+                        z[at[d][0]:at[d][1]], gates[d][t],
                         z[g:g + nk], z[i:i + nk],                           # step 0: c = g / i
                         z[dvd:dvd + 2 * nk], z[dvs:dvs + 2 * nk],           # later: [c|g] /= [f|i]
                         z[dvd:dvd + nk], z[dvd + nk:dvd + 2 * nk],          # c = the two halves
-                        znext[c:c + nk], z[o:o + nk], v_all[d, s + 1, T:T + nk], d))
+                        znext[c:c + nk], z[o:o + nk], v_all[d, s + 1, T:T + nk], d, T - t))
                 steps.append((z[2 * n0:b + 3 * n1], z[n0:b + 4 * n1], per_d))   # sigmoids; g..g
-            guards = [(d, v_all[d, :T], m_all[:, lo:lo + nd], guard[d, :, :nd])
-                      for d, (lo, nd) in enumerate(((4 * n0, d0), (w0, d1))) if nd]
+            guards = [(d, v_all[d, :T], drops[d], guard[d, :, :nd])
+                      for d, nd in enumerate(ly.nd) if nd]
             if li == 0:     # the kept global features at each time, then the dropped ones
                 idx = np.concatenate([(np.arange(T)[:, None] * head.n_global + ly.src_pos).ravel(),
                                       (np.arange(T)[:, None] * head.n_global + head.g_drop).ravel()])
@@ -447,7 +453,7 @@ class _Run1:
                 extra = self._weights(ly.n_in, c_in, (T,))
             xa = np.zeros((T, aug + c_in), dt)
             xa[:, 0] = 1
-            self.layers.append((ly, m_all, v_all, xa, idx, xb, steps, extra, guards, guard))
+            self.layers.append((ly, proj, v_all, xa, idx, xb, steps, extra, guards, guard, copies))
             prev = v_all
         src_d, src_pos, n = head.head_src
         self.h_idx = np.concatenate([(src_d * prev.shape[1] + T) * prev.shape[2] + T + src_pos,
@@ -487,7 +493,7 @@ class _Run1:
         head, T, one, zero = self.head, self.T, self.one, self.zero
         exp, add, div, maximum, matmul, copyto = (np.exp, np.add, np.divide, np.maximum,
                                                   np.matmul, np.copyto)
-        for li, (ly, m_all, v_all, xa, idx, xb, steps, extra, guards, guard) in enumerate(self.layers):
+        for li, (ly, proj, v_all, xa, idx, xb, steps, extra, guards, guard, copies) in enumerate(self.layers):
             aug = ly.aug
             if li == 0:
                 f.take(idx, mode="clip", out=xb)
@@ -504,37 +510,39 @@ class _Run1:
             if marks is not None:
                 marks.append((f"BiLSTM {li + 1} input" + (" (LayerNorm folded)" if li else ""),
                               time.perf_counter()))
-            head._project(ly, xa, aug + 1 + nz[-1] if len(nz) else aug, m_all[:T])
+            head._project(ly, xa, aug + 1 + nz[-1] if len(nz) else aug, proj)
+            for dst, src in copies:
+                copyto(dst, src)
             if marks is not None:
                 marks.append((f"BiLSTM {li + 1} input projection", time.perf_counter()))
-            rows = [T, T]           # rows of M the guards read: up to the longest state
+            used = [0, 0]           # state units the guards read: up to the longest state
             for s, (sig, gg, per_d) in enumerate(steps):
                 if s == 0:
                     for _, _, _, zw, proj, *_ in per_d:
                         copyto(zw, proj)
                 else:
-                    for vrow, h, mr, zw, _, _, _, _, _, _, _, _, _, _, d in per_d:
+                    for vrow, h, mr, zw, _, _, _, _, _, _, _, _, _, _, d, base in per_d:
                         nz = h.nonzero()[0]
-                        k = T + 1 + nz[-1] if len(nz) else T
-                        if k > rows[d]:
-                            rows[d] = k
-                        matmul(vrow[:k], mr[:k], out=zw)
+                        n = 1 + nz[-1] if len(nz) else 0     # units up to the last non-zero
+                        if n > used[d]:
+                            used[d] = n
+                        matmul(vrow[:base + n], mr[:base + n], out=zw)
                 exp(sig, out=sig)           # 1 + exp(-x) of o, i, f of both directions
                 add(sig, one, out=sig)
                 maximum(gg, zero, out=gg)   # relu(g) (the sigmoids between are >= 1)
                 if s == 0:                  # c = relu(g) / (1 + exp(-i)), h = c / (1 + exp(-o))
-                    for _, _, _, _, _, g, i, _, _, _, _, c1, o, h1, _ in per_d:
+                    for _, _, _, _, _, g, i, _, _, _, _, c1, o, h1, _, _ in per_d:
                         div(g, i, out=c1)
                         div(c1, o, out=h1)
                 else:                       # c = relu(g) / (..i) + c / (..f)
-                    for _, _, _, _, _, _, _, q, qd, qa, qb, c1, o, h1, _ in per_d:
+                    for _, _, _, _, _, _, _, q, qd, qa, qb, c1, o, h1, _, _ in per_d:
                         div(q, qd, out=q)
                         add(qa, qb, out=c1)
                         div(c1, o, out=h1)
             if marks is not None:
                 marks.append((f"BiLSTM {li + 1} steps", time.perf_counter()))
-            for d, vg, mg, out in guards:     # the dropped units' g at every step
-                matmul(vg[:, :rows[d]], mg[:rows[d]], out=out)
+            for d, vg, drop, out in guards:     # the dropped units' g at every step
+                matmul(vg[:, :T + used[d]], drop[:T + used[d]], out=out)
             if guards and not guard.max() <= 0:
                 return self._flagged()       # a dropped unit would wake up (or NaN)
             if not v_all[:, 1:, T:].max() < head.limit:
