@@ -332,48 +332,40 @@ def test_serial_and_parallel_kernels_and_thread_counts_give_the_same_bits(shippe
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_product_reads_only_non_zero_inputs_and_rows_are_independent(dtype):
-    """The strip kernel: equal to the float64 product; a row's result is the same bits whatever
-    the other rows of its group (zeros elsewhere, NaN elsewhere); an all-zero input gives +0."""
+@pytest.mark.parametrize("rows,steps", [(7, 7), (12, 3), (1, 1)])
+def test_product_reads_only_non_zero_inputs_and_rows_are_independent(dtype, rows, steps):
+    """The product kernel: equal to the float64 product; a row's result is the same bits whatever
+    the other rows of its group (zeros elsewhere, NaN elsewhere) and however the rows are
+    grouped; an all-zero input row gives +0; the padding columns stay 0."""
     rng = np.random.default_rng(20)
-    nb = EN.strip_units(dtype)
-    c_in, u = 37, 3 * nb - 2                                  # units padded to whole strips
-    w = rng.standard_normal((c_in, 4 * u))
-    kern = EN.strips(w, nb).astype(dtype)
-    x = rng.standard_normal((7, c_in)) * (rng.uniform(size=(7, c_in)) < 0.4)
-    x[2] = 0.0
+    c_in, n = 37, 4 * 13                               # 52 columns: padded to whole vectors
+    w = rng.standard_normal((c_in, n))
+    kern = EN.pad_columns(w, dtype)
+    assert kern.shape == (c_in, EN.padded_columns(n, dtype)) and np.all(kern[:, n:] == 0)
+    x = rng.standard_normal((rows, c_in)) * (rng.uniform(size=(rows, c_in)) < 0.4)
+    x[rows // 2] = 0.0
     x = x.astype(dtype)
-    out = np.empty((7, 2, kern.shape[0] * kern.shape[2]), dtype=dtype)
-    EN._project_dir(x, kern, out[:, 1], 7, 1)
-    cols = EN.strips(np.arange(1.0, 4 * u + 1), nb).astype(int) - 1   # padding: -1
-    got = np.empty((7, 4 * u), dtype=dtype)
-    got[:, cols[cols >= 0]] = out[:, 1][:, cols >= 0]
-    assert np.all(out[:, 1][:, cols < 0] == 0)
+    bsz = rows // steps
+    out = np.empty((rows, 2, kern.shape[1]), dtype=dtype)
+    EN._project_dir(x, kern, out[:, 1], steps, bsz)
+    got = out[:, 1]
     tol = 1e-4 if dtype == np.float32 else 1e-12
-    np.testing.assert_allclose(got, x.astype(float) @ w.astype(dtype).astype(float), atol=tol)
-    assert np.all(got[2] == 0) and not np.signbit(got[2]).any()
-    for r in range(7):
-        alone = np.empty((1, 2, out.shape[2]), dtype=dtype)
+    np.testing.assert_allclose(got[:, :n], x.astype(float) @ w.astype(dtype).astype(float),
+                               atol=tol)
+    assert np.all(got[:, n:] == 0)
+    assert np.all(got[rows // 2] == 0) and not np.signbit(got[rows // 2]).any()
+    for r in range(rows):
+        alone = np.empty((1, 2, kern.shape[1]), dtype=dtype)
         EN._project_dir(x[r:r + 1], kern, alone[:, 1], 1, 1)
-        assert np.array_equal(alone[0, 1], out[r, 1]), r
+        assert np.array_equal(alone[0, 1], got[r]), r
+    other = np.empty_like(out)                          # grouped as one window of R steps
+    EN._project_dir(x, kern, other[:, 1], rows, 1)
+    assert np.array_equal(other[:, 1], got)
     poisoned = x.copy()
-    poisoned[5, 3] = np.nan
-    out2 = np.empty_like(out)
-    EN._project_dir(poisoned, kern, out2[:, 1], 7, 1)
-    assert np.isnan(out2[5, 1]).any()
-    keep = [r for r in range(7) if r != 5]
-    assert np.array_equal(out2[keep, 1], out[keep, 1])
-
-
-def test_strip_layout_round_trip():
-    rng = np.random.default_rng(21)
-    w = rng.standard_normal((5, 4 * 10))
-    s = EN.strips(w, 4)                                       # 10 units -> 12, 3 strips
-    assert s.shape == (3, 5, 16)
-    back = s.transpose(1, 0, 2).reshape(5, 3, 4, 4).transpose(0, 2, 1, 3).reshape(5, 4, 12)
-    np.testing.assert_array_equal(back[:, :, :10], w.reshape(5, 4, 10))
-    assert np.all(back[:, :, 10:] == 0)
-    np.testing.assert_array_equal(EN.strips(w[0], 4), s[:, 0].ravel())
+    poisoned[0, 3] = np.nan
+    EN._project_dir(poisoned, kern, other[:, 1], steps, bsz)
+    assert np.isnan(other[0, 1]).any()
+    assert np.array_equal(other[1:, 1], got[1:])
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

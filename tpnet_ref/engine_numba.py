@@ -51,83 +51,67 @@ from numba import njit, prange, types  # noqa: E402
 from numba.core import cgutils  # noqa: E402
 from numba.extending import intrinsic, overload  # noqa: E402
 
-#: bytes of weight columns per strip: 4 vectors of 64 bytes (64 float32 or 32 float64 columns,
-#: the gates of 16 or 8 units); a group of GROUP_ROWS rows keeps 4 x GROUP_ROWS accumulator
-#: vectors in registers
-STRIP_BYTES = 256
+#: weight rows each call of the product kernel streams together (a chain of this many fused
+#: multiply-adds per accumulator load and store; 8 rows read side by side, each sequentially)
+CHAIN = 8
 #: input rows that share each weight row read (one window's m = 4 steps at B = 1)
 GROUP_ROWS = 4
 _VECTOR_BYTES = 64
 
 
-def strip_units(dtype: Any) -> int:
-    """Units per strip: ``STRIP_BYTES / 4`` gate columns of ``dtype`` per gate."""
-    return STRIP_BYTES // np.dtype(dtype).itemsize // 4
+def padded_columns(n: int, dtype: Any) -> int:
+    """``n`` columns rounded up to whole vectors of ``dtype`` (64 bytes)."""
+    lanes = _VECTOR_BYTES // np.dtype(dtype).itemsize
+    return -(-n // lanes) * lanes
 
 
-def padded_units(u: int, nb: int) -> int:
-    """``u`` rounded up to a multiple of ``nb`` (units per strip)."""
-    return -(-u // nb) * nb
-
-
-def strips(w: np.ndarray, nb: int) -> np.ndarray:
-    """A Keras gate-fused matrix ``(C, 4u)`` (gates i, f, c, o) -> strips ``(up / nb, C, 4 nb)``
-    with ``up = padded_units(u, nb)``: strip ``s`` holds gate ``g`` of unit ``s * nb + jj`` at
-    column ``g * nb + jj``, padded units' columns zero. A vector ``(4u,)`` -> ``(4 up,)`` in the
-    same column order."""
-    vec = w.ndim == 1
-    w2 = w[None] if vec else w
-    c_in, u = w2.shape[0], w2.shape[1] // 4
-    up = padded_units(u, nb)
-    pad = np.zeros((c_in, 4, up), dtype=w.dtype)
-    pad[:, :, :u] = w2.reshape(c_in, 4, u)
-    out = pad.reshape(c_in, 4, up // nb, nb).transpose(2, 0, 1, 3).reshape(up // nb, c_in, 4 * nb)
-    return out.ravel() if vec else np.ascontiguousarray(out)
+def pad_columns(w: np.ndarray, dtype: Any) -> np.ndarray:
+    """``w (C, N)`` or ``(N,)`` with zero columns appended up to :func:`padded_columns`, in
+    ``dtype``, C-contiguous."""
+    n = w.shape[-1]
+    out = np.zeros(w.shape[:-1] + (padded_columns(n, dtype),), dtype=dtype)
+    out[..., :n] = w
+    return out
 
 
 # ------------------------------------------------------------------ the product kernel
 
-def _strip_kernel(rows: int):
-    """An intrinsic ``k(x, r0, rstep, kb, act, n, out, c0)``: for the rows
-    ``r = r0 + i * rstep``, ``i < rows``,
-    ``out[r, c0 : c0 + S] = sum over j < n of x[r, act[j]] * kb[act[j], :]``, each column one
-    chain of ``llvm.fma`` in increasing ``i`` from +0, for ``x (R, C)``, one strip
-    ``kb (C, S)`` (C-contiguous, ``S * itemsize == STRIP_BYTES``), ``act`` the indices of the
-    inputs to add, ``out`` 2-D with contiguous rows. The ``rows x S`` accumulators stay in
-    registers (vectors of 64 bytes)."""
+def _row_kernel(rows: int, chain: int):
+    """An intrinsic ``k(x, r0, rstep, w, act, j0, out)``: for the rows ``r = r0 + i * rstep``,
+    ``i < rows``, ``out[r, :] = fma(x[r, k_last], w[k_last], ... fma(x[r, k_0], w[k_0], out[r]))``
+    over the ``chain`` weight rows ``k = act[j0 .. j0 + chain - 1]`` in that order, every column
+    of ``w (C, N)`` (C-contiguous, ``N`` whole 64-byte vectors), ``out`` 2-D with contiguous
+    rows. The ``chain`` weight rows are streamed side by side, each sequentially, one vector
+    of each per step; each accumulator is loaded and stored once per call."""
 
     @intrinsic
-    def kernel(typingctx, x, r0, rstep, kb, act, n, out, c0):
-        ok = (isinstance(x, types.Array) and isinstance(kb, types.Array)
-              and isinstance(out, types.Array) and x.ndim == kb.ndim == out.ndim == 2
-              and x.dtype == kb.dtype == out.dtype and kb.layout == "C"
+    def kernel(typingctx, x, r0, rstep, w, act, j0, out):
+        ok = (isinstance(x, types.Array) and isinstance(w, types.Array)
+              and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
+              and x.dtype == w.dtype == out.dtype and w.layout == "C"
               and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
         if not ok:
             return None
-        sig = types.void(x, r0, rstep, kb, act, n, out, c0)
+        sig = types.void(x, r0, rstep, w, act, j0, out)
 
         def codegen(context, builder, signature, args):
-            xt, kt, at, ot = (signature.args[i] for i in (0, 3, 4, 6))
-            xa, ka, aa, oa = (context.make_array(t)(context, builder, v) for t, v in
-                              ((xt, args[0]), (kt, args[3]), (at, args[4]), (ot, args[6])))
-            r0i, rs, ni, c0i = (context.cast(builder, args[i], signature.args[i], types.intp)
-                                for i in (1, 2, 5, 7))
+            xt, wt, at, ot = (signature.args[i] for i in (0, 3, 4, 6))
+            xa, wa, aa, oa = (context.make_array(t)(context, builder, v) for t, v in
+                              ((xt, args[0]), (wt, args[3]), (at, args[4]), (ot, args[6])))
+            r0i, rs, j0i = (context.cast(builder, args[i], signature.args[i], types.intp)
+                            for i in (1, 2, 5))
             elt = context.get_value_type(xt.dtype)
             size = xt.dtype.bitwidth // 8
             lanes = _VECTOR_BYTES // size
-            nvec = STRIP_BYTES // _VECTOR_BYTES
             vty = ir.VectorType(elt, lanes)
             intp = context.get_value_type(types.intp)
             i8p = ir.IntType(8).as_pointer()
             fma = cgutils.get_or_insert_function(
                 builder.module, ir.FunctionType(vty, [vty] * 3), f"llvm.fma.v{lanes}f{size * 8}")
-            zero = ir.Constant(vty, [ir.Constant(elt, 0.0)] * lanes)
             undef = ir.Constant(vty, ir.Undefined)
             splat = ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes)
             i32_0 = ir.Constant(ir.IntType(32), 0)
-            accs = [[cgutils.alloca_once_value(builder, zero) for _ in range(nvec)]
-                    for _ in range(rows)]
-            width = ir.Constant(intp, nvec * lanes)
+            ncol = builder.extract_value(wa.shape, 1)
 
             def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
                 stride = builder.extract_value(arr.strides, 0)
@@ -135,26 +119,25 @@ def _strip_kernel(rows: int):
                 return builder.bitcast(p, elt.as_pointer())
 
             rowi = [builder.add(r0i, builder.mul(rs, ir.Constant(intp, r))) for r in range(rows)]
-            xrows = [row_ptr(xa, rowi[r]) for r in range(rows)]
-            with cgutils.for_range(builder, ni) as loop:
-                k = builder.load(builder.gep(aa.data, [loop.index]))
-                wrow = builder.gep(ka.data, [builder.mul(k, width)])
-                ws = [builder.load(builder.bitcast(builder.gep(wrow, [ir.Constant(intp, v * lanes)]),
-                                                   vty.as_pointer()), align=size)
-                      for v in range(nvec)]
+            xrows = [row_ptr(xa, r) for r in rowi]
+            orows = [row_ptr(oa, r) for r in rowi]
+            ks = [builder.load(builder.gep(aa.data, [builder.add(j0i, ir.Constant(intp, q))]))
+                  for q in range(chain)]
+            wrows = [builder.gep(wa.data, [builder.mul(k, ncol)]) for k in ks]
+            avs = [[builder.shuffle_vector(builder.insert_element(
+                undef, builder.load(builder.gep(xr, [k])), i32_0), undef, splat) for k in ks]
+                for xr in xrows]
+            nvec = builder.udiv(ncol, ir.Constant(intp, lanes))
+            with cgutils.for_range(builder, nvec) as loop:
+                off = builder.mul(loop.index, ir.Constant(intp, lanes))
+                ws = [builder.load(builder.bitcast(builder.gep(wr, [off]), vty.as_pointer()),
+                                   align=size) for wr in wrows]
                 for r in range(rows):
-                    a = builder.load(builder.gep(xrows[r], [k]))
-                    av = builder.shuffle_vector(builder.insert_element(undef, a, i32_0), undef,
-                                                splat)
-                    for v in range(nvec):
-                        acc = builder.load(accs[r][v])
-                        builder.store(builder.call(fma, [av, ws[v], acc]), accs[r][v])
-            for r in range(rows):
-                p = builder.gep(row_ptr(oa, rowi[r]), [c0i])
-                for v in range(nvec):
-                    q = builder.bitcast(builder.gep(p, [ir.Constant(intp, v * lanes)]),
-                                        vty.as_pointer())
-                    builder.store(builder.load(accs[r][v]), q, align=size)
+                    p = builder.bitcast(builder.gep(orows[r], [off]), vty.as_pointer())
+                    acc = builder.load(p, align=size)
+                    for q in range(chain):
+                        acc = builder.call(fma, [avs[r][q], ws[q], acc])
+                    builder.store(acc, p, align=size)
             return context.get_dummy_value()
 
         return sig, codegen
@@ -162,7 +145,10 @@ def _strip_kernel(rows: int):
     return kernel
 
 
-_K1, _K2, _K3, _K4 = (_strip_kernel(r) for r in range(1, GROUP_ROWS + 1))
+_KC = tuple(_row_kernel(r, CHAIN) for r in range(1, GROUP_ROWS + 1))
+_K1 = tuple(_row_kernel(r, 1) for r in range(1, GROUP_ROWS + 1))
+_KC1, _KC2, _KC3, _KC4 = _KC
+_K11, _K12, _K13, _K14 = _K1
 
 
 @njit(cache=True, nogil=True)
@@ -204,30 +190,54 @@ def _active(x, grp, act, ns):
 
 
 @njit(cache=True, nogil=True)
-def _product(x, kern, grp, act, ns, out):
-    """``out[r] = x[r] @ K`` for every row of ``x (R, C)`` in the groups ``grp``, ``K`` in
-    strips ``kern (n_strips, C, S)``, ``out (R, n_strips * S)``, each group reading the kernel
-    rows of its own non-zero inputs (:func:`_active`'s ``act``, ``ns``): strip by strip, so a
-    strip's rows come from memory for the first group and from cache for the others."""
-    wid = kern.shape[2]
-    for s in range(kern.shape[0]):
-        kb = kern[s]
-        for gi in range(grp.shape[0]):
-            r0, rs, g = grp[gi, 0], grp[gi, 1], grp[gi, 2]
-            a, n = act[gi], ns[gi]
-            if g == 4:
-                _K4(x, r0, rs, kb, a, n, out, s * wid)
-            elif g == 3:
-                _K3(x, r0, rs, kb, a, n, out, s * wid)
-            elif g == 2:
-                _K2(x, r0, rs, kb, a, n, out, s * wid)
-            else:
-                _K1(x, r0, rs, kb, a, n, out, s * wid)
+def _chain(x, r0, rs, g, w, act, j, out):
+    """:func:`_row_kernel`'s ``CHAIN`` rows ``act[j ..]`` for a group of ``g`` rows."""
+    if g == 4:
+        _KC4(x, r0, rs, w, act, j, out)
+    elif g == 3:
+        _KC3(x, r0, rs, w, act, j, out)
+    elif g == 2:
+        _KC2(x, r0, rs, w, act, j, out)
+    else:
+        _KC1(x, r0, rs, w, act, j, out)
+
+
+@njit(cache=True, nogil=True)
+def _single(x, r0, rs, g, w, act, j, out):
+    """:func:`_row_kernel`'s single row ``act[j]`` for a group of ``g`` rows."""
+    if g == 4:
+        _K14(x, r0, rs, w, act, j, out)
+    elif g == 3:
+        _K13(x, r0, rs, w, act, j, out)
+    elif g == 2:
+        _K12(x, r0, rs, w, act, j, out)
+    else:
+        _K11(x, r0, rs, w, act, j, out)
+
+
+@njit(cache=True, nogil=True)
+def _product(x, w, grp, act, ns, out):
+    """``out[r] = x[r] @ w`` for every row of ``x (R, C)`` in the groups ``grp``,
+    ``w (C, N)``, ``out (R, N)``: each group streams the weight rows of its own non-zero inputs
+    (:func:`_active`'s ``act``, ``ns``), ``CHAIN`` at a time, in increasing order, every
+    column's sum one chain of fused multiply-adds from +0."""
+    for gi in range(grp.shape[0]):
+        r0, rs, g = grp[gi, 0], grp[gi, 1], grp[gi, 2]
+        for i in range(g):
+            out[r0 + i * rs, :] = 0
+        a, n = act[gi], ns[gi]
+        j = 0
+        while j + CHAIN <= n:
+            _chain(x, r0, rs, g, w, a, j, out)
+            j += CHAIN
+        while j < n:
+            _single(x, r0, rs, g, w, a, j, out)
+            j += 1
 
 
 @njit(cache=True, nogil=True)
 def _project_dir(x, kern, out, steps, bsz):
-    """One direction's product ``out = x @ K`` (no bias) for the ``T*B`` time-major rows of
+    """One direction's product ``out = x @ kern`` (no bias) for the ``T*B`` time-major rows of
     ``x``, each window's steps in groups reading only the kernel rows of their non-zero inputs."""
     grp = _groups(steps, bsz, True)
     act = np.empty((grp.shape[0], x.shape[1]), dtype=np.intp)
@@ -314,27 +324,23 @@ def _act(x, relu, zero):
 
 
 def _gates_impl(relu):
-    """The gates of every unit from its pre-activations ``ab + z`` (both ``(4 up,)`` in strips),
-    updating the cell ``c (up,)`` and writing ``h (up,)``; units ``>= u`` (padding) untouched.
-    One loop per strip (``nb`` units), vectorised: the activation is fixed per compiled loop."""
+    """The gates of every unit from its pre-activations ``ab + z`` (both ``(>= 4u,)``, gates
+    i, f, c, o of ``u`` columns each), updating the cell ``c (u,)`` and writing ``h (u,)``.
+    Vectorised: unsigned indices (no negative-index wrap-around), the activation fixed per
+    compiled loop."""
 
-    def gates(ab, z, c, h, nb, u, one):
+    def gates(ab, z, c, h, u, one):
         zero = one - one
-        n1 = np.uint64(nb)                     # unsigned indices: no negative-index
-        n2, n3 = n1 + n1, n1 + n1 + n1         # wrap-around, so the loop vectorises
-        for st in range(-(-u // nb)):
-            q0 = np.uint64(st * 4 * nb)
-            j0 = np.uint64(st * nb)
-            for jj in range(np.uint64(min(nb, u - st * nb))):
-                q = q0 + jj
-                j = j0 + jj
-                zi = ab[q] + z[q]
-                zf = ab[q + n1] + z[q + n1]
-                zc = ab[q + n2] + z[q + n2]
-                zo = ab[q + n3] + z[q + n3]
-                cc = _sigmoid(zf, one) * c[j] + _sigmoid(zi, one) * _act(zc, relu, zero)
-                c[j] = cc
-                h[j] = _sigmoid(zo, one) * _act(cc, relu, zero)
+        n1 = np.uint64(u)
+        n2, n3 = n1 + n1, n1 + n1 + n1
+        for j in range(n1):
+            zi = ab[j] + z[j]
+            zf = ab[j + n1] + z[j + n1]
+            zc = ab[j + n2] + z[j + n2]
+            zo = ab[j + n3] + z[j + n3]
+            cc = _sigmoid(zf, one) * c[j] + _sigmoid(zi, one) * _act(zc, relu, zero)
+            c[j] = cc
+            h[j] = _sigmoid(zo, one) * _act(cc, relu, zero)
 
     return njit(cache=True, nogil=True, error_model="numpy")(gates)
 
@@ -347,22 +353,18 @@ _gates_tanh = _gates_impl(False)
 def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
     """One direction's recurrence over ``steps`` steps of ``bsz`` windows.
 
-    ``xs[:, d] (T*B, 4 up)`` this direction's input projections with bias (row ``t*B + b``,
-    columns in strips), ``rec (n_strips, u, S)`` the recurrent matrix in strips (row ``k``: what
-    ``h[k]`` adds to the pre-activations), ``hs (T*B, 2u)`` receives ``h`` at columns
+    ``xs[:, d] (T*B, N)`` this direction's input projections with bias (row ``t*B + b``, gates
+    i, f, c, o of ``u`` columns, then padding), ``rec (u, N)`` the recurrent matrix (row ``k``:
+    what ``h[k]`` adds to the pre-activations), ``hs (T*B, 2u)`` receives ``h`` at columns
     ``d*u ..`` (Keras's re-aligned backward output: row ``t`` of the backward direction is its
     state after consuming steps ``T-1 .. t``). Windows go in groups of ``GROUP_ROWS``; each
     step reads only the rows of ``rec`` that a non-zero ``h[k]`` of the group multiplies."""
-    nst, _, wid = rec.shape
-    nb = wid // 4
-    up = nst * nb
-    zero = one - one
     dt = hs.dtype
-    h = np.zeros((bsz, up), dtype=dt)
-    c = np.zeros((bsz, up), dtype=dt)
-    acc = np.zeros((bsz, nst * wid), dtype=dt)
+    h = np.zeros((bsz, u), dtype=dt)
+    c = np.zeros((bsz, u), dtype=dt)
+    acc = np.zeros((bsz, rec.shape[1]), dtype=dt)
     grp = _groups(1, bsz, False)
-    act = np.empty((grp.shape[0], up), dtype=np.intp)
+    act = np.empty((grp.shape[0], u), dtype=np.intp)
     ns = np.empty(grp.shape[0], dtype=np.intp)
     for s in range(steps):
         t = s if d == 0 else steps - 1 - s
@@ -372,10 +374,10 @@ def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
         for b in range(bsz):
             row = t * bsz + b
             if relu:
-                _gates_relu(acc[b], xs[row, d], c[b], h[b], nb, u, one)
+                _gates_relu(acc[b], xs[row, d], c[b], h[b], u, one)
             else:
-                _gates_tanh(acc[b], xs[row, d], c[b], h[b], nb, u, one)
-            hs[row, d * u:(d + 1) * u] = h[b, :u]
+                _gates_tanh(acc[b], xs[row, d], c[b], h[b], u, one)
+            hs[row, d * u:(d + 1) * u] = h[b]
 
 
 @njit(cache=True, nogil=True)
@@ -434,11 +436,12 @@ def _norm_rows(src, gamma, beta, relu, li, limit, one, eps, x, rr, rmu, bad):
 
 def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head_b, steps,
                bsz, relu, one, eps, limit):
-    """The prediction network after BiLSTM 1's input projection ``xp1 (T*B, 2, 4 up)`` (row
-    ``t*B + b``, bias included, columns in strips) -> ``(y (B, n_out*dim), bad)``; ``bad`` is
-    ``l + 1`` when the ReLU output of layer ``l`` reached ``limit`` (or NaN), else 0 (the
-    caller raises). ``gks[l]``/``csts[l]`` ``(2, 4 up)``: ``gamma_{l-1} @ K_l`` and
-    ``beta_{l-1} @ K_l + bias_l`` (ReLU: LayerNorm folded), or unused and ``bias_l`` (tanh)."""
+    """The prediction network after BiLSTM 1's input projection ``xp1 (T*B, 2, N)`` (row
+    ``t*B + b``, bias included, ``N`` = ``4u`` padded to whole vectors) -> ``(y (B, n_out*dim),
+    bad)``; ``bad`` is ``l + 1`` when the ReLU output of layer ``l`` reached ``limit`` (or NaN),
+    else 0 (the caller raises). ``kernels[l]`` ``(2, C, N)``, ``recs[l]`` ``(2, u, N)``,
+    ``gks[l]``/``csts[l]`` ``(2, N)``: ``gamma_{l-1} @ K_l`` and ``beta_{l-1} @ K_l + bias_l``
+    (ReLU: LayerNorm folded), or unused and ``bias_l`` (tanh)."""
     dt = xp1.dtype
     nl = len(recs)
     rows = steps * bsz
@@ -449,10 +452,10 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
     rmu = np.empty(rows if relu else 0, dtype=dt)
     hs = np.empty((rows, 1), dtype=dt)
     for li in range(nl):
-        rec = recs[li]                                  # (2, n_strips, u, S)
+        rec = recs[li]                                  # (2, u, N)
         u = units[li]
         if li > 0:
-            xs = np.empty((rows, 2, rec.shape[1] * rec.shape[3]), dtype=dt)
+            xs = np.empty((rows, 2, rec.shape[2]), dtype=dt)
         hs = np.empty((rows, 2 * u), dtype=dt)
         for d in prange(2):
             if li > 0:
@@ -515,7 +518,6 @@ class NumbaHead:
         if not self.relu and config.lstm_activation != "tanh":
             raise ValueError(f"unknown LSTM activation {config.lstm_activation!r}: "
                              "expected 'relu' or 'tanh'")
-        nb = strip_units(dt)
         order = unit_order or {}
         # the global features' order (BiLSTM 1's kernel rows; project() takes the file's order)
         self.feature_order = order.get("global")
@@ -533,21 +535,21 @@ class NumbaHead:
                 k, r, b = k[:, cols], r[per_dir[d]][:, cols], b[cols]
                 if prev is not None:
                     k = k[prev]
-                ks.append(strips(k, nb))
-                rs.append(strips(r, nb))
+                ks.append(pad_columns(k, dt))
+                rs.append(pad_columns(r, dt))
                 if i > 1 and self.relu:     # LayerNorm i-1 folded into this projection
-                    gs.append(strips(gammas[-1].astype(np.float64) @ k, nb))
-                    cs.append(strips(betas[-1].astype(np.float64) @ k + b, nb))
+                    gs.append(pad_columns(gammas[-1].astype(np.float64) @ k, dt))
+                    cs.append(pad_columns(betas[-1].astype(np.float64) @ k + b, dt))
                 else:
-                    gs.append(np.zeros(4 * padded_units(u, nb)))
-                    cs.append(strips(b, nb))
+                    gs.append(pad_columns(np.zeros(4 * u), dt))
+                    cs.append(pad_columns(b, dt))
             prev = np.concatenate([per_dir[0], u + per_dir[1]])   # this layer's outputs
             gammas.append(np.asarray(params[f"ln{i}.gamma"], dtype=np.float64)[prev])
             betas.append(np.asarray(params[f"ln{i}.beta"], dtype=np.float64)[prev])
-            kernels.append(np.ascontiguousarray(np.stack(ks), dtype=dt))   # (2, n_strips, C, S)
-            recs.append(np.ascontiguousarray(np.stack(rs), dtype=dt))      # (2, n_strips, u, S)
-            gks.append(np.ascontiguousarray(np.stack(gs), dtype=dt))       # (2, 4 up)
-            csts.append(np.ascontiguousarray(np.stack(cs), dtype=dt))      # (2, 4 up)
+            kernels.append(np.ascontiguousarray(np.stack(ks)))             # (2, C, N)
+            recs.append(np.ascontiguousarray(np.stack(rs)))                # (2, u, N)
+            gks.append(np.ascontiguousarray(np.stack(gs)))                 # (2, N)
+            csts.append(np.ascontiguousarray(np.stack(cs)))                # (2, N)
         self.kernels, self.recs = tuple(kernels), tuple(recs)
         self.gks, self.csts = tuple(gks), tuple(csts)
         self.units = tuple(int(u) for u in config.lstm_units)
@@ -560,13 +562,13 @@ class NumbaHead:
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
 
     def project(self, x: np.ndarray, parallel: bool = False, batch: int = 1) -> np.ndarray:
-        """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, 4 up)``
-        (each direction's columns in strips, ``up`` the units padded to whole strips).
+        """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, N)``
+        (each direction's gates i, f, c, o, then zero padding up to ``N``, whole vectors).
         ``batch``: the rows are ``R / batch`` steps of ``batch`` windows, time-major (only
         groups the rows that share weight reads; the result is the same whatever it is)."""
         k = self.kernels[0]
         rows = x.shape[0]
-        out = np.empty((rows, 2, k.shape[1] * k.shape[3]), dtype=self.dtype)
+        out = np.empty((rows, 2, k.shape[2]), dtype=self.dtype)
         if self.feature_order is not None:
             x = x[:, self.feature_order]
         x = np.ascontiguousarray(x, dtype=self.dtype)
@@ -583,7 +585,7 @@ class NumbaHead:
     def __call__(self, xp1: np.ndarray, steps: int, batch: int,
                  parallel: bool = False) -> tuple[np.ndarray, int]:
         """The network from BiLSTM 1's projection ``xp1`` (:meth:`project`'s rows, time-major,
-        ``T*B`` of them, any shape with ``8 up`` numbers per row) -> ``(y (B, n_out*dim) in
+        ``T*B`` of them, any shape with ``2N`` numbers per row) -> ``(y (B, n_out*dim) in
         [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0."""
         xp1 = np.ascontiguousarray(xp1, dtype=self.dtype).reshape(steps * batch, 2, -1)
         args = (xp1, self.kernels, self.recs, self.gks, self.csts, self.units, self.gammas,
@@ -597,4 +599,4 @@ class NumbaHead:
         return _head_serial(*args)
 
 
-__all__ = ["NumbaHead", "STRIP_BYTES", "GROUP_ROWS", "strip_units", "padded_units", "strips"]
+__all__ = ["NumbaHead", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]
