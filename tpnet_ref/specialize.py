@@ -493,6 +493,7 @@ class _Run1:
         head, T, one, zero = self.head, self.T, self.one, self.zero
         exp, add, div, maximum, matmul, copyto = (np.exp, np.add, np.divide, np.maximum,
                                                   np.matmul, np.copyto)
+        prev_v = self.layers[0][2]      # the states of the layer before (BiLSTM 1: unused)
         for li, (ly, proj, v_all, xa, idx, xb, steps, extra, guards, guard, copies) in enumerate(self.layers):
             aug = ly.aug
             if li == 0:
