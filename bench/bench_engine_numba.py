@@ -2,6 +2,7 @@
 onnxruntime, alternating call by call (ratios from medians of the same minutes).
 
     python bench/bench_engine_numba.py [--reps 6] [--one-thread] [--no-ort] [--batches 2,4,8]
+                                       [--ort-threads 1]
 
 Inputs as in ``bench_inference.py`` (normalised windows of simulated test cases): B = 1 on the
 64 windows ``x256[::4]``, each window once per repeat and engine; the prediction network alone
@@ -53,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--one-thread", action="store_true", help="inside blas.one_thread()")
     ap.add_argument("--no-ort", action="store_true", help="leave out onnxruntime")
     ap.add_argument("--batches", default="", help="comma-separated batch sizes to time too")
+    ap.add_argument("--ort-threads", type=int, default=None,
+                    help="onnxruntime's intra-op threads (default: its own, every core)")
     args = ap.parse_args(argv)
     print("load average:", " ".join(f"{v:.2f}" for v in os.getloadavg()))
     warnings.simplefilter("ignore")
@@ -69,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
              "numba": lambda w: nb.predict(w, normalized=True)}
     if not args.no_ort:
         from tpnet_ref.onnx_peer import onnx_session
-        sess = onnx_session(npy)
+        sess = onnx_session(npy, threads=args.ort_threads)
         calls["onnxruntime"] = lambda w: sess.run(None, {"window": w[None]})
     feats = [npy._frames_to_features(list(w), True)[None] for w in ws]
     heads = {"numpy": lambda g: npy.sequence_head(g), "numba": lambda g: nb.sequence_head(g)}
@@ -99,8 +102,8 @@ def main(argv: list[str] | None = None) -> int:
             if not args.no_ort:
                 bc["onnxruntime"] = lambda w: sess.run(None, {"window": w})
             batches[b] = alternate(bc, chunks, args.reps)
-    print(f"{'one-thread BLAS' if args.one_thread else 'default threads'}; "
-          f"{len(ws)} windows x {args.reps} reps")
+    print(f"{'one-thread BLAS' if args.one_thread else 'default threads'}; onnxruntime "
+          f"threads: {args.ort_threads or 'default'}; {len(ws)} windows x {args.reps} reps")
     base = r.get("onnxruntime")
     for k, v in r.items():
         extra = f"  {v / base:.3f}x onnxruntime" if base else ""

@@ -8,33 +8,35 @@ What it does that NumPy cannot:
 
 - one call per prediction instead of ~100 NumPy calls (plus one for BiLSTM 1's input
   projection, which a rollout computes once per frame): the gates, cell and output of each unit
-  are computed in the loop that finishes its pre-activations, LayerNorm and head included;
-- every product reads only the weight rows that a non-zero input multiplies, row by row, not
-  only up to the last used one (a ReLU network's activations are mostly zeros, not always the
-  same ones): BiLSTM 1's input projection (the global features), every recurrent product (the
-  state ``h``), and BiLSTM 2's and 3's input projections, whose input is a LayerNorm output (no
-  zeros): LayerNorm is affine per row, so with ``r = 1 / sqrt(var + eps)`` and the row mean
+  are computed right after their pre-activations, LayerNorm and head included;
+- every product reads only the weight rows that a non-zero input multiplies, each one, not all
+  rows up to the last used one (a ReLU network's activations are mostly zeros): BiLSTM 1's
+  input projection (the global features, ~80 % zeros on the scene), every recurrent product
+  (the state ``h``), and BiLSTM 2's and 3's input projections, whose input is a LayerNorm output
+  (no zeros): LayerNorm is affine per row, so with ``r = 1 / sqrt(var + eps)`` and the row mean
   ``mu``, ``LN(h) @ K = r * ((h * gamma) @ K) - r * mu * (gamma @ K) + beta @ K``, and
   ``h * gamma`` has ``h``'s zeros (``gamma @ K`` and ``beta @ K + bias`` computed at load in
   float64). With tanh (no zeros) LayerNorm is applied first, then the plain product;
-- the products run in a small register-blocked kernel (:func:`_strip_kernel`, written in LLVM
-  IR): up to :data:`GROUP_ROWS` input rows (the m steps of a window, or the windows of a small
-  batch) times one strip of :data:`STRIP_BYTES` of weight columns, the accumulators in
-  registers; each weight row that some row of the group multiplies by a non-zero is read once.
-  The weights are laid out at load in such strips (``(n_strips, C, S)``, each strip's rows
-  contiguous), the four gates of ``S / 4`` units in each (units padded to a multiple of
-  ``S / 4`` with zero columns);
+- the products stream whole weight rows: a kernel written in LLVM IR (:func:`_row_kernel`)
+  reads :data:`CHAIN` of the needed rows side by side, each sequentially (what the hardware
+  prefetcher streams best: a window's products mostly read weights from memory), and adds
+  them into up to :data:`GROUP_ROWS` accumulator rows (a window's m steps share their
+  non-zero inputs, so at B = 1 each needed weight row is read once per layer and direction);
+- the weights are laid out at load in the model's unit order when it has one (units most used
+  first, :mod:`tpnet_ref.unit_order`: the rows a window needs lie close together), each
+  matrix row-major with its gate columns padded to whole 64-byte vectors;
+- the gates are vectorised (a branch-free ``exp``, :func:`_exp_neg`, within 1.5 ulp);
 - with ``parallel``, the two directions of a layer on two threads (``prange``).
 
 Determinism: each output number is one chain of fused multiply-adds (``llvm.fma``, explicit,
-not left to the compiler) over the group's non-zero inputs in increasing order, starting from
-+0. An input that is zero in this row but not in another row of its group adds ``fma(0, w, s)
-= s`` exactly (the weights are finite and a sum that starts at +0 is never -0), so a row's
-result is the same bits whatever the other rows of its group: the result does not depend on the
-other windows of a batch, nor on the thread count (each number is computed by one thread, by the
-same code); the canonical point order before the extractor keeps permutation invariance exact.
-Element-wise work uses no fast-math flags. Products accumulate in the model's dtype (as the BLAS
-does); LayerNorm statistics in float64.
+not left to the compiler) over its group's non-zero inputs in increasing order, starting from
++0. An input that is zero in this row but not in another row of its group adds
+``fma(0, w, s) = s`` exactly (the weights are finite, and a sum that starts at +0 is never -0),
+so a row's result is the same bits whatever the other rows of its group and however rows are
+grouped: the result does not depend on the other windows of a batch, nor on the thread count
+(each number is computed by one thread, by the same code); the canonical point order before the
+extractor keeps permutation invariance exact. Element-wise work uses no fast-math flags.
+Products accumulate in the model's dtype (as the BLAS does); LayerNorm statistics in float64.
 """
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ from numba.extending import intrinsic, overload  # noqa: E402
 #: weight rows each call of the product kernel streams together (a chain of this many fused
 #: multiply-adds per accumulator load and store; 8 rows read side by side, each sequentially)
 CHAIN = 8
-#: input rows that share each weight row read (one window's m = 4 steps at B = 1)
+#: input rows that share each weight row read (one window's m = 4 steps at B = 1); the
+#: kernels below are instantiated for 1 .. 4 rows
 GROUP_ROWS = 4
 _VECTOR_BYTES = 64
 
