@@ -519,8 +519,8 @@ class _Run1:
             used = [0, 0]           # state units the guards read: up to the longest state
             for s, (sig, gg, per_d) in enumerate(steps):
                 if s == 0:
-                    for _, _, _, zw, proj, *_ in per_d:
-                        copyto(zw, proj)
+                    for _, _, _, zw, x0, *_ in per_d:      # the step's input projection
+                        copyto(zw, x0)
                 else:
                     for vrow, h, mr, zw, _, _, _, _, _, _, _, _, _, _, d, base in per_d:
                         nz = h.nonzero()[0]
