@@ -204,7 +204,8 @@ def _scene_windows(scene, n, m=4):
     return np.stack([traj[s:s + m] for traj in scene for s in starts])
 
 
-@pytest.mark.parametrize("dtype,atol,roll_atol", [("float32", 1e-4, 2e-3), ("float64", 1e-10, 1e-8)])
+@pytest.mark.parametrize("dtype,atol,roll_atol",
+                         [("float32", 1e-4, 2e-3), ("float64", 1e-10, 1e-8)])
 def test_shipped_model_on_scene_windows_equals_numpy(shipped, scene, dtype, atol, roll_atol):
     ref = shipped.astype(dtype)
     nb = ref.with_engine("numba")

@@ -385,8 +385,8 @@ def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
 
 @njit(cache=True, nogil=True)
 def _finish_dir(out, d, rr, rmu, gk, cst):
-    """``out[r, d] = rr[r] * out[r, d] - rmu[r] * gk + cst`` (the LayerNorm folded into the product:
-    ``rr = 1 / sqrt(var + eps)``, ``rmu = rr * mean``, ``gk = gamma @ K``,
+    """``out[r, d] = rr[r] * out[r, d] - rmu[r] * gk + cst`` (the LayerNorm folded into the
+    product: ``rr = 1 / sqrt(var + eps)``, ``rmu = rr * mean``, ``gk = gamma @ K``,
     ``cst = beta @ K + bias``); with ``rr`` empty (no fold), ``out[r, d] += cst``."""
     fold = rr.shape[0] > 0
     for r in range(out.shape[0]):
@@ -494,7 +494,7 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
 
 
 def _project_impl(x, kernel, bias, out, steps, bsz):
-    """BiLSTM 1's input projection of the ``T*B`` time-major rows ``x`` -> ``out (R, 2, 4 up)``
+    """BiLSTM 1's input projection of the ``T*B`` time-major rows ``x`` -> ``out (R, 2, N)``
     (bias added)."""
     empty = bias[0, :0]
     for d in prange(2):
@@ -512,7 +512,10 @@ _PARALLEL = threading.Lock()
 
 
 class NumbaHead:
-    """A model's prediction network laid out for the kernels above (built once per model)."""
+    """A model's prediction network laid out for the kernels above (built once per model):
+    ``params`` in the file's order (``model.params``), ``unit_order`` the model's
+    (:mod:`tpnet_ref.unit_order`; None: the file's order) -- only the layout, and so the order
+    of the sums, depends on it."""
 
     def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype,
                  unit_order: dict[str, np.ndarray] | None = None) -> None:
