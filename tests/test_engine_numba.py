@@ -398,3 +398,25 @@ def test_vectorised_exp_and_sigmoid_are_within_a_few_ulp(dtype):
     nan = np.array([np.nan], dtype=dtype)
     run(nan, e[:1], s[:1], dtype(1))
     assert np.isnan(e[0]) and np.isnan(s[0])
+
+
+def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(tmp_path):
+    """The serial and parallel kernels are separate functions: numba's cache keeps one compiled
+    version per function and signature whatever its ``parallel`` flag, so one function compiled
+    both ways would load the serial version for the parallel call. Fresh cache, serial call
+    first, then the parallel one must start numba's threads."""
+    code = ("import numpy as np, numba\n"
+            "from tpnet_ref.model import init_random\n"
+            "from tpnet_ref.config import TPNetConfig\n"
+            "cfg = TPNetConfig(m=3, n_out=5, mlp1=(8, 8), mlp2=(8, 16), global_features=12,\n"
+            "                  lstm_units=(6, 5, 7))\n"
+            "head = init_random(cfg, seed=1).with_engine('numba')._nb\n"
+            "g = np.random.default_rng(0).uniform(0, 1, (3, 12)).astype(np.float32)\n"
+            "a = head(head.project(g), 3, 1, parallel=False)\n"
+            "b = head(head.project(g, True), 3, 1, parallel=True)\n"
+            "assert np.array_equal(a[0], b[0])\n"
+            "print(numba.threading_layer())\n")
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() in ("omp", "tbb", "workqueue")

@@ -437,20 +437,47 @@ def _norm_rows(src, gamma, beta, relu, li, limit, one, eps, x, rr, rmu, bad):
     return bad
 
 
-def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head_b, steps,
-               bsz, relu, one, eps, limit):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
+    """Direction ``d`` of one BiLSTM: its input projection of ``x`` into ``xs[:, d]`` (unless
+    ``x`` has no rows: BiLSTM 1's, computed by :meth:`NumbaHead.project`), then its
+    recurrence into ``hs``. ``kern``, ``gk``, ``cst``, ``rec``: both directions' (axis 0)."""
+    if x.shape[0] > 0:
+        _project_dir(x, kern[d], xs[:, d], steps, bsz)
+        _finish_dir(xs, d, rr, rmu, gk[d], cst[d])
+    _recur_dir(xs, d, rec[d], hs, u, steps, bsz, relu, one)
+
+
+# the two directions of a layer one after the other or on two threads: two functions (numba's
+# cache keeps one compiled version per function and signature, whatever its ``parallel`` flag)
+@njit(cache=True, nogil=True)
+def _layer_serial(x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
+    for d in range(2):
+        _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _layer_parallel(x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
+    for d in prange(2):
+        _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _head(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head_b, steps, bsz,
+          relu, one, eps, limit, parallel):
     """The prediction network after BiLSTM 1's input projection ``xp1 (T*B, 2, N)`` (row
     ``t*B + b``, bias included, ``N`` = ``4u`` padded to whole vectors) -> ``(y (B, n_out*dim),
     bad)``; ``bad`` is ``l + 1`` when the ReLU output of layer ``l`` reached ``limit`` (or NaN),
     else 0 (the caller raises). ``kernels[l]`` ``(2, C, N)``, ``recs[l]`` ``(2, u, N)``,
     ``gks[l]``/``csts[l]`` ``(2, N)``: ``gamma_{l-1} @ K_l`` and ``beta_{l-1} @ K_l + bias_l``
-    (ReLU: LayerNorm folded), or unused and ``bias_l`` (tanh)."""
+    (ReLU: LayerNorm folded), or unused and ``bias_l`` (tanh). ``parallel``: each layer's two
+    directions on two threads."""
     dt = xp1.dtype
     nl = len(recs)
     rows = steps * bsz
     bad = 0
     xs = xp1
-    x = np.empty((rows, 1), dtype=dt)                  # the next layer's input
+    x = np.empty((0, 1), dtype=dt)                     # the next layer's input
     rr = np.empty(rows if relu else 0, dtype=dt)
     rmu = np.empty(rows if relu else 0, dtype=dt)
     hs = np.empty((rows, 1), dtype=dt)
@@ -460,11 +487,12 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
         if li > 0:
             xs = np.empty((rows, 2, rec.shape[2]), dtype=dt)
         hs = np.empty((rows, 2 * u), dtype=dt)
-        for d in prange(2):
-            if li > 0:
-                _project_dir(x, kernels[li][d], xs[:, d], steps, bsz)
-                _finish_dir(xs, d, rr, rmu, gks[li][d], csts[li][d])
-            _recur_dir(xs, d, rec[d], hs, u, steps, bsz, relu, one)
+        if parallel:
+            _layer_parallel(x, kernels[li], gks[li], csts[li], rr, rmu, xs, rec, hs, u, steps,
+                            bsz, relu, one)
+        else:
+            _layer_serial(x, kernels[li], gks[li], csts[li], rr, rmu, xs, rec, hs, u, steps,
+                          bsz, relu, one)
         if li < nl - 1:
             x = np.empty((rows, 2 * u), dtype=dt)
             bad = _norm_rows(hs, gammas[li], betas[li], relu, li, limit, one, eps, x, rr, rmu,
@@ -480,10 +508,8 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
     bad = _norm_rows(src, gammas[nl - 1], betas[nl - 1], relu, nl - 1, limit, one, eps, last,
                      rr[:0], rmu[:0], bad)
     n = head_w.shape[1]
-    res = np.empty((bsz, n), dtype=dt)
+    res = np.zeros((bsz, n), dtype=dt)
     for b in range(bsz):
-        for o in range(n):
-            res[b, o] = 0             # (not np.zeros: a parallel region of its own)
         for q in range(head_w.shape[0]):
             v = last[b, q]
             for o in range(n):
@@ -493,19 +519,27 @@ def _head_impl(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head
     return res, bad
 
 
-def _project_impl(x, kernel, bias, out, steps, bsz):
+@njit(cache=True, nogil=True)
+def _project_one(d, x, kernel, bias, out, steps, bsz):
+    empty = bias[0, :0]
+    _project_dir(x, kernel[d], out[:, d], steps, bsz)
+    _finish_dir(out, d, empty, empty, empty, bias[d])
+
+
+@njit(cache=True, nogil=True)
+def _project_serial(x, kernel, bias, out, steps, bsz):
     """BiLSTM 1's input projection of the ``T*B`` time-major rows ``x`` -> ``out (R, 2, N)``
     (bias added)."""
-    empty = bias[0, :0]
+    for d in range(2):
+        _project_one(d, x, kernel, bias, out, steps, bsz)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _project_parallel(x, kernel, bias, out, steps, bsz):
+    """:func:`_project_serial`, the directions on two threads."""
     for d in prange(2):
-        _project_dir(x, kernel[d], out[:, d], steps, bsz)
-        _finish_dir(out, d, empty, empty, empty, bias[d])
+        _project_one(d, x, kernel, bias, out, steps, bsz)
 
-
-_head_serial = njit(cache=True, nogil=True, error_model="numpy")(_head_impl)
-_head_parallel = njit(cache=True, nogil=True, parallel=True, error_model="numpy")(_head_impl)
-_project_serial = njit(cache=True, nogil=True)(_project_impl)
-_project_parallel = njit(cache=True, nogil=True, parallel=True)(_project_impl)
 
 #: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
 _PARALLEL = threading.Lock()
@@ -599,10 +633,10 @@ class NumbaHead:
                 self.eps, self.limit)
         if parallel and _PARALLEL.acquire(blocking=False):
             try:
-                return _head_parallel(*args)
+                return _head(*args, True)
             finally:
                 _PARALLEL.release()
-        return _head_serial(*args)
+        return _head(*args, False)
 
 
 __all__ = ["NumbaHead", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]
