@@ -87,9 +87,9 @@ def test_engine_result_does_not_depend_on_the_thread_count(released_nb64):
     rng = np.random.default_rng(5)
     wins = _windows(rng, 3).astype(np.float32)
     for model in (released_nb64, nb32):
-        par = model.predict(wins[0])                    # outside one_thread: parallel kernels
-        with blas.one_thread():
-            ser = model.predict(wins[0])
+        par = model.predict(wins[0])                    # outside one_thread
+        with blas.one_thread():                         # inside (where the model may ask for
+            ser = model.predict(wins[0])                # the two-thread kernels)
         assert np.array_equal(par, ser)
         assert np.array_equal(model.predict_batch(wins)[0], par)
         assert np.array_equal(model.rollout(wins[0], 4)[0], par)
@@ -324,7 +324,8 @@ def test_serial_and_parallel_kernels_and_thread_counts_give_the_same_bits(shippe
         for n in sorted({1, threads}):
             numba.set_num_threads(n)
             for parallel in (False, True):
-                y, bad = head(head.project(rows, parallel, batch=4), 4, 4, parallel)
+                with blas.one_thread():         # where the two-thread kernels run
+                    y, bad = head(head.project(rows, parallel, batch=4), 4, 4, parallel)
                 assert bad == 0 and np.array_equal(y, base[0]), (n, parallel)
     finally:
         numba.set_num_threads(threads)
@@ -412,11 +413,29 @@ def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(tmp_path)
             "                  lstm_units=(6, 5, 7))\n"
             "head = init_random(cfg, seed=1).with_engine('numba')._nb\n"
             "g = np.random.default_rng(0).uniform(0, 1, (3, 12)).astype(np.float32)\n"
+            "from tpnet_ref.blas import one_thread\n"
             "a = head(head.project(g), 3, 1, parallel=False)\n"
-            "b = head(head.project(g, True), 3, 1, parallel=True)\n"
+            "with one_thread():\n"
+            "    b = head(head.project(g, True), 3, 1, parallel=True)\n"
             "assert np.array_equal(a[0], b[0])\n"
             "print(numba.threading_layer())\n")
     env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() in ("omp", "tbb", "workqueue")
+
+
+def test_two_threads_only_beside_a_one_thread_blas():
+    """The two-thread kernels run only inside blas.one_thread() (beside a multi-threaded BLAS,
+    whose threads spin between calls, numba's second thread waits for a core), one call at a
+    time."""
+    assert not EN._two_threads(True)
+    with blas.one_thread():
+        assert not EN._two_threads(False)
+        assert EN._two_threads(True)            # takes the lock ...
+        try:
+            assert not EN._two_threads(True)    # ... so a second caller runs serially
+        finally:
+            EN._PARALLEL.release()
+        assert EN._two_threads(True)
+        EN._PARALLEL.release()

@@ -26,7 +26,8 @@ What it does that NumPy cannot:
   first, :mod:`tpnet_ref.unit_order`: the rows a window needs lie close together), each
   matrix row-major with its gate columns padded to whole 64-byte vectors;
 - the gates are vectorised (a branch-free ``exp``, :func:`_exp_neg`, within 1.5 ulp);
-- with ``parallel``, the two directions of a layer on two threads (``prange``).
+- with ``parallel``, the two directions of a layer on two threads (``prange``), only beside a
+  one-thread BLAS (:func:`_two_threads`).
 
 Determinism: each output number is one chain of fused multiply-adds (``llvm.fma``, explicit,
 not left to the compiler) over its group's non-zero inputs in increasing order, starting from
@@ -45,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from .blas import in_one_thread
 from .extras import require
 
 numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
@@ -545,6 +547,15 @@ def _project_parallel(x, kernel, bias, out, steps, bsz):
 _PARALLEL = threading.Lock()
 
 
+def _two_threads(parallel: bool) -> bool:
+    """Whether a call asked to run ``parallel`` takes the two-thread kernels now: only inside a
+    :func:`tpnet_ref.blas.one_thread` block (a one-thread BLAS), and one such call at a time.
+    Beside a multi-threaded BLAS, whose threads spin between calls, numba's second thread waits
+    for a core (measured, 2 cores: predict 1.4 -> 8 ms, rollout 0.9 -> 16 ms per frame); beside
+    a one-thread BLAS it pays (predict 1.4 -> 1.2 ms, rollout 0.9 -> 0.6 ms per frame)."""
+    return parallel and in_one_thread() and _PARALLEL.acquire(blocking=False)
+
+
 class NumbaHead:
     """A model's prediction network laid out for the kernels above (built once per model):
     ``params`` in the file's order (``model.params``), ``unit_order`` the model's
@@ -604,6 +615,7 @@ class NumbaHead:
     def project(self, x: np.ndarray, parallel: bool = False, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, N)``
         (each direction's gates i, f, c, o, then zero padding up to ``N``, whole vectors).
+        ``parallel``: the two directions on two threads if :func:`_two_threads` allows.
         ``batch``: the rows are ``R / batch`` steps of ``batch`` windows, time-major (only
         groups the rows that share weight reads; the result is the same whatever it is)."""
         k = self.kernels[0]
@@ -613,7 +625,7 @@ class NumbaHead:
             x = x[:, self.feature_order]
         x = np.ascontiguousarray(x, dtype=self.dtype)
         steps, bsz = (rows // batch, batch) if batch > 0 and rows % batch == 0 else (rows, 1)
-        if parallel and _PARALLEL.acquire(blocking=False):
+        if _two_threads(parallel):
             try:
                 _project_parallel(x, k, self.csts[0], out, steps, bsz)
             finally:
@@ -626,12 +638,13 @@ class NumbaHead:
                  parallel: bool = False) -> tuple[np.ndarray, int]:
         """The network from BiLSTM 1's projection ``xp1`` (:meth:`project`'s rows, time-major,
         ``T*B`` of them, any shape with ``2N`` numbers per row) -> ``(y (B, n_out*dim) in
-        [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0."""
+        [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0. ``parallel``: each
+        layer's two directions on two threads if :func:`_two_threads` allows."""
         xp1 = np.ascontiguousarray(xp1, dtype=self.dtype).reshape(steps * batch, 2, -1)
         args = (xp1, self.kernels, self.recs, self.gks, self.csts, self.units, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
-        if parallel and _PARALLEL.acquire(blocking=False):
+        if _two_threads(parallel):
             try:
                 return _head(*args, True)
             finally:
