@@ -56,16 +56,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batches", default="", help="comma-separated batch sizes to time too")
     ap.add_argument("--ort-threads", type=int, default=None,
                     help="onnxruntime's intra-op threads (default: its own, every core)")
+    ap.add_argument("--engine-parallel", action="store_true",
+                    help="ask the engine for its two-thread kernels on every call (they run "
+                         "inside blas.one_thread only); model.py asks only outside it")
     args = ap.parse_args(argv)
     print("load average:", " ".join(f"{v:.2f}" for v in os.getloadavg()))
     warnings.simplefilter("ignore")
     npy = tpnet_ref.load()
     nb = npy.with_engine("numba")
-    if getattr(nb._nb, "feature_order", None) is None and nb.unit_order is not None:
+    from tpnet_ref.engine_numba import NumbaHead
+    class AskTwo(NumbaHead):                    # always asks for the two-thread kernels
+        def project(self, x, parallel=False, batch=1):
+            return super().project(x, True, batch)
+
+        def __call__(self, xp1, steps, batch, parallel=False):
+            return super().__call__(xp1, steps, batch, True)
+
+    head = AskTwo if args.engine_parallel else NumbaHead
+    if (getattr(nb._nb, "feature_order", None) is None and nb.unit_order is not None) \
+            or args.engine_parallel:
         # model.py does not pass its unit order to the engine yet: lay the engine out in it here
-        from tpnet_ref.engine_numba import NumbaHead
-        nb._nb = NumbaHead(nb.config, nb.params, nb.dtype, nb.unit_order)
-        print("(engine laid out in the model's unit order by this script)")
+        nb._nb = head(nb.config, nb.params, nb.dtype, nb.unit_order)
+        print("(engine laid out in the model's unit order by this script"
+              + ("; two threads asked for on every call)" if args.engine_parallel else ")"))
     x1, x256 = scene_windows(npy)
     ws = list(x256[::4])
     calls = {"numpy": lambda w: npy.predict(w, normalized=True),
