@@ -578,29 +578,34 @@ class NumbaHead:
             po = order.get(f"lstm{i}")
             per_dir = ((np.arange(u), np.arange(u)) if po is None else
                        (po[po < u], po[po >= u] - u))
-            ks, rs, gs, cs = [], [], [], []
+            n = padded_columns(4 * u, dt)
+            c_in = params[f"lstm{i}.fwd.kernel"].shape[0]
+            kern = np.zeros((2, c_in, n), dtype=dt)
+            rec = np.zeros((2, u, n), dtype=dt)
+            gk = np.zeros((2, n), dtype=dt)
+            cst = np.zeros((2, n), dtype=dt)
             for d, name in enumerate(("fwd", "bwd")):
                 cols = np.concatenate([g * u + per_dir[d] for g in range(4)])
-                k, r, b = (np.asarray(params[f"lstm{i}.{name}.{x}"], dtype=np.float64)
-                           for x in ("kernel", "recurrent", "bias"))
-                k, r, b = k[:, cols], r[per_dir[d]][:, cols], b[cols]
+                k = np.take(params[f"lstm{i}.{name}.kernel"], cols, axis=1)
                 if prev is not None:
-                    k = k[prev]
-                ks.append(pad_columns(k, dt))
-                rs.append(pad_columns(r, dt))
+                    k = np.take(k, prev, axis=0)
+                kern[d, :, :4 * u] = k
+                rec[d, :, :4 * u] = np.take(np.take(params[f"lstm{i}.{name}.recurrent"],
+                                                    per_dir[d], axis=0), cols, axis=1)
+                b = np.asarray(params[f"lstm{i}.{name}.bias"], dtype=np.float64)[cols]
                 if i > 1 and self.relu:     # LayerNorm i-1 folded into this projection
-                    gs.append(pad_columns(gammas[-1].astype(np.float64) @ k, dt))
-                    cs.append(pad_columns(betas[-1].astype(np.float64) @ k + b, dt))
+                    k64 = k.astype(np.float64)
+                    gk[d, :4 * u] = gammas[-1] @ k64
+                    cst[d, :4 * u] = betas[-1] @ k64 + b
                 else:
-                    gs.append(pad_columns(np.zeros(4 * u), dt))
-                    cs.append(pad_columns(b, dt))
+                    cst[d, :4 * u] = b
             prev = np.concatenate([per_dir[0], u + per_dir[1]])   # this layer's outputs
             gammas.append(np.asarray(params[f"ln{i}.gamma"], dtype=np.float64)[prev])
             betas.append(np.asarray(params[f"ln{i}.beta"], dtype=np.float64)[prev])
-            kernels.append(np.ascontiguousarray(np.stack(ks)))             # (2, C, N)
-            recs.append(np.ascontiguousarray(np.stack(rs)))                # (2, u, N)
-            gks.append(np.ascontiguousarray(np.stack(gs)))                 # (2, N)
-            csts.append(np.ascontiguousarray(np.stack(cs)))                # (2, N)
+            kernels.append(kern)
+            recs.append(rec)
+            gks.append(gk)
+            csts.append(cst)
         self.kernels, self.recs = tuple(kernels), tuple(recs)
         self.gks, self.csts = tuple(gks), tuple(csts)
         self.units = tuple(int(u) for u in config.lstm_units)
