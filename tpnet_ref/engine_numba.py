@@ -22,9 +22,10 @@ What it does that NumPy cannot:
   prefetcher streams best: a window's products mostly read weights from memory), and adds
   them into up to :data:`GROUP_ROWS` accumulator rows (a window's m steps share their
   non-zero inputs, so at B = 1 each needed weight row is read once per layer and direction);
-- the weights are laid out at load in the model's unit order when it has one (units most used
-  first, :mod:`tpnet_ref.unit_order`: the rows a window needs lie close together), each
-  matrix row-major with its gate columns padded to whole 64-byte vectors;
+- the weights are laid out at load, each matrix row-major with its gate columns padded to
+  whole 64-byte vectors, in the model's unit order when given one (:mod:`tpnet_ref.unit_order`:
+  the rows a window needs lie closer together; a few percent here, as the rows are streamed
+  one by one anyway);
 - the gates are vectorised (a branch-free ``exp``, :func:`_exp_neg`, within 1.5 ulp);
 - with ``parallel``, the two directions of a layer on two threads (``prange``), only beside a
   one-thread BLAS (:func:`_two_threads`).
