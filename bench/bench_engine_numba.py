@@ -73,12 +73,9 @@ def main(argv: list[str] | None = None) -> int:
             return super().__call__(xp1, steps, batch, True)
 
     head = AskTwo if args.engine_parallel else NumbaHead
-    if (getattr(nb._nb, "feature_order", None) is None and nb.unit_order is not None) \
-            or args.engine_parallel:
-        # model.py does not pass its unit order to the engine yet: lay the engine out in it here
+    if args.engine_parallel:      # the engine laid out as the model does, asking for two threads
         nb._nb = head(nb.config, nb.params, nb.dtype, nb.unit_order)
-        print("(engine laid out in the model's unit order by this script"
-              + ("; two threads asked for on every call)" if args.engine_parallel else ")"))
+        print("(two threads asked for on every call)")
     x1, x256 = scene_windows(npy)
     ws = list(x256[::4])
     calls = {"numpy": lambda w: npy.predict(w, normalized=True),

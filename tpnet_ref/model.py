@@ -208,7 +208,7 @@ class TPNet:
         self._nb = None                     # the numba engine's prediction network
         if self.engine == "numba":
             from . import engine_numba     # optional: imports numba
-            self._nb = engine_numba.NumbaHead(cfg, p, self.dtype)
+            self._nb = engine_numba.NumbaHead(cfg, p, self.dtype, self.unit_order)
         self._lo = self.dtype.type(cfg.norm_lo)
         self._scale = self.dtype.type(cfg.norm_hi - cfg.norm_lo)
 
@@ -356,10 +356,11 @@ class TPNet:
         """BiLSTM 1's input projection (without bias) of each frame's feature: ``(F, k)`` ->
         ``(F, 8u)``. A function of the frame alone, so a rollout computes it once per frame.
         For the numba engine (batches of ``batch`` windows it runs), its own layout
-        (:meth:`tpnet_ref.engine_numba.NumbaHead.project`, the bias included), also ``(F, 8u)``."""
+        (:meth:`tpnet_ref.engine_numba.NumbaHead.project`, the bias included, columns padded)."""
         nb = self._engine_for(batch)
         if nb is not None:
-            return nb.project(features, parallel=not in_one_thread()).reshape(len(features), -1)
+            return nb.project(features, parallel=not in_one_thread(),
+                              batch=batch).reshape(len(features), -1)
         if self._small is None:
             self._small = small_products_pay(self.dtype)
         if self._global_order is not None:
@@ -374,7 +375,8 @@ class TPNet:
         if nb is not None:
             parallel = not in_one_thread()
             if proj1 is None:
-                proj1 = nb.project(features.transpose(1, 0, 2).reshape(m * batch, -1), parallel)
+                proj1 = nb.project(features.transpose(1, 0, 2).reshape(m * batch, -1), parallel,
+                                   batch)
             y, bad = nb(proj1.reshape(m * batch, 2, -1, 4), m, batch, parallel)
             if bad:
                 self._overflow(f"BiLSTM {bad}")
