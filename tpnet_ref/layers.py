@@ -232,25 +232,33 @@ def used_prefixes(x: np.ndarray) -> list[int]:
 
 
 def project_spans(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None,
-                  spans: Sequence[tuple[int, int]], small: bool = True) -> np.ndarray:
+                  spans: Sequence[tuple[int, int]], small: bool = True,
+                  out: np.ndarray | None = None) -> np.ndarray:
     """``x (R, C) @ kernel (C, N)`` -> ``(R, N)`` when the columns of ``x`` outside ``spans``
     (``[(a, b), ...]``, column ranges) are zero: only those rows of the kernel are read. Like
     :func:`project`, as one stacked product over the kernel's column ``blocks`` when each block's
-    product is small enough for the BLAS's small-matrix kernels."""
+    product is small enough for the BLAS's small-matrix kernels. ``out``: a C-contiguous
+    ``(R, N)`` buffer that receives the result (returned)."""
     rows = x.shape[0]
     spans = [(a, b) for a, b in spans if b > a]
     if not spans:
-        return np.zeros((rows, kernel.shape[1]), dtype=x.dtype)
+        if out is None:
+            return np.zeros((rows, kernel.shape[1]), dtype=x.dtype)
+        out[...] = 0
+        return out
     stacked = (blocks is not None and small
                and rows * max(b - a for a, b in spans) * blocks.shape[2] <= SMALL_PRODUCT)
     w = blocks if stacked else kernel               # the kernel rows: axis -2 of both
-    acc = None
-    for a, b in spans:
-        part = np.matmul(x[:, a:b], w[..., a:b, :])   # (N / nb, R, nb) stacked, else (R, N)
-        if acc is None:
-            acc = part
+    acc = out                                       # (N / nb, R, nb) stacked, else (R, N)
+    if out is not None and stacked:
+        acc = out.reshape(rows, -1, w.shape[2]).transpose(1, 0, 2)
+    for i, (a, b) in enumerate(spans):
+        if i == 0:
+            acc = np.matmul(x[:, a:b], w[..., a:b, :], out=acc)
         else:
-            acc += part
+            acc += np.matmul(x[:, a:b], w[..., a:b, :])
+    if out is not None:
+        return out
     return acc.transpose(1, 0, 2).reshape(rows, -1) if stacked else acc
 
 

@@ -292,14 +292,9 @@ class SceneHead:
         return mean, (1.0 / np.sqrt(var + self.eps)).astype(self.dtype, copy=False)
 
     def _project(self, ly: _Layer, xa: np.ndarray, k: int, out: np.ndarray) -> None:
-        """``out (R, Wp) = xa[:, :k] @ kernel[:k]``, as one stacked product over the kernel's
-        column blocks when each is small enough (:func:`tpnet_ref.layers.project_spans`)."""
-        rows, nb = xa.shape[0], ly.blocks.shape[2]
-        if self._small and rows * k * nb <= SMALL_PRODUCT:
-            np.matmul(xa[:, :k], ly.blocks[:, :k],
-                      out=out.reshape(rows, -1, nb).transpose(1, 0, 2))
-        else:
-            np.matmul(xa[:, :k], ly.kernel[:k], out=out)
+        """``out (R, Wp) = xa[:, :k] @ kernel[:k]`` (:func:`tpnet_ref.layers.project_spans`:
+        one stacked product over the kernel's column blocks when each is small enough)."""
+        L.project_spans(xa, ly.kernel, ly.blocks, [(0, k)], self._small, out=out)
 
     def _batch(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Any batch ``f (B, T, k)``, buffers made per call."""
