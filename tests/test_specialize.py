@@ -17,17 +17,12 @@ from tpnet_ref import unit_order as U
 from tpnet_ref.checks import NonFiniteResultError
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
-SMALL = TPNetConfig(mlp1=(16, 16), mlp2=(16, 32, 48), global_features=24, lstm_units=(32, 16, 16))
+from ring_helpers import SMALL, rings  # noqa: E402
 
 
 def _rings(rng, n, m=4):
-    """Windows of a ring of radius 2 (30 points) drifting through the box: ``(n, m, 30, 2)``."""
-    a = np.arange(30) * 2 * np.pi / 30
-    ring = 2 * np.stack([np.sin(a), np.cos(a)], axis=1)
-    start = rng.uniform(8, 37, (n, 1, 1, 2))
-    vel = rng.uniform(-0.6, 0.6, (n, 1, 1, 2))
-    wobble = rng.normal(0, 0.05, (n, m, 30, 2))
-    return start + vel * np.arange(m)[None, :, None, None] + ring + wobble
+    """Drifting rings with a little noise on every point (:func:`ring_helpers.rings`)."""
+    return rings(rng, n, m, wobble=0.05)
 
 
 @pytest.fixture(scope="module")

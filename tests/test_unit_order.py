@@ -14,16 +14,7 @@ from tpnet_ref import specialize as S
 from tpnet_ref import unit_order as U
 from tpnet_ref.model import TPNetConfig, init_random
 
-CFG = TPNetConfig(mlp1=(16, 16), mlp2=(16, 32, 48), global_features=24, lstm_units=(32, 16, 16))
-
-
-def _rings(rng, n, m=4):
-    """Windows of a ring of radius 2 (30 points) drifting through the box: ``(n, m, 30, 2)``."""
-    a = np.arange(30) * 2 * np.pi / 30
-    ring = 2 * np.stack([np.sin(a), np.cos(a)], axis=1)
-    start = rng.uniform(8, 37, (n, 1, 1, 2))
-    vel = rng.uniform(-0.6, 0.6, (n, 1, 1, 2))
-    return start + vel * np.arange(m)[None, :, None, None] + ring
+from ring_helpers import SMALL, rings as _rings  # noqa: E402
 
 
 def _random_order(cfg, rng):
@@ -32,7 +23,7 @@ def _random_order(cfg, rng):
 
 
 def test_orders_cover_the_mlps_except_what_a_trained_transform_multiplies():
-    assert "mlp1.1" in U.sizes(CFG) and "mlp2.2" in U.sizes(CFG)
+    assert "mlp1.1" in U.sizes(SMALL) and "mlp2.2" in U.sizes(SMALL)
     tn = TPNetConfig(feature_transform_trained=True)
     assert "mlp1.1" not in U.sizes(tn) and "mlp1.0" in U.sizes(tn)
     for cfg in (TPNetConfig(input_transform_trained=True, feature_transform_trained=True), tn):
@@ -46,11 +37,11 @@ def test_orders_cover_the_mlps_except_what_a_trained_transform_multiplies():
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
 @pytest.mark.parametrize("apart", [False, True])
 def test_any_unit_order_is_the_same_network(dtype, apart):
-    model = init_random(CFG, seed=3, dtype=dtype)
+    model = init_random(SMALL, seed=3, dtype=dtype)
     rng = np.random.default_rng(0)
-    order = _random_order(CFG, rng)
+    order = _random_order(SMALL, rng)
     if apart:       # LSTM outputs ordered within each direction (no merge after the recurrence)
-        for i, u in enumerate(CFG.lstm_units, 1):
+        for i, u in enumerate(SMALL.lstm_units, 1):
             order[f"lstm{i}"] = np.concatenate([rng.permutation(u), u + rng.permutation(u)])
     perm = model._copy(unit_order=order)
     assert all((lay.merge is None) == apart for lay in perm._layers)
@@ -92,7 +83,7 @@ def test_sorted_shipped_model_equals_the_file_order_and_puts_used_units_first():
 
 
 def test_permutation_invariance_is_bit_identical_with_an_order():
-    model = init_random(CFG, seed=1)._copy(unit_order=_random_order(CFG, np.random.default_rng(2)))
+    model = init_random(SMALL, seed=1)._copy(unit_order=_random_order(SMALL, np.random.default_rng(2)))
     rng = np.random.default_rng(5)
     w = _rings(rng, 1)[0]
     shuffled = np.stack([f[rng.permutation(30)] for f in w])
@@ -100,8 +91,8 @@ def test_permutation_invariance_is_bit_identical_with_an_order():
 
 
 def test_unit_order_round_trips_through_the_native_file(tmp_path):
-    model = init_random(CFG, seed=2)
-    order = _random_order(CFG, np.random.default_rng(4))
+    model = init_random(SMALL, seed=2)
+    order = _random_order(SMALL, np.random.default_rng(4))
     perm = model._copy(unit_order=order)
     path = tmp_path / "w.h5"
     perm.save(path)
@@ -130,13 +121,13 @@ def test_unit_order_round_trips_through_the_native_file(tmp_path):
 ])
 def test_a_malformed_order_is_refused_in_one_line(bad, msg):
     with pytest.raises(ValueError, match=msg) as err:
-        init_random(CFG, seed=0)._copy(unit_order=bad)
+        init_random(SMALL, seed=0)._copy(unit_order=bad)
     assert "\n" not in str(err.value)
 
 
 def test_a_malformed_order_group_in_a_file_is_refused(tmp_path):
     path = tmp_path / "w.h5"
-    init_random(CFG, seed=0).save(path)
+    init_random(SMALL, seed=0).save(path)
     U.write(path, {"global": np.arange(24)[::-1].copy()})
     assert tpnet_ref.load(path).unit_order["global"][0] == 23
     with h5py.File(path, "a") as f:
@@ -177,8 +168,12 @@ def test_project_spans_and_folded_layer_norm_equal_the_plain_products(dtype, row
     spans = [(0, L.used_columns(h, 0, 32)), (32, 32 + L.used_columns(h, 32))]
     assert spans[0][1] <= 10 and spans[1][1] <= 50
     for blocks in (None, fused.blocks):
-        np.testing.assert_allclose(L.project_spans(h, fused.kernel, blocks, spans),
-                                   h @ fused.kernel, rtol=0, atol=tol)
+        got = L.project_spans(h, fused.kernel, blocks, spans)
+        np.testing.assert_allclose(got, h @ fused.kernel, rtol=0, atol=tol)
+        for sp in (spans, spans[:1], []):             # into a given buffer: the same bits
+            out = np.full((rows, u4 * 2), np.nan, dtype)
+            assert L.project_spans(h, fused.kernel, blocks, sp, out=out) is out
+            np.testing.assert_array_equal(out, L.project_spans(h, fused.kernel, blocks, sp))
     gamma = rng.uniform(0.5, 1.5, c).astype(dtype)
     beta = rng.normal(0, 0.3, c).astype(dtype)
     gk, bk = gamma @ fused.kernel, beta @ fused.kernel
@@ -193,13 +188,13 @@ def test_project_spans_and_folded_layer_norm_equal_the_plain_products(dtype, row
 def test_cli_sort_units_writes_the_same_network_ordered(tmp_path, capsys):
     from tpnet_ref.cli import main
     weights, src, out = tmp_path / "w.h5", tmp_path / "win.npy", tmp_path / "sorted.h5"
-    model = init_random(CFG, seed=4)
+    model = init_random(SMALL, seed=4)
     model.save(weights)
     np.save(src, _rings(np.random.default_rng(6), 12))
     assert main(["sort-units", str(src), "--weights", str(weights), "-o", str(out)]) == 0
     assert "units sorted by use on 12 windows" in capsys.readouterr().out
     back = tpnet_ref.load(out)
-    assert set(back.unit_order) == set(U.sizes(CFG))
+    assert set(back.unit_order) == set(U.sizes(SMALL))
     assert "12 windows" in back.meta["units_sorted_on"]
     for k in model.params:
         np.testing.assert_array_equal(back.params[k], model.params[k])

@@ -1,0 +1,22 @@
+"""Shared by the unit-order and specialisation tests: a small network shape and windows of a
+ring drifting through the box (the scene's kind of input, cheap to make)."""
+from __future__ import annotations
+
+import numpy as np
+
+from tpnet_ref.model import TPNetConfig
+
+SMALL = TPNetConfig(mlp1=(16, 16), mlp2=(16, 32, 48), global_features=24, lstm_units=(32, 16, 16))
+
+
+def rings(rng: np.random.Generator, n: int, m: int = 4, wobble: float = 0.0) -> np.ndarray:
+    """Windows of a ring of radius 2 (30 points) drifting through the box: ``(n, m, 30, 2)``;
+    ``wobble`` > 0 adds normal noise of that scale to every point."""
+    a = np.arange(30) * 2 * np.pi / 30
+    ring = 2 * np.stack([np.sin(a), np.cos(a)], axis=1)
+    start = rng.uniform(8, 37, (n, 1, 1, 2))
+    vel = rng.uniform(-0.6, 0.6, (n, 1, 1, 2))
+    out = start + vel * np.arange(m)[None, :, None, None] + ring
+    if wobble:
+        out = out + rng.normal(0, wobble, (n, m, 30, 2))
+    return out
