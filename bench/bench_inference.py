@@ -1,6 +1,6 @@
 """Inference speed of tpnet_ref against its peers, measured side by side in one run.
 
-    python bench/bench_inference.py            # full run (about 2 minutes on 2 cores)
+    python bench/bench_inference.py            # full run (about 3 minutes on 2 cores)
     python bench/bench_inference.py --quick    # fewer repetitions
     python bench/bench_inference.py --threads 1   # every peer on one core (BLAS, torch, ORT)
     python bench/bench_inference.py --blas-kernel SkylakeX   # NumPy's OpenBLAS with this kernel
@@ -15,7 +15,10 @@ non-zero (exact on every input), so its speed depends on the input: the same com
 random network of the released shape with uniform random input is printed too. Also: trained
 (non-identity) transform nets, an 80-frame rollout against 80 independent ``predict`` calls,
 cold start and peak memory in fresh processes. Prints each figure, the ratio to each peer and
-the targets of the performance issue.
+the targets of the performance issue. The ratios to onnxruntime are medians of ratios taken
+round by round, the peers timed in turn in short blocks (rollouts one rollout each in turn), and
+busy/idle from short paired rounds: this VM's speed drifts by up to a third within a minute, so
+one long block per peer would compare different minutes.
 """
 from __future__ import annotations
 
@@ -74,6 +77,8 @@ def machine() -> str:
 
 #: the test case whose first window is the B = 1 input (and the rollout's start)
 TEST_CASE_B1 = 0
+#: busy/idle: short paired rounds (idle block, then busy block), ratio = median of the rounds'
+BUSY_ROUNDS = 6
 
 
 def scene_windows(model) -> tuple[np.ndarray, np.ndarray]:
@@ -104,6 +109,24 @@ def timeit(fn, min_time: float, min_reps: int = 3) -> float:
         fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times))
+
+
+def alternate(fns: dict, rounds: int, block: float, min_reps: int) -> dict:
+    """Each of ``fns`` (label -> callable) timed in turn, ``rounds`` times, for ``block`` seconds
+    (and ``min_reps`` calls) each time: ``{label: [median seconds per call in each round]}``.
+    Every peer sees the same minutes of a VM whose speed drifts; whole blocks rather than single
+    calls, so that each peer runs with its own weights in cache, as it would alone (call by
+    call, two 28 MB models evict each other from the shared cache)."""
+    out: dict = {k: [] for k in fns}
+    for _ in range(rounds):
+        for k, fn in fns.items():
+            out[k].append(timeit(fn, block, min_reps))
+    return out
+
+
+def paired(times: dict, a: str, b: str) -> float:
+    """Median over the rounds of ``times[a] / times[b]`` (from :func:`alternate`)."""
+    return float(np.median(np.array(times[a]) / np.array(times[b])))
 
 
 def torch_peer(model):
@@ -236,6 +259,22 @@ def main(argv: list[str] | None = None) -> int:
         measure(f"{label} ({note})", fn)
         print(f"  {'':38s} max |peer - tpnet_ref float64| = {diff:.2e}")
         rows[label] = rows.pop(f"{label} ({note})")
+    alt = None
+    if "onnxruntime" in peers:
+        # the ratios below come from these: the peers called in turn, call by call
+        print("\nthe same, the peers timed in turn, round after round (the ratios below are the "
+              "medians of the rounds' ratios):")
+        b1 = {"numpy": lambda: m32.predict_batch(x1, normalized=True), "onnxruntime": lambda: ort_fn(x1)}
+        b256 = {"numpy": lambda: m32.predict_batch(x256, normalized=True),
+                "onnxruntime": lambda: ort_fn(x256)}
+        if nb32 is not None:
+            b1["numba"] = lambda: nb32.predict_batch(x1, normalized=True)
+            b256["numba"] = lambda: nb32.predict_batch(x256, normalized=True)
+        alt = {"b1": alternate(b1, 8, t_min / 4, 20), "b256": alternate(b256, 6, t_min / 2, 3)}
+        for k in b1:
+            print(f"  {k:38s} B=1 {np.median(alt['b1'][k]) * 1e3:7.3f} ms   "
+                  f"B=256 {256 / np.median(alt['b256'][k]):8.1f} windows/s   "
+                  f"(medians of {len(alt['b1'][k])} and {len(alt['b256'][k])} rounds)")
     print("\nthe same on a random network of the released shape, uniform random input:")
     measure("tpnet_ref float32, random network", lambda x: m_rand.predict_batch(x, normalized=True),
             (r1, r256))
@@ -283,22 +322,23 @@ def main(argv: list[str] | None = None) -> int:
             kind = model._kind("predict", 1, int(np.prod(x1.shape[1:3])))
             name = {1: "one thread", 0: "all threads", None: "n/a (BLAS has one thread)"}
             idle_t, busy_t, chose = [], [], {"idle": [], "busy": []}
-            for _ in range(3):
-                idle_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 2, 20))
+            for _ in range(BUSY_ROUNDS):       # short paired rounds: the VM's speed drifts
+                idle_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 4, 20))
                 chose["idle"].append(name[adaptive.preferred(kind)])
                 spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
                 try:
                     time.sleep(0.2)
-                    busy_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 2, 20))
+                    busy_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 4, 20))
                     chose["busy"].append(name[adaptive.preferred(kind)])
                 finally:
                     spin.kill()
                     spin.wait()
-            ratio = float(np.median(busy_t)) / float(np.median(idle_t))
+            ratio = float(np.median(np.array(busy_t) / np.array(idle_t)))
             print(f"  {label}: idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
-                  f"-> {ratio:.2f}x")
-            print(f"    threads the policy (tpnet_ref.blas.adaptive) measured faster: idle "
-                  f"{', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
+                  f"-> {ratio:.2f}x (median of {BUSY_ROUNDS} rounds' busy/idle: "
+                  + ", ".join(f"{b / i:.2f}" for b, i in zip(busy_t, idle_t)) + ")")
+            print(f"    threads the policy (tpnet_ref.blas.adaptive) measured faster, round by round: "
+                  f"idle {', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
             return ratio
 
         busy = busy_idle(m32, "engine=numpy")
@@ -323,9 +363,9 @@ def main(argv: list[str] | None = None) -> int:
     ours = r["tpnet_ref float32"]
     print(f"\nratios and targets, default settings (engine={m32.engine}):")
     checks = []
-    if "onnxruntime" in r:
-        lat_ratio = ours["b1_ms"] / r["onnxruntime"]["b1_ms"]
-        thr_ratio = ours["b256_per_s"] / r["onnxruntime"]["b256_per_s"]
+    if alt is not None:
+        lat_ratio = paired(alt["b1"], "numpy", "onnxruntime")
+        thr_ratio = paired(alt["b256"], "onnxruntime", "numpy")     # time ratio = throughput
         checks += [("B=1 latency / onnxruntime (target <= 1.0)", lat_ratio, lat_ratio <= 1.0),
                    ("B=256 throughput / onnxruntime (target >= 1.25)", thr_ratio, thr_ratio >= 1.25)]
     if ort_roll is not None:
@@ -351,12 +391,12 @@ def main(argv: list[str] | None = None) -> int:
     for label, val, ok in checks:
         mark = "" if ok is None else ("  MET" if ok else "  NOT MET")
         print(f"  {label:58s} {val:8.3f}{mark}")
-    if nb32 is not None and "onnxruntime" in r:
+    if nb32 is not None and alt is not None:
         nb = r["tpnet_ref float32, engine=numba"]
-        ort = r["onnxruntime"]
-        nchecks = [("B=1 latency / onnxruntime (target <= 1.0)", nb["b1_ms"] / ort["b1_ms"]),
+        nchecks = [("B=1 latency / onnxruntime (target <= 1.0)",
+                    paired(alt["b1"], "numba", "onnxruntime")),
                    ("B=256 throughput / onnxruntime (target >= 1.25)",
-                    nb["b256_per_s"] / ort["b256_per_s"])]
+                    paired(alt["b256"], "onnxruntime", "numba"))]
         if nb_roll is not None:
             nchecks.append(("rollout time per frame / onnxruntime loop (target <= 1.0)",
                             nb_roll / ort_roll))
@@ -365,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
         nchecks += [("cold start seconds (target <= 1)", nb_cold),
                     ("float64 / float32 time, B=1 (target <= 2.5)",
                      r["tpnet_ref float64, engine=numba"]["b1_ms"] / nb["b1_ms"]),
-                    ("B=1 latency / engine=numpy B=1 latency", nb["b1_ms"] / ours["b1_ms"])]
+                    ("B=1 latency / engine=numpy B=1 latency", paired(alt["b1"], "numba", "numpy"))]
         print(f"\nratios and targets, engine=numba (batches above {ENGINE_MAX_BATCH} windows take the NumPy path):")
         for label, val in nchecks:
             lim = label.split("target ")[1].rstrip(")") if "target" in label else None
@@ -376,7 +416,8 @@ def main(argv: list[str] | None = None) -> int:
             checks.append((f"engine=numba: {label}", val, ok))
     if args.json:
         Path(args.json).write_text(json.dumps(
-            {"machine": machine(), "rows": rows, "peers": peers, "rollout_ms": roll * 1e3,
+            {"machine": machine(), "rows": rows, "interleaved": alt, "peers": peers,
+             "rollout_ms": roll * 1e3,
              "naive_80_ms": naive * 1e3, "cold_start_s": cold, "rss_mb": [rss1, rss2],
              "checks": [(a, b, c) for a, b, c in checks]}, indent=2))
     return 0

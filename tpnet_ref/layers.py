@@ -37,6 +37,13 @@ def dense(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None,
         y = x[:, :k] @ w[:k] if k < x.shape[1] else x @ w
     else:
         y = x @ w
+    if activation == "relu" and b is not None:
+        # relu(y + b) as max(y, -b) + b: the same bits (where y > -b both round y + b; elsewhere
+        # both give +0), and NumPy's maximum runs 2x faster with a row operand than with a
+        # scalar 0 (measured, NumPy 2.4)
+        np.maximum(y, -b, out=y)
+        y += b
+        return y
     if b is not None:
         y += b
     if activation == "relu":
@@ -334,6 +341,7 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
     np.add(xp[::-1, :, 1], bias[4 * u:], out=xs[:, 1])
     c = np.empty((2, bsz, u), dtype=dt)
     hs = np.empty((steps, 2, bsz, u), dtype=dt)         # h after each step
+    zero = np.zeros(u, dtype=dt)                        # relu's operand: faster than a scalar
     one = dt.type(1.0)
     mixed = recurrent.dtype != dt
     with np.errstate(over="ignore"):
@@ -356,7 +364,7 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
             np.divide(one, gates, out=gates)
             g = z[..., 3 * u:]                      # cell candidate
             if relu_act:
-                np.maximum(g, 0, out=g)
+                np.maximum(g, zero, out=g)
             else:
                 np.tanh(g, out=g)
             np.multiply(z[..., :u], g, out=g)       # i * g
@@ -367,7 +375,7 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
                 c += g
             h = hs[s]                               # h = o * act(c)
             if relu_act:
-                np.maximum(c, 0, out=h)
+                np.maximum(c, zero, out=h)
             else:
                 np.tanh(c, out=h)
             h *= z[..., 2 * u:3 * u]
