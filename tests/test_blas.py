@@ -54,6 +54,20 @@ def test_losing_probes_get_rarer():
     assert p.preferred("k") == 1
 
 
+def test_a_small_win_of_the_blas_threads_keeps_one_thread_and_their_probes_get_rare():
+    """Two threads 5 % faster (within the margin): one thread runs, the steadier choice beside
+    a busy core, and the two-thread probes back off as losing ones do."""
+    p = blas.ThreadPolicy(probe_every=8, keep=4, margin=0.1)
+    choices = _run(p, "k", {1: 5.0, 0: 4.75}, 4 + 2000)
+    assert p.preferred("k") == 1
+    assert 0 < choices[4:].count(0) < 2000 // 8 // 4
+    # a clear win (20 %) still moves the choice to the BLAS's threads, and back when it is gone
+    _run(p, "k", {1: 5.0, 0: 4.0}, 3000)
+    assert p.preferred("k") == 0
+    _run(p, "k", {1: 5.0, 0: 4.9}, 40)
+    assert p.preferred("k") == 1
+
+
 def test_policy_stands_aside_inside_one_thread_and_restores_the_threads():
     before = _blas_threads()
     with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):

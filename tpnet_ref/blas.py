@@ -100,6 +100,10 @@ def in_one_thread() -> bool:
 PROBE_EVERY = 8
 #: :class:`ThreadPolicy`: latencies kept per choice (their median decides)
 KEEP = 4
+#: :class:`ThreadPolicy`: the BLAS's own threads run only when their median latency is this much
+#: below one thread's (a two-thread BLAS beside a busy core can take twice as long or more, and
+#: after each two-thread call its worker spins for a while, slowing what runs beside it)
+MARGIN = 0.1
 
 
 class ThreadPolicy:
@@ -107,22 +111,28 @@ class ThreadPolicy:
     its recent calls of that kind measured faster.
 
     Per kind (any hashable, e.g. ``("predict", dtype, points)``) it keeps the last :data:`KEEP`
-    latencies of each choice; it runs the choice with the lower median and, every
-    :data:`PROBE_EVERY` calls, the other one (less often while the probes lose clearly), so a
-    change of load (another process taking a core, then leaving) moves the choice. Inside an
+    latencies of each choice; it runs the BLAS's own threads when their median is at least
+    :data:`MARGIN` below one thread's, else one thread, and every :data:`PROBE_EVERY` calls the
+    other choice (probes of the BLAS's threads less often while they do not win by the margin),
+    so a change of load (another process taking a core, then leaving) moves the choice. Inside an
     enclosing :func:`one_thread` block, or when the BLAS has one thread anyway, it changes
     nothing. ``TPNET_BLAS_THREADS=1``
     or ``=all`` fixes the choice. Thread-safe; about 2 us per call.
     """
 
-    def __init__(self, probe_every: int = PROBE_EVERY, keep: int = KEEP) -> None:
-        self.probe_every, self.keep = probe_every, keep
+    def __init__(self, probe_every: int = PROBE_EVERY, keep: int = KEEP,
+                 margin: float = MARGIN) -> None:
+        self.probe_every, self.keep, self.margin = probe_every, keep, margin
         # per kind: the latencies of each choice, [calls, calls between probes, probing now]
         self._kinds: dict[Hashable, tuple[dict[int, deque], list[int]]] = {}
         self._lock = threading.Lock()
 
+    @staticmethod
+    def _median(t: deque) -> float:
+        return sorted(t)[len(t) // 2]
+
     def _best(self, times: dict[int, deque]) -> int:
-        return min((1, 0), key=lambda c: sorted(times[c])[len(times[c]) // 2])
+        return 0 if self._median(times[0]) < (1 - self.margin) * self._median(times[1]) else 1
 
     def choose(self, kind: Hashable) -> int:
         """1 (one thread) or 0 (the BLAS's own threads) for the next call of ``kind``."""
@@ -146,17 +156,18 @@ class ThreadPolicy:
             return 1 - best if st[2] else best
 
     def record(self, kind: Hashable, choice: int, seconds: float) -> None:
-        """Keep one measured latency of ``choice`` for ``kind``. A probe that lost by more than
-        a quarter doubles the calls until the next probe (up to 1024: a two-thread BLAS beside a
-        busy core can take 10x as long, so losing probes must get rare); a probe that did not
-        lose resets it."""
+        """Keep one measured latency of ``choice`` for ``kind``. A probe of the BLAS's threads
+        that does not win by the margin doubles the calls until the next probe (up to 1024: a
+        two-thread BLAS beside a busy core can take 10x as long, so losing probes must get rare);
+        any other probe resets it."""
         with self._lock:
             if kind not in self._kinds:
                 return
             times, st = self._kinds[kind]
             if st[2] and len(times[1 - choice]):
-                other = sorted(times[1 - choice])[len(times[1 - choice]) // 2]
-                st[1] = min(2 * st[1], 1024) if seconds > 1.25 * other else self.probe_every
+                other = self._median(times[1 - choice])
+                lost = choice == 0 and not seconds < (1 - self.margin) * other
+                st[1] = min(2 * st[1], 1024) if lost else self.probe_every
                 st[2] = 0
             times[choice].append(seconds)
 
