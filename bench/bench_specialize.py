@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tpnet_ref  # noqa: E402
 from tpnet_ref import specialize as S  # noqa: E402
+from tpnet_ref.model import ENGINE_MAX_BATCH  # noqa: E402
 from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
 from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
 from tpnet_ref.sim.scene import simulate  # noqa: E402
@@ -131,6 +132,27 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  prediction network alone, same features: full {ms['full head']:.3f} ms, "
           f"specialised {ms['spec head']:.3f} ms ({speedup('full head', 'spec head'):.2f}x); "
           f"feature extractor (shared) {ms['features']:.3f} ms")
+    try:                 # the optional engine: its full network against the NumPy models
+        nb = full.with_engine("numba")
+        nb_spec = spec.with_engine("numba")
+    except ImportError as exc:
+        print(f"  engine=numba: skipped ({exc})")
+    else:
+        nb.predict(sample[0])
+        nb_spec.predict(sample[0])
+        nbr: dict[str, list[float]] = {"full": [], "nb": [], "nb spec": []}
+        for _ in range(5 if args.quick else 15):
+            for k, model in (("full", full), ("nb", nb), ("nb spec", nb_spec)):
+                ts = []
+                for w in sample:
+                    t0 = clock()
+                    model.predict(w)
+                    ts.append(clock() - t0)
+                nbr[k].append(float(np.median(ts)))
+        print(f"  engine=numba, same rounds: full {1e3 * np.median(nbr['nb']):.3f} ms "
+              f"({np.median(np.array(nbr['full']) / np.array(nbr['nb'])):.2f}x faster than the NumPy "
+              f"full model), specialised {1e3 * np.median(nbr['nb spec']):.3f} ms (its batches up to "
+              f"{ENGINE_MAX_BATCH} run the engine's own full network, which skips zero rows itself)")
     print("  where the specialised prediction network's time goes (medians, one window):")
     med = {label: 1e6 * float(np.median(v)) for label, v in stages.items()}
     for label, us in med.items():

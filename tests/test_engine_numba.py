@@ -134,13 +134,23 @@ def test_engine_reports_overflow_like_numpy():
         str(e_ref.value).split(" at ")[1].split(" (")[0]
 
 
-def test_specialised_model_keeps_its_numpy_head_under_the_engine(released64):
+def test_specialised_model_under_the_engine_runs_the_engines_full_network(released64):
+    """The numba engine skips zero rows itself and is faster than the specialised NumPy head:
+    batches it runs go to its full network (the specialisation is kept, e.g. for saving), larger
+    ones to the specialised head."""
+    from tpnet_ref.model import ENGINE_MAX_BATCH
     rng = np.random.default_rng(9)
     wins = _windows(rng, 4).astype(np.float32)
     model = released64.astype("float32")
+    nb = model.with_engine("numba")
     spec = model.specialize(wins).with_engine("numba")
     assert spec.engine == "numba" and spec.specialization is not None
-    np.testing.assert_allclose(spec.predict(wins[0]), model.predict(wins[0]), atol=1e-3)
+    np.testing.assert_array_equal(spec.predict(wins[0]), nb.predict(wins[0]))
+    np.testing.assert_array_equal(spec.rollout(wins[1], 3), nb.rollout(wins[1], 3))
+    assert spec.counts["windows"] == 0
+    big = np.concatenate([wins] * (ENGINE_MAX_BATCH // len(wins) + 1))
+    np.testing.assert_allclose(spec.predict_batch(big), model.predict_batch(big), atol=1e-3)
+    assert spec.counts["windows"] == len(big)
 
 
 def test_unknown_engine_is_one_line_error(released64):

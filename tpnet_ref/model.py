@@ -333,11 +333,14 @@ class TPNet:
 
     def sequence_head(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
         """Prediction network: ``(B, m, global_features)`` -> ``(B, n_out, dim)`` in [0, 1].
-        With a specialisation, the specialised one, and the full one for the windows it flags.
+        With a specialisation, the specialised one, and the full one for the windows it flags
+        (except where the numba engine runs the batch: its full network is faster).
         ``proj1`` ``(m, B, 8u)``: BiLSTM 1's input projections of the frames, if already known
         (:meth:`project_frames`; used by the full network only)."""
         spec = self.specialization
-        if spec is None:
+        if spec is None or self._engine_for(len(features)) is not None:
+            # the numba engine's full network skips every zero weight row by itself and runs
+            # faster than the specialised NumPy head (bench/bench_specialize.py prints both)
             return self._full_head(features, proj1)
         y, ok = spec(features)
         y = y.reshape(-1, self.config.n_out, self.config.dim)
@@ -546,7 +549,7 @@ class TPNet:
             raise ValueError(f"steps: {steps} steps do not fit in memory") from None
         # BiLSTM 1's input projection of each frame, also computed once per frame (the full
         # network only: a specialised one projects its kept units itself); the last m kept
-        cache = self.specialization is None
+        cache = self.specialization is None or self._engine_for(batch) is not None
         with adaptive(self._kind("features", batch, sum(f.shape[0] for f in frames))):
             feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
             proj = (list(self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1),
