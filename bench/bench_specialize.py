@@ -36,12 +36,19 @@ def windows(frames: np.ndarray, m: int) -> np.ndarray:
     return np.stack([frames[s:s + m] for s in range(len(frames) - m + 1)])
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parse_quick(doc: str, argv: list[str] | None) -> bool:
+    """The calibration benches' one option, ``--quick`` (12 trajectories instead of 36); also
+    silences warnings."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true")
-    args = ap.parse_args(argv)
+    quick = ap.parse_args(argv).quick
     warnings.simplefilter("ignore")
-    n_cal = 12 if args.quick else 36
+    return quick
+
+
+def main(argv: list[str] | None = None) -> int:
+    quick = parse_quick(__doc__, argv)
+    n_cal = 12 if quick else 36
     full = tpnet_ref.load()
     m = full.config.m
     t0 = time.perf_counter()
@@ -95,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     stages: dict[str, list[float]] = {}
     clock = time.perf_counter
     rounds: dict[str, list[float]] = {k: [] for k in t}      # each round's median
-    for rep in range(5 if args.quick else 15):
+    for rep in range(5 if quick else 15):
         for name, job in jobs.items():
             for i in range(len(sample)):
                 t0 = clock()
@@ -141,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         nb.predict(sample[0])
         nb_spec.predict(sample[0])
         nbr: dict[str, list[float]] = {"full": [], "nb": [], "nb spec": []}
-        for _ in range(5 if args.quick else 15):
+        for _ in range(5 if quick else 15):
             for k, model in (("full", full), ("nb", nb), ("nb spec", nb_spec)):
                 ts = []
                 for w in sample:

@@ -29,13 +29,12 @@ calibration windows (training grid, as ``bench/bench_specialize.py`` calibrates)
 """
 from __future__ import annotations
 
-import argparse
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tpnet_ref  # noqa: E402
@@ -43,6 +42,7 @@ from tpnet_ref import specialize as S  # noqa: E402
 from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
 from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
 from tpnet_ref.sim.scene import simulate  # noqa: E402
+from bench_specialize import parse_quick, windows  # noqa: E402
 
 RANKS = (4, 8, 16, 32, 48, 64, 96)
 TOL = 1e-5
@@ -67,16 +67,11 @@ def last_layer_inputs(model, wins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true")
-    args = ap.parse_args(argv)
-    warnings.simplefilter("ignore")
-    n_cal = 12 if args.quick else 36
+    n_cal = 12 if parse_quick(__doc__, argv) else 36
     model = tpnet_ref.load(dtype="float64")        # the shipped weights, exact arithmetic here
     m = model.config.m
     cal = S.calibration_windows(tpnet_ref.load(), n_cal, seed=0, rollout=40)
-    test = np.concatenate([np.stack([t[s:s + m] for s in range(len(t) - m + 1)])
-                           for t in (simulate(*c)[::FRAME_EVERY] for c in TEST_CASES)])
+    test = np.concatenate([windows(simulate(*c)[::FRAME_EVERY], m) for c in TEST_CASES])
     w, b = model._mlp2[-1]
     h_cal, _ = last_layer_inputs(model, cal)
     pre = h_cal @ w + b                                        # (B, m, N, 512)

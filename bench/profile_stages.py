@@ -6,6 +6,11 @@ Inputs: 64 windows of simulated test cases (``bench_inference.scene_windows``), 
 after another, a one-thread BLAS. Each stage's time is the median over predictions of the time
 spent inside it (the stages nest: ``sequence head`` holds the products and recurrences; the
 layer functions are timed separately).
+
+With the NumPy engine it also counts the weight bytes the prediction network's products read
+per prediction (the rows each product reads: recurrent prefixes and projection spans) and
+times how fast this core streams an array of the model's size from beyond its own caches: their
+quotient is the network's floor on this machine with one thread.
 """
 from __future__ import annotations
 
@@ -38,6 +43,49 @@ STAGES = {  # label: (owner, attribute)
     "  recurrences (bilstm_steps)": (L, "bilstm_steps"),
     "  LayerNorm-folded projections": (L, "project_layer_norm"),
 }
+
+
+def read_bytes(model, wins: list) -> None:
+    """Print the weight bytes the NumPy prediction network reads per prediction (mean over
+    ``wins``) and the core's streaming read rate over an array the size of the model."""
+    got = {"recurrent products": 0.0, "input projections": 0.0}
+    nonzero = [0.0]                      # of the recurrent rows read, those of non-zero states
+    up, ps = L.used_prefixes, L.project_spans
+
+    def prefixes(x):                     # each direction's rows of its (u, 4u) recurrent matrix
+        ks = up(x)
+        row = 4 * x.shape[2] * x.itemsize
+        got["recurrent products"] += sum(ks) * row
+        nonzero[0] += sum(int((x[d] != 0).any(axis=0).sum()) for d in range(len(ks))) * row
+        return ks
+
+    def spans(x, kernel, blocks, sp, *a, **k):
+        got["input projections"] += sum(b - a0 for a0, b in sp if b > a0) * kernel.shape[1] * kernel.itemsize
+        return ps(x, kernel, blocks, sp, *a, **k)
+    L.used_prefixes, L.project_spans = prefixes, spans
+    try:
+        with one_thread():
+            for w in wins:
+                model.predict(w, normalized=True)
+    finally:
+        L.used_prefixes, L.project_spans = up, ps
+    mb = {k: v / len(wins) / 1e6 for k, v in got.items()}
+    # the products' own kind (a row vector times a (rows, 2048) matrix) over the model's bytes
+    big = np.ones((model.num_params // 2048, 2048), dtype=np.float32)      # 28 MB
+    v = np.ones(big.shape[0], dtype=np.float32)
+    ts = []
+    with one_thread():
+        for _ in range(30):
+            t = time.perf_counter()
+            np.dot(v, big)
+            ts.append(time.perf_counter() - t)
+    rate = big.nbytes / float(np.median(ts)) / 1e9
+    total = sum(mb.values())
+    print(f"weights read by the prediction network per prediction: {total:.1f} MB ("
+          + ", ".join(f"{k} {v:.1f} MB" for k, v in mb.items())
+          + f"; of the recurrent rows read, {nonzero[0] / got['recurrent products']:.0%} multiply "
+          f"non-zero states); one core reads a {big.nbytes / 1e6:.0f} MB matrix in a vector-matrix product "
+          f"at {rate:.1f} GB/s (median of 30): {total / rate * 1e3:.0f} us at that rate\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -75,10 +123,14 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for label, (owner, name) in STAGES.items():
             setattr(owner, name, originals[label])
+    if args.engine == "numpy":
+        read_bytes(model, wins)
     print(f"{model}\nB = 1, one-thread BLAS, {args.reps} predictions of 64 scene windows; "
           "median time inside each stage:")
     total = float(np.median(per_call["predict (whole call)"]))
     for label in STAGES:
+        if not any(per_call[label]):       # a NumPy layer function the numba engine never calls
+            continue
         t = float(np.median(per_call[label]))
         print(f"  {label:34s} {t * 1e6:8.1f} us  {100 * t / total:5.1f} %")
     return 0
