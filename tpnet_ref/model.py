@@ -337,10 +337,8 @@ class TPNet:
         (except where the numba engine runs the batch: its full network is faster).
         ``proj1`` ``(m, B, 8u)``: BiLSTM 1's input projections of the frames, if already known
         (:meth:`project_frames`; used by the full network only)."""
-        spec = self.specialization
-        if spec is None or self._engine_for(len(features)) is not None:
-            # the numba engine's full network skips every zero weight row by itself and runs
-            # faster than the specialised NumPy head (bench/bench_specialize.py prints both)
+        spec = self._specialised(len(features))
+        if spec is None:
             return self._full_head(features, proj1)
         y, ok = spec(features)
         y = y.reshape(-1, self.config.n_out, self.config.dim)
@@ -350,6 +348,12 @@ class TPNet:
         self.counts["windows"] += len(ok)
         self.counts["fallbacks"] += int(bad.size)
         return y
+
+    def _specialised(self, batch: int) -> Any:
+        """The specialised network that runs batches of ``batch`` windows, or None: none when
+        the numba engine runs them (its full network skips every zero weight row by itself and
+        is faster than the specialised NumPy one; bench/bench_specialize.py prints both)."""
+        return None if self._engine_for(batch) is not None else self.specialization
 
     def _engine_for(self, batch: int) -> Any:
         """The numba engine's network if it runs batches of ``batch`` windows, else None."""
@@ -549,7 +553,7 @@ class TPNet:
             raise ValueError(f"steps: {steps} steps do not fit in memory") from None
         # BiLSTM 1's input projection of each frame, also computed once per frame (the full
         # network only: a specialised one projects its kept units itself); the last m kept
-        cache = self.specialization is None or self._engine_for(batch) is not None
+        cache = self._specialised(batch) is None
         with adaptive(self._kind("features", batch, sum(f.shape[0] for f in frames))):
             feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
             proj = (list(self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1),
