@@ -316,20 +316,18 @@ def main(argv: list[str] | None = None) -> int:
     busy = nb_busy = None
     if not args.no_busy:
         print("\nB = 1 latency with one core busy (a second process spinning), interleaved with idle:")
-        from tpnet_ref.blas import adaptive
-
         def busy_idle(model, label: str) -> float:
-            kind = model._kind("predict", 1, int(np.prod(x1.shape[1:3])))
-            name = {1: "one thread", 0: "all threads", None: "n/a (BLAS has one thread)"}
+            points = int(np.prod(x1.shape[1:3]))
+            name = {1: "one thread", 0: "two threads", None: "one thread (no choice to make)"}
             idle_t, busy_t, chose = [], [], {"idle": [], "busy": []}
             for _ in range(BUSY_ROUNDS):       # short paired rounds: the VM's speed drifts
                 idle_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 4, 20))
-                chose["idle"].append(name[adaptive.preferred(kind)])
+                chose["idle"].append(name[model.preferred_threads("predict", 1, points)])
                 spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
                 try:
                     time.sleep(0.2)
                     busy_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 4, 20))
-                    chose["busy"].append(name[adaptive.preferred(kind)])
+                    chose["busy"].append(name[model.preferred_threads("predict", 1, points)])
                 finally:
                     spin.kill()
                     spin.wait()
@@ -337,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {label}: idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
                   f"-> {ratio:.2f}x (median of {BUSY_ROUNDS} rounds' busy/idle: "
                   + ", ".join(f"{b / i:.2f}" for b, i in zip(busy_t, idle_t)) + ")")
-            print(f"    threads the policy (tpnet_ref.blas.adaptive) measured faster, round by round: "
+            print(f"    plan the policy (tpnet_ref.blas.adaptive) measured faster, round by round: "
                   f"idle {', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
             return ratio
 

@@ -1,5 +1,6 @@
-"""The BLAS policy: the measured thread choice for single windows, and that the BLAS's thread
-count never changes a single window's result (so the choice is free to follow the load)."""
+"""The thread policy: the measured choice between one thread and two for single windows, that
+every plan runs the BLAS on one thread, and that neither the plan nor the BLAS's own thread
+setting changes a result (so the choice is free to follow the load)."""
 from __future__ import annotations
 
 import dataclasses
@@ -68,45 +69,55 @@ def test_a_small_win_of_the_blas_threads_keeps_one_thread_and_their_probes_get_r
     assert p.preferred("k") == 1
 
 
-def test_policy_stands_aside_inside_one_thread_and_restores_the_threads():
+def test_every_plan_runs_a_one_thread_blas_and_restores_the_threads():
     before = _blas_threads()
     with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
         with blas.one_thread():
-            with blas.adaptive("stand aside") as choice:
-                assert choice == -1 and all(n == 1 for n in _blas_threads())
-        for _ in range(6):
+            with blas.adaptive("stand aside") as choice:     # nested: one thread, no choice
+                assert choice == -1 and not blas.two_threads()
+                assert all(n == 1 for n in _blas_threads())
+        seen = set()
+        for _ in range(12):
             with blas.adaptive("restores") as choice:
-                assert choice in (0, 1)
-                assert all(n == (1 if choice == 1 else 2) for n in _blas_threads())
-            assert all(n == 2 for n in _blas_threads())
+                seen.add(choice)
+                assert all(n == 1 for n in _blas_threads())  # both plans: a one-thread BLAS
+                assert blas.two_threads() == (choice == 0)
+            assert all(n == 2 for n in _blas_threads()) and not blas.two_threads()
+        assert seen == {0, 1}                               # both plans were tried
     assert _blas_threads() == before
 
 
 def test_environment_fixes_the_choice(monkeypatch):
     p = blas.ThreadPolicy()
-    monkeypatch.setenv("TPNET_BLAS_THREADS", "1")
-    assert {p.choose("k") for _ in range(20)} == {1}
-    monkeypatch.setenv("TPNET_BLAS_THREADS", "all")
-    assert {p.choose("k") for _ in range(20)} == {0}
+    for var, one, two in (("TPNET_THREADS", "1", "2"), ("TPNET_BLAS_THREADS", "1", "all")):
+        monkeypatch.setenv(var, one)
+        assert {p.choose("k") for _ in range(20)} == {1}
+        monkeypatch.setenv(var, two)
+        assert {p.choose("k") for _ in range(20)} == {0}
+        monkeypatch.delenv(var)
 
 
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
-def test_a_single_window_gives_the_same_bits_with_one_or_two_blas_threads(dtype, monkeypatch):
-    """predict and rollout of one window run with whichever thread count the policy measured
-    faster; their results must not depend on it (permutation invariance is bit-identical)."""
+def test_a_single_window_gives_the_same_bits_whatever_the_threads(engine, dtype, monkeypatch):
+    """predict and rollout of one window give the same bits with the BLAS set to one or two
+    threads outside, and with the policy's plan fixed to one or two threads."""
     base = init_random(seed=3, dtype=dtype)
     rng = np.random.default_rng(4)
     cases = []
     for m, sizes in ((4, [30] * 4), (1, [7]), (6, [64] * 6), (3, [5, 64, 17]), (4, [1, 2, 40, 33])):
-        model = type(base)(dataclasses.replace(base.config, m=m), base.params, dtype)
+        model = type(base)(dataclasses.replace(base.config, m=m), base.params, dtype,
+                           engine=engine)
         frames = [rng.uniform(5, 40, (n, 2)) for n in sizes]
         cases.append((model, frames))
 
-    def outputs(setting: str) -> list[np.ndarray]:
-        monkeypatch.setenv("TPNET_BLAS_THREADS", setting)
-        with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+    def outputs(plan: str, blas_threads: int) -> list[np.ndarray]:
+        monkeypatch.setenv("TPNET_THREADS", plan)
+        with threadpoolctl.threadpool_limits(limits=blas_threads, user_api="blas"):
             return [f(model, frames) for model, frames in cases
                     for f in (lambda mo, fr: mo.predict(fr), lambda mo, fr: mo.rollout(fr, 3))]
 
-    for a, b in zip(outputs("1"), outputs("all")):
-        assert np.array_equal(a, b)
+    first = outputs("1", 1)
+    for plan, n in (("2", 2), ("1", 2), ("2", 1)):
+        for a, b in zip(first, outputs(plan, n)):
+            assert np.array_equal(a, b)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tpnet_ref import layers as L
-from tpnet_ref.blas import BLOCK_COLUMNS, SMALL_PRODUCT, one_thread, small_products_pay
+from tpnet_ref.blas import BLOCK_COLUMNS, SMALL_PRODUCT, one_thread
 
 
 def _direction(rng, c, u, dtype):
@@ -63,7 +63,6 @@ def test_column_blocks_fit_the_small_product_bound_and_give_the_product():
                                rtol=0, atol=1e-4)
     big = rng.normal(size=(64, c)).astype(np.float32)     # too many rows: the plain product
     np.testing.assert_array_equal(L.project(big, fused.kernel, fused.blocks), big @ fused.kernel)
-    assert isinstance(small_products_pay(np.float32), bool)
 
 
 def test_one_thread_restores_the_blas_threads_after_nesting():

@@ -22,9 +22,16 @@ from tpnet_ref.model import TPNetConfig, init_random
 _BASE = {dt: init_random(seed=21, dtype=dt) for dt in ("float32", "float64")}
 
 
+_MODELS: dict = {}
+
+
 def _model(m: int, dtype: str):
-    base = _BASE[dtype]
-    return type(base)(dataclasses.replace(base.config, m=m), base.params, dtype)
+    """One model per (m, dtype), built once: a new 170 MB float64 model per example was kept
+    alive by every failing example's traceback while hypothesis shrank (15 GB in 50 s)."""
+    if (m, dtype) not in _MODELS:
+        base = _BASE[dtype]
+        _MODELS[m, dtype] = type(base)(dataclasses.replace(base.config, m=m), base.params, dtype)
+    return _MODELS[m, dtype]
 
 
 @st.composite

@@ -410,22 +410,3 @@ def test_stage_marks_copy_and_pickle_change_nothing(shipped, scene):
         y1, ok1 = _quiet(other, feats[:1])
         np.testing.assert_array_equal(y1, y0)
         np.testing.assert_array_equal(_quiet(other, feats)[1], _quiet(head, feats)[1])
-
-
-def test_plain_and_blocked_input_projections_agree(shipped, scene):
-    """The input projections as column blocks (BLAS small-matrix kernels) or as one product
-    (:func:`tpnet_ref.blas.small_products_pay` decides once per process): the same results."""
-    import copy
-    feats = _features(shipped, shipped.normalize(_rings(np.random.default_rng(13), 6)))
-    results = []
-    for small in (True, False):
-        head = copy.deepcopy(scene.specialization)
-        head._small = small
-        one = [_quiet(head, feats[b:b + 1]) for b in range(len(feats))]
-        results.append((np.concatenate([y for y, _ in one]), np.concatenate([o for _, o in one]),
-                        *_quiet(head, feats)))
-    (y1, ok1, yb, okb), (y2, ok2, yb2, okb2) = results
-    for a, b in ((ok1, ok2), (okb, okb2), (ok1, okb)):
-        np.testing.assert_array_equal(a, b)
-    for a, b in ((y1, y2), (yb, yb2)):
-        np.testing.assert_allclose(a[ok1], b[ok1], rtol=0, atol=2e-6)

@@ -1,18 +1,23 @@
-"""The BLAS under NumPy, seen from tpnet_ref: its threads, and which product shapes it runs fast.
+"""The BLAS under NumPy, seen from tpnet_ref: always one thread, and which product shapes it runs fast.
 
-- Threads. A single window runs under :class:`ThreadPolicy` (:func:`adaptive`): on an idle
-  machine the BLAS's own threads make one prediction about 25 % faster (its weight-streaming
-  products use both cores' bandwidth), but a BLAS thread that shares its core with another busy
-  process makes every product wait for it (a two-thread BLAS made one prediction 3x slower).
-  So the policy measures: it keeps the latest latencies of each choice, runs the faster one and
-  tries the other every :data:`PROBE_EVERY` calls. The BLAS's thread count does not change a
-  single window's result (``tests/test_blas.py`` compares them bit for bit). A small batch
-  runs with a one-thread BLAS (:func:`one_thread`); a large batch is split across threads, each
-  with a one-thread BLAS, so NumPy's element-wise work uses every core too. All go through
-  threadpoolctl; without it the BLAS keeps its threads.
-- Small products. :func:`small_products_pay` measures once per process whether the BLAS runs a
-  small product (``M*N*K <=`` :data:`SMALL_PRODUCT`) much faster than the same columns in one
-  large product, as OpenBLAS's unpacked small-matrix kernels (SkylakeX and later) do.
+- Determinism. A multi-threaded BLAS cuts a product differently for different thread counts,
+  and some kernels (OpenBLAS's Haswell kernel, on AMD and Intel alike) then round it
+  differently: the same window gave two outputs within ten calls while a policy switched the
+  BLAS between one and two threads. So every product the model computes runs on a one-thread
+  BLAS (:func:`one_thread`), and the work is cut into BLAS calls by the input's shapes alone
+  (a large batch in chunks of a fixed number of windows, ``tpnet_ref.model.SPLIT_CHUNK``).
+  Threads only schedule calls that are fixed beforehand, so no thread count, load or policy can
+  change a bit (docs/architecture.md, "Determinism").
+- The second core. A large batch's chunks run on threads, each with the one-thread BLAS. For
+  one window, only a plan that gives the same bits whichever thread runs what may use a second
+  thread: the Numba engine's two LSTM directions (each number computed by the same code on one
+  thread). :class:`ThreadPolicy` (:data:`adaptive`) runs it or the one-thread plan, whichever
+  its recent calls measured faster (a second thread beside a busy core makes every step wait).
+- Small products. The LSTMs' input projections are computed as a stack of column blocks of at
+  most :data:`SMALL_PRODUCT` multiply-adds each, always: OpenBLAS multiplies such blocks without
+  packing them first (SkylakeX and later) and they are no slower elsewhere. This used to be
+  measured once per process, and a timing that decides how the work is cut decides its
+  rounding: on the Haswell kernel two processes cut it differently and disagreed.
 - :func:`describe` names the BLAS, its kernel and threads for benchmark reports: OpenBLAS picks
   its kernel when NumPy is imported, from the CPU or from ``OPENBLAS_CORETYPE``.
 """
@@ -26,7 +31,6 @@ import time
 from collections import deque
 from typing import Any, Hashable, Iterator
 
-import numpy as np
 
 #: OpenBLAS multiplies a product of M*N*K <= 1e6 multiply-adds without packing its operands
 #: first (its "small matrix" kernels, SkylakeX and later); the LSTM input projections of one
@@ -41,7 +45,6 @@ BLOCK_COLUMNS = 64
 
 _LOCK = threading.Lock()
 _STATE: dict[str, Any] = {"controllers": None, "modules": 0, "depth": 0, "saved": []}
-_SMALL: dict[str, bool] = {}
 
 
 def cpu_count() -> int:
@@ -100,24 +103,40 @@ def in_one_thread() -> bool:
 PROBE_EVERY = 8
 #: :class:`ThreadPolicy`: latencies kept per choice (their median decides)
 KEEP = 4
-#: :class:`ThreadPolicy`: the BLAS's own threads run only when their median latency is this much
-#: below one thread's (a two-thread BLAS beside a busy core can take twice as long or more, and
-#: after each two-thread call its worker spins for a while, slowing what runs beside it)
+#: :class:`ThreadPolicy`: the two-thread plan runs only when its median latency is this much
+#: below one thread's (beside a busy core a second thread can take twice as long or more)
 MARGIN = 0.1
+
+_LOCAL = threading.local()
+
+
+def two_threads() -> bool:
+    """Whether the work the calling thread runs now may take a second thread: True only inside a
+    :class:`ThreadPolicy` block that chose the two-thread plan."""
+    return getattr(_LOCAL, "two", False)
+
+
+def _fixed_choice() -> int | None:
+    """``TPNET_THREADS=1`` (or the older ``TPNET_BLAS_THREADS=1``) fixes the one-thread plan,
+    ``=2`` / ``=all`` the two-thread plan; None: measure."""
+    fixed = os.environ.get("TPNET_THREADS", os.environ.get("TPNET_BLAS_THREADS"))
+    return {"1": 1, "2": 0, "all": 0}.get(fixed or "")
 
 
 class ThreadPolicy:
-    """Runs each call of a kind with a one-thread BLAS or with the BLAS's own threads, whichever
-    its recent calls of that kind measured faster.
+    """Runs each call of a kind on one thread or with a second thread for the parts that may
+    take one (:func:`two_threads`), whichever its recent calls of that kind measured faster. The
+    two plans give the same bits, and both run every BLAS product on one thread
+    (:func:`one_thread`): the policy changes speed, never a result.
 
     Per kind (any hashable, e.g. ``("predict", dtype, points)``) it keeps the last :data:`KEEP`
-    latencies of each choice; it runs the BLAS's own threads when their median is at least
-    :data:`MARGIN` below one thread's, else one thread, and every :data:`PROBE_EVERY` calls the
-    other choice (probes of the BLAS's threads less often while they do not win by the margin),
-    so a change of load (another process taking a core, then leaving) moves the choice. Inside an
-    enclosing :func:`one_thread` block, or when the BLAS has one thread anyway, it changes
-    nothing. ``TPNET_BLAS_THREADS=1``
-    or ``=all`` fixes the choice. Thread-safe; about 2 us per call.
+    latencies of each choice; it runs two threads when their median is at least :data:`MARGIN`
+    below one thread's, else one thread, and every :data:`PROBE_EVERY` calls the other choice
+    (probes of two threads less often while they do not win by the margin), so a change of load
+    (another process taking a core, then leaving) moves the choice. Nested inside another
+    :func:`one_thread` block (a chunk of a split batch, a caller's block) or on one core it runs
+    one thread and measures nothing. ``TPNET_THREADS=1`` or ``=2`` fixes the choice.
+    Thread-safe; about 2 us per call.
     """
 
     def __init__(self, probe_every: int = PROBE_EVERY, keep: int = KEEP,
@@ -135,12 +154,10 @@ class ThreadPolicy:
         return 0 if self._median(times[0]) < (1 - self.margin) * self._median(times[1]) else 1
 
     def choose(self, kind: Hashable) -> int:
-        """1 (one thread) or 0 (the BLAS's own threads) for the next call of ``kind``."""
-        fixed = os.environ.get("TPNET_BLAS_THREADS")
-        if fixed == "1":
-            return 1
-        if fixed == "all":
-            return 0
+        """1 (one thread) or 0 (a second thread) for the next call of ``kind``."""
+        fixed = _fixed_choice()
+        if fixed is not None:
+            return fixed
         with self._lock:
             if kind not in self._kinds and len(self._kinds) >= 256:
                 self._kinds.clear()                 # many kinds (ragged windows): start over
@@ -156,10 +173,10 @@ class ThreadPolicy:
             return 1 - best if st[2] else best
 
     def record(self, kind: Hashable, choice: int, seconds: float) -> None:
-        """Keep one measured latency of ``choice`` for ``kind``. A probe of the BLAS's threads
-        that does not win by the margin doubles the calls until the next probe (up to 1024: a
-        two-thread BLAS beside a busy core can take 10x as long, so losing probes must get rare);
-        any other probe resets it."""
+        """Keep one measured latency of ``choice`` for ``kind``. A probe of two threads that
+        does not win by the margin doubles the calls until the next probe (up to 1024: beside a
+        busy core a second thread can take 10x as long, so losing probes must get rare); any
+        other probe resets it."""
         with self._lock:
             if kind not in self._kinds:
                 return
@@ -183,54 +200,26 @@ class ThreadPolicy:
 
     @contextlib.contextmanager
     def __call__(self, kind: Hashable) -> Iterator[int]:
-        """Run the block with the chosen thread count; yields the choice (1, 0, or -1 when the
-        policy stands aside) and records the block's latency."""
-        ctls = _controllers()
-        with _LOCK:
-            active = _STATE["depth"] == 0 and any(c.get_num_threads() > 1 for c in ctls)
-        if not active:
-            yield -1
+        """Run the block with a one-thread BLAS and the chosen plan (:func:`two_threads` tells
+        the block); yields the choice (1, 0, or -1 when the policy stands aside: nested in
+        another :func:`one_thread` block, or one core) and records the block's latency."""
+        if in_one_thread() or cpu_count() < 2:
+            with one_thread():
+                yield -1
             return
         choice = self.choose(kind)
         t = time.perf_counter()
-        if choice == 1:
+        _LOCAL.two = choice == 0
+        try:
             with one_thread():
-                yield 1
-        else:
-            yield 0
+                yield choice
+        finally:
+            _LOCAL.two = False
         self.record(kind, choice, time.perf_counter() - t)
 
 
-#: the process-wide policy :mod:`tpnet_ref.model` runs single windows under
+#: the process-wide policy :mod:`tpnet_ref.model` runs the Numba engine's single windows under
 adaptive = ThreadPolicy()
-
-
-def small_products_pay(dtype: Any = np.float32) -> bool:
-    """Whether a product of 4 rows runs clearly faster (< 0.8x the time) as column blocks of
-    at most :data:`SMALL_PRODUCT` multiply-adds each than as one product, measured once per
-    process and dtype on a 512 x 2048 matrix (about 10 ms). ``TPNET_SMALL_PRODUCTS=0`` or ``1``
-    decides without measuring. Both ways give the same products up to rounding."""
-    name = np.dtype(dtype).name
-    env = os.environ.get("TPNET_SMALL_PRODUCTS")
-    if env in ("0", "1"):
-        return env == "1"
-    if name not in _SMALL:
-        rng = np.random.default_rng(0)
-        k = rng.standard_normal((512, 2048)).astype(dtype)
-        nb = BLOCK_COLUMNS
-        blocks = np.ascontiguousarray(k.reshape(512, -1, nb).transpose(1, 0, 2))
-        x = rng.standard_normal((4, 512)).astype(dtype)
-        full, small = [], []
-        with one_thread():
-            for _ in range(8):
-                t = time.perf_counter()
-                x @ k
-                full.append(time.perf_counter() - t)
-                t = time.perf_counter()
-                np.matmul(x, blocks)
-                small.append(time.perf_counter() - t)
-        _SMALL[name] = float(np.median(small[2:])) < 0.8 * float(np.median(full[2:]))
-    return _SMALL[name]
 
 
 def describe() -> str:
@@ -244,5 +233,5 @@ def describe() -> str:
                      f"{d.get('architecture')} threads {d.get('num_threads')}" for d in info)
 
 
-__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread",
-           "ThreadPolicy", "adaptive", "PROBE_EVERY", "small_products_pay", "cpu_count", "describe"]
+__all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread", "two_threads",
+           "ThreadPolicy", "adaptive", "PROBE_EVERY", "cpu_count", "describe"]

@@ -30,15 +30,18 @@ from . import layers as L
 from . import specialize as S
 from . import unit_order as U
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
-from .blas import adaptive, cpu_count, in_one_thread, one_thread, small_products_pay
+from .blas import adaptive, cpu_count, one_thread, two_threads
 from .checks import NonFiniteResultError, as_point_set, as_real_array
 from .extras import require
 from .weights.native import default_weights_path, read_native, write_native
 
 #: points per block of the feature extractor (activations of a block stay in cache)
 BLOCK_POINTS = 2048
-#: batches of this many windows or more are split across threads (measured: docs/performance.md)
+#: batches of this many windows or more are cut into chunks of ``SPLIT_CHUNK`` windows (the last
+#: one shorter) that run on threads; the cut depends on the batch size alone, never on the
+#: thread count, so neither changes a bit (docs/architecture.md, "Determinism")
 SPLIT_MIN_BATCH = 64
+SPLIT_CHUNK = 32
 #: up to this many points the canonical order is one lexsort (measured 120 points: 19 -> 5 us);
 #: above it, row-wise stable argsorts (1,024 frames of 30 points: 1.5 ms instead of 7 ms)
 SMALL_SORT = 512
@@ -204,7 +207,6 @@ class TPNet:
             prev = po
         self._head_w = p["head.w"] if prev is None else np.ascontiguousarray(p["head.w"][prev])
         self._lstms_file: list | None = None
-        self._small: bool | None = None     # small_products_pay(dtype), asked at first use
         self._nb = None                     # the numba engine's prediction network
         if self.engine == "numba":
             from . import engine_numba     # optional: imports numba
@@ -366,21 +368,19 @@ class TPNet:
         (:meth:`tpnet_ref.engine_numba.NumbaHead.project`, the bias included, columns padded)."""
         nb = self._engine_for(batch)
         if nb is not None:
-            return nb.project(features, parallel=not in_one_thread(),
+            return nb.project(features, parallel=two_threads(),
                               batch=batch).reshape(len(features), -1)
-        if self._small is None:
-            self._small = small_products_pay(self.dtype)
         if self._global_order is not None:
             features = features[:, self._global_order]
         fused = self._layers[0].fused        # kernel rows past the last non-zero feature unread
         return L.project_spans(features, fused.kernel, fused.blocks,
-                               [(0, L.used_columns(features))], self._small)
+                               [(0, L.used_columns(features))])
 
     def _full_head(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
         batch, m = features.shape[:2]
         nb = self._engine_for(batch)
         if nb is not None:
-            parallel = not in_one_thread()
+            parallel = two_threads()
             if proj1 is None:
                 proj1 = nb.project(features.transpose(1, 0, 2).reshape(m * batch, -1), parallel,
                                    batch)
@@ -414,7 +414,7 @@ class TPNet:
                     spans = ((0, n),) if lay.merge is not None else ((0, n // 2), (n // 2, n))
                     xp = L.project_layer_norm(h.reshape(m * batch, -1), lay.gamma, lay.beta, eps,
                                               nxt.fused.kernel, nxt.fused.blocks, nxt.gk, nxt.bk,
-                                              spans, self._small)
+                                              spans)
                 else:
                     h = L.layer_norm(h, lay.gamma, lay.beta, eps)
             y = L.dense(h, self._head_w, self.params["head.b"], "sigmoid")
@@ -496,31 +496,39 @@ class TPNet:
         return frames, len(windows)
 
     def _split(self, fn: Any, frames: list[np.ndarray], batch: int, *args: Any) -> np.ndarray:
-        """``fn(frames, batch, *args)``: a single window as it is (``fn`` runs its work under
-        :data:`tpnet_ref.blas.adaptive`, which picks the BLAS's thread count by measured
-        latency), a small batch with a one-thread BLAS, and a batch of ``SPLIT_MIN_BATCH``
-        windows or more, when ``self.threads`` > 1, on consecutive parts in threads, each with a
-        one-thread BLAS (NumPy's element-wise work then uses every core too), joined along the
-        batch axis. The parts depend on ``batch`` and ``self.threads`` only."""
-        if batch == 1:
+        """``fn(frames, batch, *args)`` with a one-thread BLAS: a batch of fewer than
+        ``SPLIT_MIN_BATCH`` windows as it is (``fn`` runs it under :meth:`_threads`), a larger
+        one in chunks of ``SPLIT_CHUNK`` consecutive windows, joined along the batch axis; the
+        chunks run on ``self.threads`` threads (None: every core), one after another with 1.
+        The chunks depend on ``batch`` alone, so the thread count changes no bit."""
+        if batch < SPLIT_MIN_BATCH:
             return fn(frames, batch, *args)
-        n = min(self.threads or cpu_count(), batch // (SPLIT_MIN_BATCH // 2))
+        m = self.config.m
+        parts = [(frames[b0 * m:(b0 + SPLIT_CHUNK) * m], min(SPLIT_CHUNK, batch - b0))
+                 for b0 in range(0, batch, SPLIT_CHUNK)]
+        n = min(self.threads or cpu_count(), len(parts))
         with one_thread():
-            if batch < SPLIT_MIN_BATCH or n < 2:
-                return fn(frames, batch, *args)
-            m = self.config.m
-            bounds = np.linspace(0, batch, n + 1).round().astype(int)
-            parts = [(frames[b0 * m:b1 * m], int(b1 - b0))
-                     for b0, b1 in zip(bounds[:-1], bounds[1:])]
-            return np.concatenate(list(_pool(n).map(lambda p: fn(p[0], p[1], *args), parts)))
+            run = map if n < 2 else _pool(n).map
+            return np.concatenate(list(run(lambda p: fn(p[0], p[1], *args), parts)))
 
-    def _kind(self, what: str, batch: int, points: int) -> tuple:
-        """The key under which :data:`tpnet_ref.blas.adaptive` keeps this work's latencies."""
-        return (id(self), what, batch, points)
+    def _threads(self, what: str, batch: int, points: int) -> Any:
+        """The block a call's work runs in: always a one-thread BLAS; for the batches the Numba
+        engine runs, also :data:`tpnet_ref.blas.adaptive`, which lets its two LSTM directions
+        take a second thread while that measures faster (the same bits either way)."""
+        if self._engine_for(batch) is None:
+            return one_thread()
+        return adaptive((id(self), what, batch, points))
+
+    def preferred_threads(self, what: str = "predict", batch: int = 1, points: int = 0) -> int | None:
+        """The plan :data:`tpnet_ref.blas.adaptive` measured faster for this model's calls of
+        ``what`` ("predict", "features", "rollout step") on ``batch`` windows of ``points``
+        points in all: 1 (one thread), 0 (two threads) or None (not measured: the NumPy engine
+        runs on one thread)."""
+        return adaptive.preferred((id(self), what, batch, points))
 
     def _predict_frames(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
         """``batch * m`` validated frames, window after window -> ``(batch, n_out, dim)``."""
-        with adaptive(self._kind("predict", batch, sum(f.shape[0] for f in frames))):
+        with self._threads("predict", batch, sum(f.shape[0] for f in frames)):
             g = self._frames_to_features(frames, normalized)
             y = self.sequence_head(g.reshape(batch, self.config.m, -1))
         return y if normalized else self.denormalize(y)
@@ -554,14 +562,13 @@ class TPNet:
         # BiLSTM 1's input projection of each frame, also computed once per frame (the full
         # network only: a specialised one projects its kept units itself); the last m kept
         cache = self._specialised(batch) is None
-        with adaptive(self._kind("features", batch, sum(f.shape[0] for f in frames))):
+        with self._threads("features", batch, sum(f.shape[0] for f in frames)):
             feats[:, :m] = self._frames_to_features(frames, normalized).reshape(batch, m, -1)
             proj = (list(self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1),
                                              batch).reshape(m, batch, -1)) if cache else None)
         counts = np.full(batch, self.config.n_out)
-        kind = self._kind("rollout step", batch, self.config.n_out)
         for s in range(steps):
-            with adaptive(kind):                                      # per step: follows the load
+            with self._threads("rollout step", batch, self.config.n_out):   # follows the load
                 y = self.sequence_head(feats[:, s:s + m],             # (batch, n_out, dim)
                                        np.stack(proj[-m:]) if cache else None)
                 out[:, s] = y

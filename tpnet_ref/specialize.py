@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import layers as L
-from .blas import BLOCK_COLUMNS, SMALL_PRODUCT, small_products_pay
+from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 from .unit_order import measure
 from .weights.hdf5 import read_vectors, write_vectors
 
@@ -251,7 +251,6 @@ class SceneHead:
         self.head_w = (-np.concatenate([(hb + beta @ hw)[None], -(gamma @ hw)[None],
                                         gamma[src_file, None] * hw[src_file]])).astype(dt)
         self.head_src = (src_d, src_pos, n_in)     # final states: step T-1 of both directions
-        self._small: bool | None = None
         self._local = threading.local()
 
     def num_params(self) -> int:
@@ -271,8 +270,6 @@ class SceneHead:
         """``features (B, m, k)`` -> ``(y (B, n_out*dim), ok (B,))``. ``marks``: for profiling a
         single window, a list that gets ``(stage, time.perf_counter())`` at each stage's end."""
         f = np.asarray(features, dtype=self.dtype)
-        if self._small is None:
-            self._small = small_products_pay(self.dtype)
         with np.errstate(all="ignore"):
             if f.shape[0] == 1:
                 run = getattr(self._local, "run", None)
@@ -294,7 +291,7 @@ class SceneHead:
     def _project(self, ly: _Layer, xa: np.ndarray, k: int, out: np.ndarray) -> None:
         """``out (R, Wp) = xa[:, :k] @ kernel[:k]`` (:func:`tpnet_ref.layers.project_spans`:
         one stacked product over the kernel's column blocks when each is small enough)."""
-        L.project_spans(xa, ly.kernel, ly.blocks, [(0, k)], self._small, out=out)
+        L.project_spans(xa, ly.kernel, ly.blocks, [(0, k)], out=out)
 
     def _batch(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Any batch ``f (B, T, k)``, buffers made per call."""

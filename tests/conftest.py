@@ -1,0 +1,59 @@
+"""Suite-wide settings: bounded hypothesis runs and a memory guard.
+
+- hypothesis: no example database written into the checkout, one bug reported per test (it then
+  keeps one failing example, not one per distinct failure), and a deadline off (the first call of
+  a model may compile numba kernels). Each test keeps its own ``max_examples``.
+- The memory guard: a thread reads the test process's resident memory every 0.2 s; above
+  ``TPNET_TEST_MAX_RSS_GB`` (default 4) it prints which test was running and ends the run with
+  exit status 3 -- a runaway test fails with that line instead of taking the machine down (a
+  hypothesis test that built a new 170 MB model per example kept every failing example's
+  traceback, and with it the model, while shrinking: 15 GB in 50 s).
+"""
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+
+from hypothesis import settings
+
+settings.register_profile("tpnet", database=None, report_multiple_bugs=False, deadline=None)
+settings.load_profile("tpnet")
+
+_LIMIT_GB = float(os.environ.get("TPNET_TEST_MAX_RSS_GB", "4"))
+_CURRENT = {"test": "(collection)"}
+_PEAK = {"bytes": 0}
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def _guard() -> None:
+    limit = _LIMIT_GB * 2**30
+    while True:
+        rss = _rss_bytes()
+        _PEAK["bytes"] = max(_PEAK["bytes"], rss)
+        if rss > limit:
+            sys.stderr.write(f"\nmemory guard: the test process reached {rss / 2**30:.1f} GB "
+                             f"(limit {_LIMIT_GB:g} GB, TPNET_TEST_MAX_RSS_GB) while running "
+                             f"{_CURRENT['test']}; stopping the run\n")
+            sys.stderr.flush()
+            os._exit(3)
+        time.sleep(0.2)
+
+
+if os.path.exists("/proc/self/statm"):
+    threading.Thread(target=_guard, name="memory-guard", daemon=True).start()
+
+
+def pytest_runtest_protocol(item, nextitem):
+    _CURRENT["test"] = item.nodeid
+
+
+def pytest_terminal_summary(terminalreporter):
+    if _PEAK["bytes"]:
+        terminalreporter.write_line(f"peak resident memory of the test process: "
+                                    f"{_PEAK['bytes'] / 2**30:.2f} GB (guard at {_LIMIT_GB:g} GB)")
