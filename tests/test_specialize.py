@@ -260,7 +260,7 @@ def test_any_masks_any_order_exact_on_accepted_windows_and_flags_woken_units(see
     rng = np.random.default_rng(seed)
     model = init_random(SMALL, seed=seed % 7, dtype=dtype)
     if ordered:
-        model = model._copy(unit_order={k: rng.permutation(n) for k, n in U.sizes(SMALL).items()})
+        model = model.with_unit_order({k: rng.permutation(n) for k, n in U.sizes(SMALL).items()})
     cal = rng.uniform(0.2, 0.8, (n_cal, 4, 30, 2))
     used = {k: v | (rng.random(v.shape) < extra)
             for k, v in S.calibrate(model, cal, normalized=True).items()}

@@ -29,7 +29,7 @@ def test_orders_cover_the_mlps_except_what_a_trained_transform_multiplies():
     for cfg in (TPNetConfig(input_transform_trained=True, feature_transform_trained=True), tn):
         model = init_random(cfg, seed=0)
         use = U.measure(model, _rings(np.random.default_rng(0), 4))
-        perm = model._copy(unit_order=U.from_use(use))
+        perm = model.with_unit_order(U.from_use(use))
         w = _rings(np.random.default_rng(1), 3)
         np.testing.assert_allclose(perm.predict_batch(w), model.predict_batch(w), rtol=0, atol=1e-3)
 
@@ -43,7 +43,7 @@ def test_any_unit_order_is_the_same_network(dtype, apart):
     if apart:       # LSTM outputs ordered within each direction (no merge after the recurrence)
         for i, u in enumerate(SMALL.lstm_units, 1):
             order[f"lstm{i}"] = np.concatenate([rng.permutation(u), u + rng.permutation(u)])
-    perm = model._copy(unit_order=order)
+    perm = model.with_unit_order(order)
     assert all((lay.merge is None) == apart for lay in perm._layers)
     w = rng.uniform(0, 45, (16, 4, 30, 2))
     tol = 2e-5 if dtype == "float32" else 1e-11
@@ -62,7 +62,7 @@ def test_sorted_shipped_model_equals_the_file_order_and_puts_used_units_first():
         full = tpnet_ref.load()
     except (FileNotFoundError, ValueError) as exc:
         pytest.skip(f"shipped weights not available: {exc}")
-    base = full._copy(unit_order=None)
+    base = full.with_unit_order(None)
     rng = np.random.default_rng(0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -83,7 +83,7 @@ def test_sorted_shipped_model_equals_the_file_order_and_puts_used_units_first():
 
 
 def test_permutation_invariance_is_bit_identical_with_an_order():
-    model = init_random(SMALL, seed=1)._copy(unit_order=_random_order(SMALL, np.random.default_rng(2)))
+    model = init_random(SMALL, seed=1).with_unit_order(_random_order(SMALL, np.random.default_rng(2)))
     rng = np.random.default_rng(5)
     w = _rings(rng, 1)[0]
     shuffled = np.stack([f[rng.permutation(30)] for f in w])
@@ -93,7 +93,7 @@ def test_permutation_invariance_is_bit_identical_with_an_order():
 def test_unit_order_round_trips_through_the_native_file(tmp_path):
     model = init_random(SMALL, seed=2)
     order = _random_order(SMALL, np.random.default_rng(4))
-    perm = model._copy(unit_order=order)
+    perm = model.with_unit_order(order)
     path = tmp_path / "w.h5"
     perm.save(path)
     back = tpnet_ref.load(path)
@@ -121,7 +121,7 @@ def test_unit_order_round_trips_through_the_native_file(tmp_path):
 ])
 def test_a_malformed_order_is_refused_in_one_line(bad, msg):
     with pytest.raises(ValueError, match=msg) as err:
-        init_random(SMALL, seed=0)._copy(unit_order=bad)
+        init_random(SMALL, seed=0).with_unit_order(bad)
     assert "\n" not in str(err.value)
 
 

@@ -247,7 +247,7 @@ class TPNet:
         """The same network with each layer's units laid out most used first on ``windows``
         ``(B, m, N, dim)`` (the scene's windows): exact on every input, faster on windows like
         these (:mod:`tpnet_ref.unit_order`). The order is saved with the model."""
-        return self._copy(unit_order=U.from_use(U.measure(self, windows, normalized)))
+        return self.with_unit_order(U.from_use(U.measure(self, windows, normalized)))
 
     def astype(self, dtype: Any) -> "TPNet":
         """The same network with its parameters in ``dtype`` (float32 or float64)."""
@@ -263,6 +263,11 @@ class TPNet:
     def with_specialization(self, used: dict[str, np.ndarray] | None) -> "TPNet":
         """A copy of this network specialised to the units ``used`` marks (None: not at all)."""
         return self._copy(used=used)
+
+    def with_unit_order(self, order: dict[str, np.ndarray] | None) -> "TPNet":
+        """The same network with its units laid out in ``order`` (:mod:`tpnet_ref.unit_order`;
+        None: the file's order). Exact either way; only speed and rounding depend on it."""
+        return self._copy(unit_order=order)
 
     def with_engine(self, engine: str) -> "TPNet":
         """The same network (and specialisation) run by ``engine`` ("numpy", "numba", "auto")."""

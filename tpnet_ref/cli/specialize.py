@@ -77,7 +77,7 @@ def _cli_sort_units(args: Any) -> int:
         warnings.simplefilter("ignore")
         windows, normalized, what = _windows(args, src, model)
         use = U.measure(model, windows, normalized)
-    srt = model._copy(unit_order=U.from_use(use))
+    srt = model.with_unit_order(U.from_use(use))
     srt.save(out, units_sorted_on=f"{len(windows)} windows: {what}")
     print(f"wrote {out}: units sorted by use on {len(windows)} windows ({what}); never used: "
           + ", ".join(f"{k} {int((v == 0).sum())}/{v.size}" for k, v in use.items()))
