@@ -37,6 +37,12 @@ def frames():
     return E.normalize(E.simulate_cases(np.asarray(TEST_CASES), rows=4 * (5 + 80), workers=1))
 
 
+def test_the_example_window_is_the_simulated_training_grid_scene_it_says():
+    w = tpnet_ref.example_window()
+    np.testing.assert_array_equal(w, tpnet_ref.sim.simulate(1.3, 225.0, 28.6, 32.5)[0:16:4])
+    assert (28.6, 32.5) not in {(c[2], c[3]) for c in TEST_CASES}
+
+
 def test_the_other_window_lengths_are_shipped_with_their_m():
     for m in (3, 5):
         model = tpnet_ref.load(shipped_weights_path(m))

@@ -87,6 +87,14 @@ def rollout_batch(windows: _Any, steps: int, model: TPNet | None = None,
     return out
 
 
+def example_window() -> _np.ndarray:
+    """A real m = 4 window to start from: ``(4, 30, 2)`` world units, four frames of a simulated
+    training-grid scene 4 simulation steps apart (:mod:`tpnet_ref.shipped`)."""
+    from importlib.resources import files
+    with files("tpnet_ref.shipped").joinpath("example_window.npy").open("rb") as f:
+        return _np.load(f, allow_pickle=False)
+
+
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
 _LAZY = ("config", "checks", "layers", "model", "blas", "extras", "weights", "metrics", "sim",
          "data", "protocol", "evaluation", "training", "onnx_peer", "specialize")
@@ -98,8 +106,8 @@ def __getattr__(name: str) -> _Any:
     raise AttributeError(f"module 'tpnet_ref' has no attribute {name!r}")
 
 
-__all__ = ["load", "predict", "predict_batch", "rollout", "rollout_batch", "TPNet", "TPNetConfig",
-           "init_random", "__version__"]
+__all__ = ["load", "predict", "predict_batch", "rollout", "rollout_batch", "example_window",
+           "TPNet", "TPNetConfig", "init_random", "__version__"]
 
 
 def __dir__() -> list[str]:

@@ -7,6 +7,7 @@ The core (config, layers, model, checks, native weights file) needs NumPy and h5
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from types import ModuleType
 
 #: what each extra enables (pyproject.toml [project.optional-dependencies] has the pins)
@@ -37,4 +38,18 @@ def require(module: str, extra: str, what: str | None = None) -> ModuleType:
         ) from exc
 
 
-__all__ = ["require", "MissingExtraError", "EXTRAS"]
+def require_all(modules: tuple[str, ...], extra: str, what: str) -> None:
+    """Before any work: a one-line :class:`MissingExtraError` naming ``extra`` if any of
+    ``modules`` is not installed (looked up, not imported), so a command does not fail halfway
+    asking for one extra after another."""
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise MissingExtraError(f"{what} needs {', '.join(missing)}, which "
+                                f"{'is' if len(missing) == 1 else 'are'} not installed: "
+                                f"pip install 'tpnet-ref[{extra}]'")
+
+
+#: what the ``eval`` extra installs (``tpnet eval``, ``tpnet demo``)
+EVAL_MODULES = ("numba", "pymunk", "matplotlib", "tqdm", "scipy")
+
+__all__ = ["require", "require_all", "MissingExtraError", "EXTRAS", "EVAL_MODULES"]

@@ -454,6 +454,9 @@ class TPNet:
 
     def _check_window(self, window: Any, name: str) -> list[np.ndarray]:
         m, dim = self.config.m, self.config.dim
+        if isinstance(window, (str, bytes, os.PathLike)):
+            raise TypeError(f"{name}: expected points, got the path or string {window!r}; "
+                            "load the file first, e.g. np.load(path), or run `tpnet predict PATH`")
         if isinstance(window, np.ndarray) or not isinstance(window, Sequence):
             arr = as_real_array(window, name)
             if arr.ndim != 3 or arr.shape[-1] != dim:
@@ -490,7 +493,9 @@ class TPNet:
                 raise ValueError(f"windows: expected shape (B, m, N, {self.config.dim}) or a "
                                  f"sequence of windows, got an array of shape {arr.shape}")
             windows = list(arr)
-        elif not isinstance(windows, Sequence) or isinstance(windows, (str, bytes)):
+        elif isinstance(windows, (str, bytes, os.PathLike)):
+            self._check_window(windows, "windows")          # the one-line path error
+        elif not isinstance(windows, Sequence):
             raise TypeError(f"windows: expected an array or a sequence of windows, "
                             f"got {type(windows).__name__}")
         if len(windows) == 0:

@@ -4,6 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..extras import EVAL_MODULES, require_all
+
 # the defaults shown in --help, spelled here so that the parser imports no library module
 _DEMO_HORIZONS = (1, 10, 20, 40, 80, 140)
 _ORDERINGS = ("given", "ascending_x", "descending_y", "shuffle")
@@ -68,6 +70,7 @@ def add_cli(sub: Any) -> None:
 
 
 def _cli_demo(args: Any) -> int:
+    require_all(EVAL_MODULES, "eval", "tpnet demo")
     from ..evaluation import DEMO_CASE, demo
     demo(args.weights, case=args.case or DEMO_CASE, steps=args.steps, horizons=args.horizons,
          png=None if args.no_png else args.output, seed=args.seed, dtype=args.dtype)
@@ -75,6 +78,7 @@ def _cli_demo(args: Any) -> int:
 
 
 def _cli_eval(args: Any) -> int:
+    require_all(EVAL_MODULES, "eval", "tpnet eval")
     from ..evaluation import run_eval
     path = run_eval(args)
     text = Path(path).read_text()

@@ -14,13 +14,13 @@ def add_cli(sub: Any) -> None:
                            ("run", "write one trajectory, (steps, 30, 2) world units, to .npy")):
         q = ssub.add_parser(name, help=helptext)
         q.add_argument("--force", type=float, default=1.3, help="impulse per particle (1.3)")
-        q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees")
+        q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees (225)")
         q.add_argument("--x", type=float, default=30.0, help="start centre x (30)")
         q.add_argument("--y", type=float, default=35.0, help="start centre y (35)")
         q.add_argument("--steps", type=int, default=600, help="simulation steps (600)")
-        q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
-        q.add_argument("--damping-ratio", type=float, default=0.0)
-        q.add_argument("--wall-restitution", type=float, default=0.0)
+        q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz (1)")
+        q.add_argument("--damping-ratio", type=float, default=0.0, help="spring damping ratio (0)")
+        q.add_argument("--wall-restitution", type=float, default=0.0, help="wall restitution (0)")
         _scene_flags(q)
         if name == "show":
             q.add_argument("-o", "--output", required=True, help=".png file to write")

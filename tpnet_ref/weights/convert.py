@@ -32,6 +32,10 @@ def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any
             model.meta["import_report"] = "native tpnet_ref weights file"
             return model
         return import_keras_h5(p, dtype=dtype, **kw)
+    if not zipfile.is_zipfile(p):
+        raise ValueError(f"{p}: not a checkpoint at all: neither HDF5 (a Keras .h5 or a native "
+                         "weights file) nor a zip archive (.keras, torch.save); legacy pickled "
+                         "torch files are never read")
     if zipfile.is_zipfile(p):
         try:
             with zipfile.ZipFile(p) as z:
