@@ -230,16 +230,17 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
                     label=f"input frames 0..{m - 1}" if j == 0 else None, zorder=3)
     for k, h in enumerate(hs):
         t, q = truth[m - 1 + h], pred[h - 1]
-        box.plot(*np.vstack([t, t[:1]]).T, color=c_true, lw=1.0, zorder=3,
-                 label="simulator: ring" if k == 0 else None)
+        box.scatter(t[:, 0], t[:, 1], s=9, color=c_true, zorder=3,
+                    label="simulator: particles at h" if k == 0 else None)
         box.scatter(q[:, 0], q[:, 1], s=14, marker="x", color=c_pred, zorder=4,
                     label=f"{label}: predicted points" if k == 0 else None)
         tcen, qcen = t.mean(0), q.mean(0)
         box.plot([tcen[0], qcen[0]], [tcen[1], qcen[1]], color="0.5", lw=0.8, ls=":", zorder=2)
-        for cen, dy in ((tcen, 1), (qcen, -1)):
-            box.annotate(f"h={h}", cen, xytext=(0, 22 * dy), textcoords="offset points",
-                         ha="center", va="center", fontsize=9, weight="bold",
-                         bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
+        top = max(t[:, 1].max(), q[:, 1].max())       # one label, above both rings
+        box.annotate(f"h={h}", ((tcen[0] + qcen[0]) / 2, top), xytext=(0, 9),
+                     textcoords="offset points", ha="center", va="bottom", fontsize=9,
+                     weight="bold", bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none",
+                                              alpha=0.8))
     box.set_xlim(*BOX)
     box.set_ylim(*BOX)
     box.set_aspect("equal")
