@@ -133,7 +133,7 @@ def torch_peer(model):
     """A callable running the PyTorch model on a normalised batch, or None if unavailable."""
     try:
         import torch
-        from tpnet_ref.training.torch_model import TorchTPNet
+        from tpnet_ref.torch_model import TorchTPNet
     except ImportError as exc:
         return None, f"skipped ({exc})"
     net = TorchTPNet.from_numpy(model).eval()

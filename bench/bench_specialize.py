@@ -25,6 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tpnet_ref  # noqa: E402
+from tpnet_ref import data as D  # noqa: E402
 from tpnet_ref import specialize as S  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH  # noqa: E402
 from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
@@ -52,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     full = tpnet_ref.load()
     m = full.config.m
     t0 = time.perf_counter()
-    cal = S.calibration_windows(full, n_cal, seed=0, rollout=40)
+    cal = D.calibration_windows(full, n_cal, seed=0, rollout=40)
     spec = full.specialize(cal)
     print(f"calibrated on {len(cal)} windows of {n_cal} training-grid trajectories "
           f"({time.perf_counter() - t0:.0f} s): units used "

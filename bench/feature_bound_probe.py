@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tpnet_ref  # noqa: E402
-from tpnet_ref import specialize as S  # noqa: E402
+from tpnet_ref import data as D  # noqa: E402
 from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
 from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
 from tpnet_ref.sim.scene import simulate  # noqa: E402
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     n_cal = 12 if parse_quick(__doc__, argv) else 36
     model = tpnet_ref.load(dtype="float64")        # the shipped weights, exact arithmetic here
     m = model.config.m
-    cal = S.calibration_windows(tpnet_ref.load(), n_cal, seed=0, rollout=40)
+    cal = D.calibration_windows(tpnet_ref.load(), n_cal, seed=0, rollout=40)
     test = np.concatenate([windows(simulate(*c)[::FRAME_EVERY], m) for c in TEST_CASES])
     w, b = model._mlp2[-1]
     h_cal, _ = last_layer_inputs(model, cal)

@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import tpnet_ref
+from tpnet_ref import data as D
 from tpnet_ref import layers as L
 from tpnet_ref import specialize as S
 from tpnet_ref import unit_order as U
@@ -189,13 +190,13 @@ def test_calibration_windows_are_training_grid_windows_and_own_rollouts(monkeypa
     def record(*case, **kw):
         simulated.append(case)
         return real(*case, **kw)
-    monkeypatch.setattr(scene, "simulate", record)
-    w = _quiet(S.calibration_windows, model, n_trajectories=2, seed=5, rollout=3)
+    monkeypatch.setattr(D, "simulate", record)
+    w = _quiet(D.calibration_windows, model, n_trajectories=2, seed=5, rollout=3)
     grid = {tuple(c) for c in train_grid()}
     test = {tuple(map(float, c)) for c in TEST_CASES}
     assert len(simulated) == 2 and len(set(simulated)) == 2
     assert all(tuple(c) in grid and tuple(c) not in test for c in simulated)
-    np.testing.assert_array_equal(np.array(simulated), S.calibration_cases(2, seed=5))
+    np.testing.assert_array_equal(np.array(simulated), D.calibration_cases(2, seed=5))
     traj = real(*simulated[1])[::FRAME_EVERY]                      # (150, 30, 2)
     n_sim, n_own = len(traj) - 3, 4                                # m = 4, rollout 3: 7 frames
     assert w.shape == (2 * (n_sim + n_own), 4, 30, 2)
@@ -205,7 +206,7 @@ def test_calibration_windows_are_training_grid_windows_and_own_rollouts(monkeypa
     np.testing.assert_allclose(second[n_sim:], np.stack([own[s:s + 4] for s in range(n_own)]),
                                rtol=0, atol=1e-5)     # rolled out in a batch of 2: BLAS rounding
     with pytest.raises(ValueError, match="n_trajectories"):
-        S.calibration_cases(0)
+        D.calibration_cases(0)
 
 
 # ------------------------------------------------------------ exact on every input

@@ -15,7 +15,7 @@ from tpnet_ref import data as D  # noqa: E402
 from tpnet_ref.training import checkpoint as C  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
-from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
 

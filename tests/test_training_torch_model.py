@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 import tpnet_ref  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
-from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
 
@@ -48,7 +48,7 @@ def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_pa
     term equals tpnet_ref.metrics.shape_error, is invariant to translating either set, and the
     run logs val_es1 / val_esK."""
     from tpnet_ref.metrics import shape_error
-    from tpnet_ref.training.torch_model import chamfer_shape
+    from tpnet_ref.torch_model import chamfer_shape
 
     rng = np.random.default_rng(0)
     p, q = rng.uniform(0, 1, (5, 3, 30, 2)), rng.uniform(0, 1, (5, 3, 27, 2))
@@ -77,7 +77,7 @@ def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_pa
 def test_matched_distance_is_the_optimal_bijection_and_penalises_clumping():
     import itertools
 
-    from tpnet_ref.training.torch_model import chamfer_released, matched_distance
+    from tpnet_ref.torch_model import chamfer_released, matched_distance
 
     g = torch.Generator().manual_seed(0)
     p = torch.rand(4, 2, 6, 2, generator=g, dtype=torch.float64)

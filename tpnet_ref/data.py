@@ -356,6 +356,48 @@ def load_trajectories(path: str, split: str = "test", *, normalized: bool = Fals
         return g["normalized" if normalized else "positions"][...], g["params"][...]
 
 
-__all__ = ["generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
+def calibration_cases(n_trajectories: int = 36, seed: int = 0) -> np.ndarray:
+    """``(n, 4)`` (force, angle_deg, x, y): ``n_trajectories`` training-grid cases
+    (:func:`train_grid`) drawn without replacement with ``seed``; never a held-out
+    test case (any grid row equal to one is left out)."""
+    from .sim.cases import TEST_CASES
+    grid = train_grid()
+    test = np.asarray(TEST_CASES, dtype=float)
+    grid = grid[~(grid[:, None, :] == test[None]).all(axis=2).any(axis=1)]
+    if isinstance(n_trajectories, bool) or not 1 <= int(n_trajectories) <= len(grid):
+        raise ValueError(f"n_trajectories: must be in 1..{len(grid)}, got {n_trajectories!r}")
+    pick = np.random.default_rng(seed).choice(len(grid), int(n_trajectories), replace=False)
+    return grid[pick]
+
+
+def calibration_windows(model: Any, n_trajectories: int = 36, seed: int = 0,
+                        rollout: int = 40) -> np.ndarray:
+    """Calibration windows ``(B, m, N, 2)`` (world units) of training-grid trajectories for
+    :meth:`tpnet_ref.model.TPNet.specialize` and :meth:`~tpnet_ref.model.TPNet.sort_units`: for
+    each of :func:`calibration_cases`, every window
+    of its simulated trajectory (default scene, one frame every ``FRAME_EVERY`` rows) and every
+    window of the model's own ``rollout``-frame rollout from its first m frames (the rollouts
+    stepped together). ``B = n_trajectories * (F - m + 1 + rollout + 1)`` with ``F`` frames per
+    trajectory (150: 188 windows each for m = 4). Simulates with :mod:`tpnet_ref.sim`."""
+    m = model.config.m
+    if isinstance(rollout, bool) or int(rollout) < 0:
+        raise ValueError(f"rollout: must be >= 0, got {rollout!r}")
+    trajs = np.stack([simulate(*case)[::FRAME_EVERY]
+                      for case in calibration_cases(n_trajectories, seed)])    # (n, F, N, 2)
+    if trajs.shape[1] < m:
+        raise ValueError(f"calibration trajectories have {trajs.shape[1]} frames, fewer than m={m}")
+    parts = [trajs]
+    if rollout:
+        own = np.asarray(model.rollout_batch(trajs[:, :m], int(rollout)), dtype=np.float64)
+        parts.append(np.concatenate([trajs[:, :m], own], axis=1))
+    out = []
+    for t in parts:                     # every window of every trajectory, trajectory by trajectory
+        idx = np.arange(t.shape[1] - m + 1)[:, None] + np.arange(m)        # (W, m)
+        out.append(t[:, idx])                                              # (n, W, m, N, 2)
+    # interleave: trajectory 0's simulated windows, its rollout windows, trajectory 1's ...
+    return np.concatenate([np.concatenate([o[i] for o in out]) for i in range(len(trajs))])
+
+
+__all__ = ["calibration_cases", "calibration_windows", "generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
            "collision_frames", "sample_windows", "scene_convention", "check_scene", "FORMAT",
            "N_TARGETS"]

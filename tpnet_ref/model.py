@@ -33,7 +33,7 @@ from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from .blas import adaptive, cpu_count, one_thread, two_threads
 from .checks import NonFiniteResultError, as_point_set, as_real_array
 from .extras import require
-from .weights.native import default_weights_path, read_native, write_native
+from .native import default_weights_path, read_native, write_native
 
 #: points per block of the feature extractor (activations of a block stay in cache)
 BLOCK_POINTS = 2048
@@ -287,7 +287,7 @@ class TPNet:
                 f"params={self.num_params:,}, dtype={self.dtype.name}, engine={self.engine}{spec})")
 
     def save(self, path: str | os.PathLike, **provenance: Any) -> None:
-        """Write the native HDF5 weights file (:mod:`tpnet_ref.weights.native`) in the model's
+        """Write the native HDF5 weights file (:mod:`tpnet_ref.native`) in the model's
         dtype (bit-exact), with its ``meta`` and ``provenance`` as root attributes."""
         write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance})
         if self.specialization is not None:        # the masks, beside config and params
@@ -592,7 +592,7 @@ class TPNet:
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
          engine: str = "numpy") -> TPNet:
     """A :class:`TPNet` from a native weights file; ``path=None`` loads the shipped m = 4 model
-    (:func:`tpnet_ref.weights.native.default_weights_path`; a one-line ``FileNotFoundError``
+    (:func:`tpnet_ref.native.default_weights_path`; a one-line ``FileNotFoundError``
     when there is none). A file written by a specialised model loads specialised. ``engine``:
     see :class:`TPNet`."""
     path = default_weights_path() if path is None else path

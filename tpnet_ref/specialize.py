@@ -41,7 +41,7 @@ import numpy as np
 from . import layers as L
 from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 from .unit_order import measure
-from .weights.hdf5 import read_vectors, write_vectors
+from .hdf5 import read_vectors, write_vectors
 
 #: name of the HDF5 group that holds a specialisation in the native weights file
 GROUP = "specialization"
@@ -59,50 +59,6 @@ def calibrate(model: Any, windows: np.ndarray, normalized: bool = False,
                          f"(this one uses {cfg.lstm_activation!r})")
     use = measure(model, windows, normalized, chunk, mlp=False)
     return {k: v > 0 for k, v in use.items()}
-
-
-def calibration_cases(n_trajectories: int = 36, seed: int = 0) -> np.ndarray:
-    """``(n, 4)`` (force, angle_deg, x, y): ``n_trajectories`` training-grid cases
-    (:func:`tpnet_ref.data.train_grid`) drawn without replacement with ``seed``; never a held-out
-    test case (any grid row equal to one is left out)."""
-    from .data import train_grid
-    from .sim.cases import TEST_CASES
-    grid = train_grid()
-    test = np.asarray(TEST_CASES, dtype=float)
-    grid = grid[~(grid[:, None, :] == test[None]).all(axis=2).any(axis=1)]
-    if isinstance(n_trajectories, bool) or not 1 <= int(n_trajectories) <= len(grid):
-        raise ValueError(f"n_trajectories: must be in 1..{len(grid)}, got {n_trajectories!r}")
-    pick = np.random.default_rng(seed).choice(len(grid), int(n_trajectories), replace=False)
-    return grid[pick]
-
-
-def calibration_windows(model: Any, n_trajectories: int = 36, seed: int = 0,
-                        rollout: int = 40) -> np.ndarray:
-    """Calibration windows ``(B, m, N, 2)`` (world units) of training-grid trajectories for
-    :meth:`tpnet_ref.model.TPNet.specialize`: for each of :func:`calibration_cases`, every window
-    of its simulated trajectory (default scene, one frame every ``FRAME_EVERY`` rows) and every
-    window of the model's own ``rollout``-frame rollout from its first m frames (the rollouts
-    stepped together). ``B = n_trajectories * (F - m + 1 + rollout + 1)`` with ``F`` frames per
-    trajectory (150: 188 windows each for m = 4). Simulates with :mod:`tpnet_ref.sim`."""
-    from .protocol import FRAME_EVERY
-    from .sim import scene
-    m = model.config.m
-    if isinstance(rollout, bool) or int(rollout) < 0:
-        raise ValueError(f"rollout: must be >= 0, got {rollout!r}")
-    trajs = np.stack([scene.simulate(*case)[::FRAME_EVERY]
-                      for case in calibration_cases(n_trajectories, seed)])    # (n, F, N, 2)
-    if trajs.shape[1] < m:
-        raise ValueError(f"calibration trajectories have {trajs.shape[1]} frames, fewer than m={m}")
-    parts = [trajs]
-    if rollout:
-        own = np.asarray(model.rollout_batch(trajs[:, :m], int(rollout)), dtype=np.float64)
-        parts.append(np.concatenate([trajs[:, :m], own], axis=1))
-    out = []
-    for t in parts:                     # every window of every trajectory, trajectory by trajectory
-        idx = np.arange(t.shape[1] - m + 1)[:, None] + np.arange(m)        # (W, m)
-        out.append(t[:, idx])                                              # (n, W, m, N, 2)
-    # interleave: trajectory 0's simulated windows, its rollout windows, trajectory 1's ...
-    return np.concatenate([np.concatenate([o[i] for o in out]) for i in range(len(trajs))])
 
 
 #: a window goes to the full network when an LSTM output reaches this share of the bound above
@@ -576,7 +532,7 @@ def write(path: str | os.PathLike, used: dict[str, np.ndarray], **attrs: Any) ->
 def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
     """The masks of a native weights file's ``specialization`` group, or None without one. The
     file is untrusted: links, external storage and oversized datasets are refused
-    (:mod:`tpnet_ref.weights.hdf5`)."""
+    (:mod:`tpnet_ref.hdf5`)."""
     masks = read_vectors(path, GROUP, FORMAT, "mask", kinds="uib")
     if masks is None:
         return None
@@ -600,5 +556,5 @@ def attach(model: Any, path: str | os.PathLike) -> Any:
     return model if used is None else model.with_specialization(used)
 
 
-__all__ = ["calibrate", "calibration_cases", "calibration_windows", "SceneHead", "fraction_used", "write", "read", "save", "attach",
+__all__ = ["calibrate", "SceneHead", "fraction_used", "write", "read", "save", "attach",
            "GROUP", "FORMAT"]

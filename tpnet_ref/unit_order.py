@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from . import layers as L
-from .weights.hdf5 import read_vectors, write_vectors
+from .hdf5 import read_vectors, write_vectors
 
 #: name of the HDF5 group that holds a unit order in the native weights file
 GROUP = "unit_order"

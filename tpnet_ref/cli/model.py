@@ -33,7 +33,7 @@ def add_cli(sub: Any) -> None:
 def _cli_info(args: Any) -> int:
     import json
 
-    from ..weights.native import default_weights_path, describe, read_native
+    from ..native import default_weights_path, describe, read_native
     path = args.weights or default_weights_path()
     if args.json:
         cfg, _, meta = read_native(path)

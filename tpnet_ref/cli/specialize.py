@@ -56,7 +56,7 @@ def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool,
     """At most ``--max-windows`` windows from ``src`` (or simulated training-grid ones), whether
     they are normalised, and a description for the provenance."""
     if src is None:
-        from ..specialize import calibration_windows
+        from ..data import calibration_windows
         n = args.trajectories
         windows, normalized = calibration_windows(model, n), False
         what = f"{n} training-grid trajectories + rollouts"

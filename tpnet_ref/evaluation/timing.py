@@ -80,7 +80,7 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
     ``specialized``: also a row "<label> NumPy float32, scene-specialised" for each model: the
     float32 network specialised (:meth:`TPNet.specialize`) on the windows of
     ``calibration_trajectories`` simulated training-grid trajectories and the model's own
-    rollouts from them (:func:`tpnet_ref.specialize.calibration_windows`; never the test cases),
+    rollouts from them (:func:`tpnet_ref.data.calibration_windows`; never the test cases),
     calibrated before and outside the timed part, timed like the float32 row. Its note gives the
     calibration, the fraction of the timed windows that fell back to the full network and the
     largest difference from the float32 row's predictions.
@@ -126,7 +126,7 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
                 rows.append(TimingRow(name, None, None, {}, "not a ReLU-LSTM network: no unit "
                                                             "stays exactly zero"))
                 continue
-            from ..specialize import calibration_windows
+            from ..data import calibration_windows
             t0 = time.perf_counter()
             with warnings.catch_warnings():        # training-range warnings of the rollouts
                 warnings.simplefilter("ignore")
@@ -156,7 +156,7 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
                 rows.append(TimingRow(name, None, None, {}, "PyTorch not installed"))
                 continue
             import torch
-            from ..training.torch_model import TorchTPNet
+            from ..torch_model import TorchTPNet
             net = TorchTPNet.from_numpy(model).eval()
             xb = torch.from_numpy(np.ascontiguousarray(inputs, dtype=np.float32))
 

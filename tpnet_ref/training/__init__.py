@@ -2,7 +2,7 @@
 
 - :mod:`~tpnet_ref.training.recipe`: :class:`Recipe` (what a run computes), the network sizes,
   :class:`WindowData` (the windows of a ``tpnet data generate`` file, split by trajectory).
-- :mod:`~tpnet_ref.training.torch_model`: :class:`TorchTPNet` (the network in PyTorch, Keras
+- :mod:`~tpnet_ref.torch_model`: :class:`TorchTPNet` (the network in PyTorch, Keras
   semantics) and the Chamfer losses.
 - :mod:`~tpnet_ref.training.loop`: :func:`train` (resumable, budgeted), :func:`export`,
   :func:`bench`.
@@ -23,8 +23,8 @@ from typing import Any
 _NAMES = {
     "Recipe": "recipe", "WindowData": "recipe", "SIZES": "recipe", "size_config": "recipe",
     "N_STEPS_MAX": "recipe",
-    "TorchTPNet": "torch_model", "chamfer_released": "torch_model", "chamfer_shape": "torch_model",
-    "matched_distance": "torch_model",
+    "TorchTPNet": "..torch_model", "chamfer_released": "..torch_model",
+    "chamfer_shape": "..torch_model", "matched_distance": "..torch_model",
     "train": "loop", "export": "loop", "bench": "loop", "evaluate": "loop",
     "save_checkpoint": "checkpoint", "load_checkpoint": "checkpoint", "load_parent": "checkpoint",
     "baselines": "score", "score_rollouts": "score", "spacing_report": "score",
@@ -33,7 +33,9 @@ _NAMES = {
 
 def __getattr__(name: str) -> Any:
     if name in _NAMES:
-        return getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
+        mod = _NAMES[name]
+        return getattr(importlib.import_module(mod if mod.startswith(".") else f".{mod}",
+                                               __name__), name)
     raise AttributeError(f"module 'tpnet_ref.training' has no attribute {name!r}")
 
 

@@ -28,7 +28,7 @@ from .. import load
 from ..config import TPNetConfig
 from ..extras import require
 from .recipe import OPTIMIZER_MODES, Recipe
-from .torch_model import TorchTPNet
+from ..torch_model import TorchTPNet
 
 torch = require("torch", "train")
 

@@ -1,6 +1,6 @@
 """The training loop: train (and resume) a run, validate, export native weights, measure speed.
 
-``train(DATA.h5, RUN_DIR, Recipe(...))`` trains :class:`~tpnet_ref.training.torch_model.TorchTPNet`
+``train(DATA.h5, RUN_DIR, Recipe(...))`` trains :class:`~tpnet_ref.torch_model.TorchTPNet`
 on the windows of a ``tpnet data generate`` file (:class:`~tpnet_ref.training.recipe.WindowData`);
 :func:`export` writes the native HDF5 weights through
 :func:`tpnet_ref.weights.torch.import_torch` with provenance; :func:`bench` measures
@@ -37,7 +37,7 @@ from ..weights.torch import import_torch
 from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, inherited, load_checkpoint, load_parent,
                          save_checkpoint)
 from .recipe import N_STEPS_MAX, Recipe, WindowData
-from .torch_model import TorchTPNet, chamfer_released, chamfer_shape
+from ..torch_model import TorchTPNet, chamfer_released, chamfer_shape
 
 torch = require("torch", "train")
 

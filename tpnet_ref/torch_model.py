@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from ..config import TPNetConfig, param_shapes
-from ..extras import require
-from ..model import TPNet
-from ..weights.torch import TORCH_FORMAT, native_to_torch_state, torch_state_to_native
+from .config import TPNetConfig, param_shapes
+from .extras import require
+from .model import TPNet
+from .weights.torch import TORCH_FORMAT, native_to_torch_state, torch_state_to_native
 
 torch = require("torch", "train")
 nn = torch.nn
@@ -236,7 +236,7 @@ class TorchTPNet(nn.Module):
 
     def to_numpy(self, dtype: Any = "float32") -> TPNet:
         """The same network as a NumPy :class:`TPNet`."""
-        return TPNet(self.config, self.native_state(), dtype, {"producer": "tpnet_ref.training.torch_model"})
+        return TPNet(self.config, self.native_state(), dtype, {"producer": "tpnet_ref.torch_model"})
 
     @classmethod
     def from_numpy(cls, model: TPNet) -> "TorchTPNet":

@@ -11,7 +11,7 @@ Format (``format = "tpnet_ref-weights"``, ``format_version = 1``):
 
 :func:`write_native` / :func:`read_native` work on plain ``(config, {name: array}, meta)``;
 :class:`tpnet_ref.model.TPNet` is built on them (``TPNet.save``, ``tpnet_ref.load``). A file is
-untrusted input: it is read through the guards of :mod:`tpnet_ref.weights.hdf5` (no links, sizes
+untrusted input: it is read through the guards of :mod:`tpnet_ref.hdf5` (no links, sizes
 checked before reading, no NaN/Inf, nothing unpickled).
 
 Shipped models (``weights/MODEL_CARD.md``): ``tpnet-m{3,4,5}.h5``, looked up by
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import TPNetConfig, param_shapes
+from .config import TPNetConfig, param_shapes
 from . import hdf5
 
 FORMAT = "tpnet_ref-weights"
@@ -37,7 +37,7 @@ FORMAT_VERSION = 1
 #: root attributes that describe the file itself, not the model's provenance
 _FILE_ATTRS = ("format", "format_version", "dtype")
 
-_PACKAGE_DIR = Path(__file__).resolve().parent.parent       # tpnet_ref/
+_PACKAGE_DIR = Path(__file__).resolve().parent              # tpnet_ref/
 SHIPPED_DIR = _PACKAGE_DIR / "shipped"                       # inside an installed wheel
 REPO_WEIGHTS_DIR = _PACKAGE_DIR.parent / "weights"           # in a repository checkout
 SHIPPED_M = (3, 4, 5)
