@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 
+import pytest
 from hypothesis import settings
 
 settings.register_profile("tpnet", database=None, report_multiple_bugs=False, deadline=None)
@@ -47,6 +48,14 @@ def _guard() -> None:
 
 if os.path.exists("/proc/self/statm"):
     threading.Thread(target=_guard, name="memory-guard", daemon=True).start()
+
+
+@pytest.fixture(scope="session")
+def released_random64():
+    """A random TP-Net of the released shape in float64 (``init_random(seed=3)``), built once for
+    the suite: the unit tests' reference network (tests copy it before changing anything)."""
+    from tpnet_ref.model import init_random
+    return init_random(seed=3, dtype="float64")
 
 
 def pytest_runtest_protocol(item, nextitem):

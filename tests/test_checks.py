@@ -11,7 +11,6 @@ import tpnet_ref
 from tpnet_ref.checks import (OutsideTrainingRangeWarning, as_point_set, as_real_array,
                               training_range_problem)
 from tpnet_ref.config import NORM_HI, NORM_LO, normalize
-from tpnet_ref.model import init_random
 
 
 def _ring(cx=20.0, cy=20.0, r=2.0, n=30):
@@ -24,8 +23,8 @@ def _window(**kw):
 
 
 @pytest.fixture(scope="module")
-def net():
-    return init_random(seed=3, dtype="float64")
+def net(released_random64):
+    return released_random64
 
 
 @pytest.mark.parametrize("x, exc, msg", [

@@ -24,8 +24,8 @@ SMALL = TPNetConfig(m=3, n_out=5, mlp1=(8, 8), mlp2=(8, 16), global_features=12,
 
 
 @pytest.fixture(scope="module")
-def released64():
-    return init_random(seed=3, dtype="float64")
+def released64(released_random64):
+    return released_random64
 
 
 @pytest.fixture(scope="module")

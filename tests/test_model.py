@@ -30,8 +30,8 @@ def _window(rng, m=4, n=30, lo=5.0, hi=40.0):
 
 
 @pytest.fixture(scope="module")
-def model64():
-    return init_random(seed=3, dtype="float64")
+def model64(released_random64):
+    return released_random64
 
 
 @pytest.fixture(scope="module")
