@@ -409,7 +409,7 @@ def test_cli_errors_are_one_line(tmp_path, capsys, full32):
         (["predict", tmp_path / "ok.npy", "--weights", weights, "-o", tmp_path / "no/x.npy"],
          "does not exist"),
         (["import", tmp_path / "nope.pt", tmp_path / "o.h5"], "not found"),
-        (["import", tmp_path / "junk.h5", tmp_path / "o.h5"], "weights-only"),
+        (["import", tmp_path / "junk.h5", tmp_path / "o.h5"], "not a checkpoint at all"),
         (["import", tmp_path / "trunc.h5", tmp_path / "o.h5"], "HDF5"),
         (["import", weights, tmp_path / "no" / "o.h5"], "unable to"),
         (["sim", "run", "-o", tmp_path / "t.npy", "--force", "nan"], "force: must be finite"),
