@@ -133,11 +133,17 @@ def main(argv: list[str] | None = None) -> int:
                     help="tpnet data generate file: choose the front on its validation trajectories")
     ap.add_argument("--plot", default=None, help="write the plot (PNG) here")
     ap.add_argument("--reps", type=int, default=3, help="rounds over the 64 latency windows")
+    ap.add_argument("--md", default=None, help="also write the table as the section 'Network "
+                    "sizes' of this markdown file (docs/results.md; kept by tpnet eval)")
     args = ap.parse_args(argv)
 
     from bench_inference import scene_windows
     warnings.simplefilter("ignore")
-    print(f"load average {os.getloadavg()[0]:.1f}, {os.cpu_count()} CPUs")
+    t_start = time.perf_counter()
+    load0 = os.getloadavg()[0]
+    print(f"load average {load0:.1f}, {os.cpu_count()} CPUs")
+    lines: list[str] = []
+    emit = lines.append
     models = {}
     for w in args.weights:
         label = Path(w).stem
@@ -168,13 +174,14 @@ def main(argv: list[str] | None = None) -> int:
                         COPY_LAST: (0.0, 0.0)},
                        {k: (val[k]["Ep@40"], val[k]["Ep@80"]) for k in val})
         front = [k for k in front if k != COPY_LAST]
-    print("\n60 held-out test cases, squared reading; B = 1 latency, float32, median ms:\n")
+    emit("60 held-out test cases, squared reading; B = 1 latency, float32, median ms:")
+    emit("")
     head = ["weights", "trained parameters", "file (MB)", "E_p@40", "E_s@40", "E_p@80", "E_s@80",
             "B=1 numpy (ms)", "B=1 numba (ms)"]
     if val is not None:
         head += ["val E_p@40", "val E_p@80", "front"]
-    print("| " + " | ".join(head) + " |")
-    print("|" + "---|" * len(head))
+    emit("| " + " | ".join(head) + " |")
+    emit("|" + "---|" * len(head))
     for r in rows:
         cells = [f"`{r['label']}`", f"{r['params']:,}", f"{r['bytes'] / 1e6:.1f}",
                  f"{r['Ep@40']:.3g}", f"{r['Es@40']:.2g}", f"{r['Ep@80']:.3g}",
@@ -183,15 +190,43 @@ def main(argv: list[str] | None = None) -> int:
             v = val[r["label"]]
             cells += [f"{v['Ep@40']:.3g}", f"{v['Ep@80']:.3g}",
                       "yes" if r["label"] in front else "no"]
-        print("| " + " | ".join(cells) + " |")
+        emit("| " + " | ".join(cells) + " |")
     cells = [COPY_LAST, "0", "–", f"{test[COPY_LAST]['Ep@40']:.3g}", f"{test[COPY_LAST]['Es@40']:.2g}",
              f"{test[COPY_LAST]['Ep@80']:.3g}", f"{test[COPY_LAST]['Es@80']:.2g}", "–", "–"]
     if val is not None:
         cells += [f"{val[COPY_LAST]['Ep@40']:.3g}", f"{val[COPY_LAST]['Ep@80']:.3g}", "–"]
-    print("| " + " | ".join(cells) + " |")
+    emit("| " + " | ".join(cells) + " |")
+    print("\n" + "\n".join(lines))
     if args.plot:
         plot(rows, front, args.plot)
         print(f"\nwrote {args.plot}")
+    if args.md:
+        import datetime
+        import platform
+
+        from tpnet_ref.evaluation import put_kept_section
+        md = Path(args.md)
+        cmd = "PYTHONPATH=. python bench/sizes.py " + " ".join(
+            argv if argv is not None else sys.argv[1:])
+        when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        body = ["## Network sizes: error against run time", "",
+                f"Made by `{cmd}` ({when}, "
+                f"{time.perf_counter() - t_start:.0f} s; {platform.machine()}, {os.cpu_count()} "
+                f"CPU cores, load average {load0:.1f} at the start: latencies are comparable "
+                f"within this table only).", "",
+                "The same TP-Net at smaller widths (`tpnet train run --size half|quarter`, "
+                "docs/training.md). Errors: the 60 held-out test cases, squared reading, "
+                "frames 0..3 in, 80 recursive predictions. Latency: one prediction of one window "
+                "(B = 1), float32, median over 64 scene windows, the two engines alternating. "
+                "The front ('front') is chosen on the validation trajectories of the training "
+                "grid (`val E_p`, same protocol and reading), never on the test cases; copying "
+                "the last frame counts as a size of no run time.", "", *lines]
+        if args.plot:
+            rel = os.path.relpath(args.plot, md.parent)
+            body += ["", f"![error against run time by network size]({rel})"]
+        text = md.read_text() if md.is_file() else ""
+        md.write_text(put_kept_section(text, "sizes", "\n".join(body)))
+        print(f"wrote the section 'Network sizes' of {md}")
     return 0
 
 

@@ -18,7 +18,7 @@
 #
 # Settings (environment; defaults: the full m = 4 network fine-tuned from the shipped file):
 #   M=4 SIZE=full NAME=m$M INIT=weights/tpnet-m4.h5 (empty: from scratch at $SIZE)
-#   BUDGET=21 MINUTES=7 BATCH=512 LR=3e-4 SHAPE=4 MATCH=0 NOISE=0.001 RECIPE=paper
+#   BUDGET=18 MINUTES=6 BATCH=512 LR=3e-4 SHAPE=4 MATCH=0 NOISE=0.001 RECIPE=paper
 #   COMPILE=auto DEVICE=auto THREADS=8 WORKERS=$(nproc) BENCH=0 (1: `tpnet train bench` first;
 #   a new run times its own step anyway: budget.bench_windows_per_s in checkpoint.json)
 #   DATA=data/grid-m$M.h5 DATA_ARGS= (extra `tpnet data generate` options; CI: a tiny grid)
@@ -33,7 +33,7 @@ REPO=$(cd "$(dirname "$0")/.." && pwd)
 cd "${WORK:-$REPO}"
 
 M=${M:-4}; SIZE=${SIZE:-full}; NAME=${NAME:-m$M}; INIT=${INIT-$REPO/weights/tpnet-m4.h5}
-BUDGET=${BUDGET-21}; MINUTES=${MINUTES:-7}; BATCH=${BATCH:-512}; LR=${LR:-3e-4}
+BUDGET=${BUDGET-18}; MINUTES=${MINUTES:-6}; BATCH=${BATCH:-512}; LR=${LR:-3e-4}
 SHAPE=${SHAPE:-4}; MATCH=${MATCH:-0}; NOISE=${NOISE:-0.001}; RECIPE=${RECIPE:-paper}
 COMPILE=${COMPILE:-auto}; DEVICE=${DEVICE:-auto}; THREADS=${THREADS:-8}
 WORKERS=${WORKERS:-$(nproc)}; BENCH=${BENCH:-0}; STOP_STEP=${STOP_STEP:-}; DATA=${DATA:-data/grid-m$M.h5}
