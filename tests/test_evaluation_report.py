@@ -32,6 +32,19 @@ def test_markdown_tables():
     assert "E_p @5" in E.results_tables(short)            # horizons beyond the rollout dropped
 
 
+def test_a_kept_section_survives_a_rewrite(tmp_path):
+    rep = E.Report(command="tpnet eval --baselines-only", n_cases=3, horizon=90,
+                   source="test", curves=fake_curves(), timing=None)
+    path = E.write_results(rep, tmp_path, plots=False)
+    path.write_text(E.put_kept_section(path.read_text(), "sizes", "## Network sizes\n\nv1"))
+    path.write_text(E.put_kept_section(path.read_text(), "sizes", "## Network sizes\n\nv2"))
+    assert path.read_text().count("## Network sizes") == 1 and "v2" in path.read_text()
+    E.write_results(rep, tmp_path, plots=False)                   # tpnet eval again
+    text = path.read_text()
+    assert text.count("<!-- kept: sizes -->") == 1 and "v2" in text and "v1" not in text
+    assert "## Protocol" in text
+
+
 def test_write_results_structure(tmp_path):
     rep = E.Report(command="tpnet eval --baselines-only", n_cases=3, horizon=90,
                    source="test", curves=fake_curves(), timing=None,

@@ -105,6 +105,33 @@ def test_missing_model_in_a_wheel_install_is_one_line(tmp_path, monkeypatch):
         native.shipped_weights_path(6)
 
 
+def test_reduced_sizes_and_untracked_files_are_found_or_named(tmp_path, monkeypatch):
+    w, r = _shipped(tmp_path, monkeypatch, wheel=[4], repo=[4])
+    for size in native.SHIPPED_SIZES:
+        (r / f"tpnet-m4-{size}.h5").write_bytes(b"")
+        assert native.shipped_weights_path(4, size) == r / f"tpnet-m4-{size}.h5"
+        with pytest.raises(ValueError, match="m = 4 only"):
+            native.shipped_weights_path(3, size)
+    assert native.shipped_weights_path(4, "full") == w / "tpnet-m4.h5"
+    with pytest.raises(ValueError, match="no model is shipped at size='huge'"):
+        native.shipped_weights_path(4, "huge")
+    with pytest.raises(FileNotFoundError, match="tools/restore_weights.sh") as exc:
+        native.shipped_weights_path(5)                  # not tracked by git: the command says how
+    assert "\n" not in str(exc.value)
+
+
+def test_load_by_size_reads_the_shipped_file(tmp_path, monkeypatch):
+    import tpnet_ref
+    _shipped(tmp_path, monkeypatch, wheel=[], repo=[])
+    cfg = TINY
+    size = native.SHIPPED_SIZES[0]
+    native.write_native(tmp_path / "weights" / f"tpnet-m4-{size}.h5", cfg, _params(cfg))
+    model = tpnet_ref.load(size=size)
+    assert model.config == cfg
+    with pytest.raises(ValueError, match="either a path or m= / size="):
+        tpnet_ref.load(tmp_path / "weights" / f"tpnet-m4-{size}.h5", size=size)
+
+
 def test_describe_is_a_short_readable_summary(tmp_path):
     runs = [{"run": "runs/a", "data": "d.h5", "steps": 100, "epochs": 1.5, "wall_s": 7200.0,
              "windows_seen": 12800, "recipe": {"recipe": "curriculum", "lr": 0.001}}]

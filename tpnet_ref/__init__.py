@@ -18,11 +18,31 @@ import numpy as _np
 from .checks import warn_outside_training_range as _warn_outside_training_range
 from .config import TPNetConfig
 from .config import normalize as _normalize
-from .model import TPNet, init_random, load
+from .model import TPNet, init_random
+from .model import load as _load_file
 
 __version__ = "0.2.0"
 
 _default_model: TPNet | None = None
+
+
+def load(path: _Any = None, dtype: _Any = "float32", engine: str = "numpy", *,
+         m: int = 4, size: str = "full") -> TPNet:
+    """A :class:`TPNet` from a native weights file (:func:`tpnet_ref.model.load`).
+
+    Without ``path``, the shipped model for windows of ``m`` frames at network ``size``:
+    ``full`` (the paper's widths; the default, m = 4) or a reduced size shipped for m = 4
+    (``"quarter"``: every width a quarter, faster, less accurate; ``weights/MODEL_CARD.md``),
+    found by :func:`tpnet_ref.native.shipped_weights_path`. ``m`` and ``size`` are only
+    for the shipped files: with a ``path`` they must stay at their defaults."""
+    if path is None:
+        if m == 4 and size == "full":
+            return _load_file(None, dtype, engine)
+        from .native import shipped_weights_path
+        path = shipped_weights_path(m, size)
+    elif m != 4 or size != "full":
+        raise ValueError("load: give either a path or m= / size= (a shipped model), not both")
+    return _load_file(path, dtype, engine)
 
 
 def _model(model: TPNet | None) -> TPNet:

@@ -264,6 +264,16 @@ def chamfer_shape(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return chamfer_released(p - p.mean(dim=-2, keepdim=True), q - q.mean(dim=-2, keepdim=True))
 
 
+@torch.compiler.disable
+def _optimal_pairing(pf: torch.Tensor, qf: torch.Tensor) -> torch.Tensor:
+    """``(S, N)`` indices σ that pair ``pf[s, i]`` with ``qf[s, σ_s(i)]`` at least total distance
+    (scipy on the CPU; outside any ``torch.compile`` graph: a graph break, not a trace)."""
+    linear_sum_assignment = require("scipy.optimize", "train").linear_sum_assignment
+    cost = torch.cdist(pf, qf).double().cpu().numpy()
+    sigma = np.stack([linear_sum_assignment(c)[1] for c in cost])
+    return torch.from_numpy(sigma).to(qf.device)
+
+
 def matched_distance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     """Earth mover's distance of two equal-size sets on the released scale: ``2·Σ_i ||p_i −
     q_σ(i)||`` under the bijection σ that minimises it (the Chamfer sum if every nearest
@@ -273,17 +283,12 @@ def matched_distance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     and leave another uncovered, the local minimum a Chamfer-trained head falls into. σ comes
     from ``scipy.optimize.linear_sum_assignment`` on the CPU (no gradient through it); the
     gradient is that of the distances of the matched pairs."""
-    linear_sum_assignment = require("scipy.optimize", "train").linear_sum_assignment
-
     if p.shape != q.shape:
         raise ValueError(f"matched_distance needs sets of equal shape, got {tuple(p.shape)} "
                          f"and {tuple(q.shape)}")
     n, d = p.shape[-2:]
     pf, qf = p.reshape(-1, n, d), q.reshape(-1, n, d)
-    with torch.no_grad():
-        cost = torch.cdist(pf, qf).double().cpu().numpy()
-    sigma = np.stack([linear_sum_assignment(c)[1] for c in cost])
-    idx = torch.from_numpy(sigma).to(q.device).unsqueeze(-1).expand(-1, -1, d)
+    idx = _optimal_pairing(pf.detach(), qf.detach()).unsqueeze(-1).expand(-1, -1, d)
     diff = pf - torch.gather(qf, 1, idx)
     per = 2.0 * torch.sqrt((diff * diff).sum(-1) + 1e-20).sum(-1)
     return per.view(p.shape[:-2]).mean(dim=0)

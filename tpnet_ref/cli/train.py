@@ -13,6 +13,12 @@ from typing import Any
 
 from ..training.recipe import N_STEPS_MAX, OPTIMIZER_MODES, SIZES, Recipe
 
+#: as tpnet_ref.training.loop.COMPILE_MODES (not imported from there: that module needs torch)
+COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
+_COMPILE_HELP = ("capture the step's loss with torch.compile: auto (reduce-overhead, i.e. CUDA "
+                 "graphs, on a GPU; off on the CPU), reduce-overhead, default, eager (traced by "
+                 "TorchDynamo, eager kernels: proves on the CPU that the step traces), off")
+
 
 def add_cli(sub: Any) -> None:
     p = sub.add_parser("train", help="train TP-Net in PyTorch (train extra) and export weights")
@@ -28,7 +34,7 @@ def add_cli(sub: Any) -> None:
     d = Recipe()
     q.add_argument("--recipe", choices=("paper", "curriculum"), default=d.recipe)
     q.add_argument("--size", choices=sorted(SIZES), default="full",
-                   help="network widths: full (released), small, tiny")
+                   help="network widths: full (released), half, quarter (every width halved, quartered), small, tiny")
     q.add_argument("--lstm-activation", choices=("relu", "tanh"), default="relu")
     q.add_argument("--epochs", type=float, default=None,
                    help=f"default {d.epochs}; may be fractional")
@@ -68,6 +74,7 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--seed", type=int, default=d.seed, help="initialisation, order and noise")
     q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    q.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
     q.add_argument("--max-steps", type=int, default=None, help="stop (with a checkpoint) at this step")
     q.add_argument("--max-minutes", type=float, default=None,
                    help="stop (with a checkpoint) after this many minutes")
@@ -107,6 +114,9 @@ def add_cli(sub: Any) -> None:
     b.add_argument("--iters", type=int, default=5)
     b.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     b.add_argument("--threads", type=int, default=2)
+    b.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
+    b.add_argument("--shape-weight", type=float, default=0.0, help="λ of the timed loss")
+    b.add_argument("--match-weight", type=float, default=0.0, help="μ of the timed loss")
     b.set_defaults(func=_cli_bench)
 
     s = tsub.add_parser("score", help="model selection on validation trajectories (the test "
@@ -165,7 +175,7 @@ def _cli_run(args: argparse.Namespace) -> int:
                export_path=args.export, budget_minutes=args.budget_minutes,
                checkpoint_part_mib=args.checkpoint_part_mib,
                checkpoint_optimizer=args.checkpoint_optimizer,
-               allow_other_scene=args.allow_other_scene)
+               allow_other_scene=args.allow_other_scene, compile=args.compile)
     print(f"{args.run_dir}: step {st['step']}/{st['total_steps']} ({st['stopped']}), "
           f"{st['windows_seen']} windows seen, {st['wall_s']:.0f} s, last validation "
           + json.dumps(st.get("last_val", {})))
@@ -181,14 +191,17 @@ def _cli_export(args: argparse.Namespace) -> int:
 
 
 def _cli_bench(args: argparse.Namespace) -> int:
-    from ..training.loop import bench, hardware, resolve_device
+    from ..training.loop import bench, hardware, resolve_compile, resolve_device
     from ..training.recipe import size_config
 
     cfg = size_config(args.size)
     res = bench(cfg, batch=args.batch, rollouts=tuple(args.rollouts), iters=args.iters,
-                device=args.device, threads=args.threads)
+                device=args.device, threads=args.threads, compile=args.compile,
+                shape_weight=args.shape_weight, match_weight=args.match_weight)
     dev = resolve_device(args.device)
-    print(f"train step throughput, size {args.size}, batch {args.batch}, {hardware(dev)}:")
+    print(f"train step throughput, size {args.size}, batch {args.batch}, "
+          f"compile {resolve_compile(args.compile, dev)}, λ {args.shape_weight:g}, "
+          f"μ {args.match_weight:g}, {hardware(dev)}:")
     for k, v in res.items():
         print(f"  {k}-step loss: {v:8.1f} windows/s")
     return 0

@@ -20,9 +20,9 @@ from ..config import NORM_HI, NORM_LO, denormalize, normalize
 from ..protocol import (FRAME_EVERY, HORIZONS, ORDERINGS, REFERENCE_DT, SIM_ROWS,
                         constant_velocity, copy_last, order_points, split_protocol)
 from .demo import DEMO_CASE, DEMO_HORIZONS, demo
-from .report import (Report, evidence_md, evidence_rows, headline_md, md_table, ordering_table,
-                     render_markdown, results_tables, timing_md, write_curves_csv,
-                     write_results)
+from .report import (Report, evidence_md, evidence_rows, headline_md, kept_sections, md_table,
+                     ordering_table, put_kept_section, render_markdown, results_tables,
+                     timing_md, write_curves_csv, write_results)
 from .run import (HEADLINE, PAPER_TABLE, TEST_CASES, VARIANTS, Curve, ModelSpec,
                   batched_rollout, errors, evaluate, generalisation_cases, simulate_cases,
                   table_horizons)
@@ -34,7 +34,7 @@ from .timing import TimingRow, sim_coarse, timing_table
 __all__ = ["simulate_cases", "split_protocol", "order_points", "copy_last", "constant_velocity",
            "batched_rollout", "errors", "evaluate", "generalisation_cases", "timing_table",
            "sim_coarse", "results_tables", "ordering_table", "md_table", "render_markdown",
-           "write_results", "write_curves_csv", "timing_md", "headline_md", "evidence_md",
+           "write_results", "write_curves_csv", "kept_sections", "put_kept_section", "timing_md", "headline_md", "evidence_md",
            "evidence_rows", "demo", "run_eval", "command_line", "default_out_dir", "Curve",
            "Report", "TimingRow", "ModelSpec", "PAPER_TABLE", "VARIANTS", "HEADLINE", "HORIZONS",
            "ORDERINGS", "FRAME_EVERY", "SIM_ROWS", "REFERENCE_DT", "TEST_CASES", "DEMO_CASE",

@@ -11,6 +11,7 @@ import datetime as _dt
 import math
 import os
 import platform
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -334,6 +335,25 @@ def write_curves_csv(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     return Path(path)
 
 
+#: a section of ``results.md`` written by another command (``bench/sizes.py --md``), kept when
+#: ``tpnet eval`` rewrites the file: ``<!-- kept: NAME -->`` ... ``<!-- /kept: NAME -->``
+_KEPT = re.compile(r"<!-- kept: (?P<name>[\w.-]+) -->\n.*?<!-- /kept: (?P=name) -->\n?", re.S)
+
+
+def kept_sections(text: str) -> dict[str, str]:
+    """The kept sections of a ``results.md`` text, ``{name: block with its markers}``."""
+    return {m["name"]: m[0] if m[0].endswith("\n") else m[0] + "\n" for m in _KEPT.finditer(text)}
+
+
+def put_kept_section(text: str, name: str, body: str) -> str:
+    """``text`` with the kept section ``name`` replaced by ``body`` (appended if absent)."""
+    block = f"<!-- kept: {name} -->\n{body.rstrip()}\n<!-- /kept: {name} -->\n"
+    old = kept_sections(text).get(name)
+    if old is not None:
+        return text.replace(old, block, 1)
+    return text.rstrip("\n") + "\n\n" + block
+
+
 def write_results(rep: Report, out_dir: str | os.PathLike, *, plots: bool = True,
                   gallery: dict[str, Any] | None = None) -> Path:
     """Write ``results.md``, ``eval_curves.csv`` and (``plots``: matplotlib, the ``plot``
@@ -353,11 +373,13 @@ def write_results(rep: Report, out_dir: str | os.PathLike, *, plots: bool = True
     csv = write_curves_csv([*rep.curves, *(c for cs in rep.generalisation.values() for c in cs)],
                            out / "eval_curves.csv")
     path = out / "results.md"
-    path.write_text(render_markdown(rep) + f"\nPer-step means of every curve: [{csv.name}]"
-                    f"({csv.name}).\n")
+    kept = kept_sections(path.read_text()) if path.is_file() else {}
+    text = render_markdown(rep) + f"\nPer-step means of every curve: [{csv.name}]({csv.name}).\n"
+    path.write_text("".join([text, *("\n" + b for b in kept.values())]))
     return path
 
 
 __all__ = ["READING_TEXT", "md_table", "fmt_err", "table_horizons", "results_tables",
            "ordering_table", "evidence_rows", "evidence_md", "headline_md", "timing_md", "Report",
-           "render_markdown", "write_curves_csv", "write_results"]
+           "render_markdown", "write_curves_csv", "write_results", "kept_sections",
+           "put_kept_section"]

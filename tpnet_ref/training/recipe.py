@@ -121,6 +121,11 @@ class Recipe:
 #: named network sizes: the released one and reduced widths for CPU experiments and tests
 SIZES: dict[str, dict[str, Any]] = {
     "full": {},
+    # the same architecture at half and a quarter of every width (the error-against-run-time sizes)
+    "half": dict(mlp1=(32, 32), mlp2=(64, 128, 256), global_features=64,
+                 lstm_units=(256, 128, 128)),
+    "quarter": dict(mlp1=(16, 16), mlp2=(32, 64, 128), global_features=32,
+                    lstm_units=(128, 64, 64)),
     "small": dict(mlp1=(32, 32), mlp2=(64, 128, 256), global_features=64,
                   lstm_units=(64, 32, 32)),
     "tiny": dict(mlp1=(8, 8), mlp2=(8, 16, 16), global_features=8, lstm_units=(8, 8, 8)),

@@ -1,0 +1,89 @@
+"""tools/gpu_train.sh, the script a GPU call runs, end to end on the CPU at tiny size.
+
+Two calls and the step between them, as a GPU session does them: call 1 generates a tiny grid,
+starts a run with the step traced by TorchDynamo (``--compile eager``: the capture front end of
+``reduce-overhead``, without CUDA) and stops half-way; what it leaves in $OUT is what a device
+returns (at most 8 files of 16 MiB); ``collect`` puts those files into a fresh ``.gpu/NAME``
+(the machine went back: nothing of call 1 is left but what came back) and exports the weights;
+call 2 resumes from those parts and finishes.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("pymunk")
+
+import tpnet_ref  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+SCRIPT = REPO / "tools" / "gpu_train.sh"
+
+
+def _call(work: Path, *args: str, **env: str) -> str:
+    e = {**os.environ, "WORK": str(work), "PY": sys.executable, "NAME": "ci", "M": "4",
+         "SIZE": "tiny", "INIT": "", "BUDGET": "", "BATCH": "8", "LR": "3e-3", "MATCH": "4",
+         "WORKERS": "1", "THREADS": "1", "COMPILE": "eager", "OPTIM": "none",
+         "DATA_ARGS": "--forces 1.3 --angles 200 245 --positions 2 --steps 100 --whole 0",
+         "TRAIN_ARGS": "--epochs 2 --val-fraction 0.25 --warmup-steps 2 --val-windows 0",
+         **env}
+    r = subprocess.run(["bash", str(SCRIPT), *args], env=e, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    return r.stdout
+
+
+def _returned(out: Path) -> list[Path]:
+    files = [p for p in out.rglob("*") if p.is_file()]
+    assert 0 < len(files) <= 8 and all(p.stat().st_size <= 16 << 20 for p in files)
+    assert all(len(p.relative_to(out).parts) <= 3 for p in files)     # $OUT/a/b/file at most
+    return files
+
+
+def test_two_calls_resume_from_the_parts_that_came_back(tmp_path):
+    work = tmp_path / "repo"
+    work.mkdir()
+    out1 = _call(work, OUT=str(tmp_path / "out1"), STOP_STEP="6")
+    assert "step 6/14" in out1 and "max_steps" in out1
+    back = tmp_path / "files_at"                        # what a device call brings back here
+    shutil.copytree(tmp_path / "out1", back)
+    names = {p.name for p in _returned(back)}
+    assert {"checkpoint.json", "log.jsonl", "checkpoint.pt.000"} <= names
+    shutil.rmtree(work / ".gpu")                        # a fresh machine: only the parts remain
+    _call(work, "collect", str(back))
+    first = tpnet_ref.load(work / "runs" / "gpu-ci.h5")
+    assert first.meta["training_steps"] == 6 and first.config.lstm_units == (8, 8, 8)
+
+    out2 = _call(work, OUT=str(tmp_path / "out2"))       # the next call, data kept (warm)
+    assert "step 14/14" in out2 and "done" in out2
+    _returned(tmp_path / "out2")
+    state = json.loads((work / ".gpu" / "ci" / "checkpoint.json").read_text())
+    assert state["step"] == state["total_steps"] == 14
+    assert state["optimizer_resets"] == [6]             # model-only parts: a fresh Adam at 6
+    assert [c["mode"] for c in state["compile"]] == ["eager", "eager"]
+    steps = [json.loads(s)["step"] for s in (work / ".gpu" / "ci" / "log.jsonl").open()]
+    assert steps[0] == 0 and steps[-1] == 14 and steps == sorted(steps)
+
+
+def test_unknown_subcommand_is_refused(tmp_path):
+    r = subprocess.run(["bash", str(SCRIPT), "bogus"], env={**os.environ, "WORK": str(tmp_path)},
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "usage" in r.stderr
+
+
+def test_the_cli_lists_the_loops_compile_modes():
+    from tpnet_ref.cli import train as cli_train
+    from tpnet_ref.training import loop
+
+    assert cli_train.COMPILE_MODES == loop.COMPILE_MODES
+    assert loop.resolve_compile("auto", "cuda") == "reduce-overhead"
+    assert loop.resolve_compile("auto", "cpu") == "off"
+    with pytest.raises(ValueError, match="compile must be one of"):
+        loop.resolve_compile("fast", "cpu")

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Put weights/tpnet-m3.h5 and weights/tpnet-m5.h5 back, bit-identical, from the repository's git
+# history (they are shipped but not tracked: weights/README.md, "What git tracks").
+#
+#   bash tools/restore_weights.sh [DEST]      # DEST: default weights/ (git ignores them there)
+#
+# Needs a clone with history (not --depth 1). Each file is checked against its SHA-256 below.
+set -euo pipefail
+REPO=$(cd "$(dirname "$0")/.." && pwd)
+DEST=${1:-$REPO/weights}
+# the last commit that tracked them (main, 2026-11-24) and their SHA-256
+COMMIT=8048ad77da407cab139892fe53ccceab406dcc01
+declare -A SHA=(
+  [tpnet-m3.h5]=0954ae2f5922e1b4a97da048ad72fa46f7856eb8020856845da6bdcbe06ed318
+  [tpnet-m5.h5]=6bc2c32c92c05d8346dc954f427f18f9884ffb9c2ecacc3bee321c795955803f
+)
+mkdir -p "$DEST"
+for f in tpnet-m3.h5 tpnet-m5.h5; do
+    if [ ! -f "$DEST/$f" ] || [ "$(sha256sum < "$DEST/$f" | cut -d' ' -f1)" != "${SHA[$f]}" ]; then
+        git -C "$REPO" cat-file -e "$COMMIT^{commit}" 2>/dev/null || {
+            echo "restore_weights: commit $COMMIT is not in this clone's history (a shallow clone?): fetch it, e.g. git fetch --unshallow" >&2; exit 1; }
+        git -C "$REPO" show "$COMMIT:weights/$f" > "$DEST/$f.tmp"
+        mv "$DEST/$f.tmp" "$DEST/$f"
+    fi
+    got=$(sha256sum < "$DEST/$f" | cut -d' ' -f1)
+    [ "$got" = "${SHA[$f]}" ] || { echo "restore_weights: $DEST/$f has SHA-256 $got, expected ${SHA[$f]}" >&2; exit 1; }
+    echo "$DEST/$f: ok"
+done
