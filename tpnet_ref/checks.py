@@ -6,6 +6,7 @@ wrong shape or value (rank, last dimension, empty, NaN/Inf).
 """
 from __future__ import annotations
 
+import math
 import warnings
 from typing import Any
 
@@ -127,3 +128,98 @@ def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: 
     if problem:
         warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
                       "extrapolation", OutsideTrainingRangeWarning, stacklevel=stacklevel)
+
+
+# --------------------------------------------------------------------------- one body?
+class NotOneBodyWarning(OutsideTrainingRangeWarning):
+    """A window whose frames do not look like one body (stray points, two blobs, a frame far from
+    its neighbours); the result is computed unchanged."""
+
+
+#: one body (docs/robustness.md): points closer than max(LINK_FACTOR x the median nearest-neighbour
+#: distance, LINK_MIN) world units are one group; the largest group is the body, and of it the
+#: points within MAX_RADIUS of its median centre (the scene's bodies reach 2.84 from their centroid
+#: and their nearest neighbours lie up to 2.84 median spacings apart: 200 training-grid
+#: trajectories, every frame)
+BODY_LINK_FACTOR = 3.0
+BODY_LINK_MIN = 1.2
+BODY_MAX_RADIUS = 3.6
+#: frames with fewer points are not judged
+BODY_MIN_POINTS = 5
+#: the body's centre moves at most 2.08 world units per model frame in the training scenes
+BODY_MAX_STEP = 4.0
+
+
+def _groups(adj: np.ndarray) -> np.ndarray:
+    """Connected-component labels of a symmetric boolean adjacency matrix (min-label spreading)."""
+    n = adj.shape[0]
+    lab = np.arange(n)
+    while True:
+        new = np.where(adj, lab[None, :], n).min(axis=1)
+        new = np.minimum(new, lab)
+        new = new[new]                                  # pointer jumping
+        if np.array_equal(new, lab):
+            return lab
+        lab = new
+
+
+def body_outliers(points: np.ndarray, link: float | None = None,
+                  max_radius: float = BODY_MAX_RADIUS) -> np.ndarray:
+    """Boolean ``(N,)``: which points of a finite ``(N, 2)`` world-unit set lie apart from the body
+    (not in the largest group of points joined closer than ``link``, or further than
+    ``max_radius`` from that group's median centre). Sets of fewer than 5 points: none."""
+    p = np.asarray(points, dtype=np.float64)
+    n = p.shape[0]
+    out = np.zeros(n, dtype=bool)
+    if n < BODY_MIN_POINTS:
+        return out
+    d = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=2))
+    np.fill_diagonal(d, np.inf)
+    if link is None:
+        link = max(BODY_LINK_FACTOR * float(np.median(d.min(axis=1))), BODY_LINK_MIN)
+    elif not (math.isfinite(float(link)) and float(link) > 0):
+        raise ValueError(f"link: must be a finite distance > 0, got {link}")
+    if not (math.isfinite(float(max_radius)) and float(max_radius) > 0):
+        raise ValueError(f"max_radius: must be a finite distance > 0, got {max_radius}")
+    lab = _groups(d <= float(link))
+    body = lab == np.bincount(lab).argmax()
+    centre = np.median(p[body], axis=0)
+    body &= np.sqrt(((p - centre) ** 2).sum(axis=1)) <= float(max_radius)
+    return ~body
+
+
+def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
+    """Why a window (``(F, N, 2)`` or a list of ``(N_i, 2)`` frames, world units) does not look
+    like one body moving, or ``None``: stray points or a second blob in a frame
+    (:func:`body_outliers`), or a frame whose body is far from the previous frame's."""
+    centres = []
+    for i, f in enumerate(frames):
+        f = np.asarray(f, dtype=np.float64)
+        out = body_outliers(f)
+        if out.any():
+            k = int(out.sum())
+            what = "a second blob" if k >= BODY_MIN_POINTS else "stray points"
+            return (f"frame {i} does not look like one body: {k} of {len(f)} points lie apart "
+                    f"from it (likely {what}: background specks, reflections, another object); "
+                    "max pooling takes them as part of the body, so clean each frame with "
+                    "tpnet_ref.observe.drop_outliers")
+        centres.append(f.mean(axis=0))
+    for i in range(1, len(centres)):
+        step = float(np.sqrt(((centres[i] - centres[i - 1]) ** 2).sum()))
+        if step > BODY_MAX_STEP:
+            return (f"frame {i}'s body is {step:.3g} world units from frame {i - 1}'s (the "
+                    f"scene's bodies move at most ~2.1 per frame): a frame from another moment "
+                    "or object, or frames not 4/45 s apart? (tpnet_ref.observe."
+                    "frames_at_model_rate picks them; drop_outliers removes stray points)")
+    return None
+
+
+def warn_not_one_body(frames: np.ndarray | list[np.ndarray], name: str,
+                      stacklevel: int = 4) -> bool:
+    """One-line :class:`NotOneBodyWarning` if :func:`window_body_problem` finds one; whether it
+    warned."""
+    problem = window_body_problem(frames)
+    if problem:
+        warnings.warn(f"{name}: {problem}; the prediction is unreliable", NotOneBodyWarning,
+                      stacklevel=stacklevel)
+    return problem is not None
