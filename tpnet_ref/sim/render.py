@@ -224,7 +224,11 @@ def render_frames(positions: np.ndarray, settings: RenderSettings,
         yield render_frame(p, settings, bg, rng)
 
 
-def _paths(out: Path) -> dict[str, Path]:
+def output_paths(out: str | Path) -> dict[str, Path]:
+    """Where :func:`write_render` puts the frames, the calibration, the background and the true
+    centres for ``out`` (a ``.mp4``/``.avi`` video or a directory); ``ValueError`` for another
+    suffix."""
+    out = Path(out)
     if out.suffix.lower() in VIDEO_CODECS:
         stem = out.with_suffix("")
         return {"frames": out, "calibration": stem.with_suffix(".json"),
@@ -245,7 +249,7 @@ def write_render(out: str | Path, rows: np.ndarray, settings: RenderSettings,
     ``calibration.json``, ``background.png``, ``truth.npy``). Returns the calibration."""
     cv2 = _cv2()
     out = Path(out)
-    paths = _paths(out)
+    paths = output_paths(out)
     video = out.suffix.lower() in VIDEO_CODECS
     parent = out.parent if video else out
     if video and not parent.is_dir():
@@ -296,4 +300,5 @@ def write_render(out: str | Path, rows: np.ndarray, settings: RenderSettings,
 
 
 __all__ = ["RenderSettings", "background", "draw_body", "body_mask", "render_frame",
-           "render_frames", "frame_positions", "write_render", "VIDEO_CODECS"]
+           "render_frames", "frame_positions", "write_render", "output_paths", "coverage",
+           "VIDEO_CODECS"]
