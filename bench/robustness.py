@@ -117,6 +117,7 @@ def rows() -> list[tuple[str, object]]:
         ("contour, 640 px, 120 points", _contour(640, 120)),
         ("5 of 30 centres missing", missing),
         ("noise sigma 0.2 world units", noise),
+        ("noise sigma 0.2, drop_outliers", lambda w, r, c: [drop_outliers(f) for f in noise(w, r, c)]),
         ("1 stray point per frame, raw", stray(1, False)),
         ("1 stray point per frame, drop_outliers", stray(1, True)),
         ("3 stray points per frame, raw", stray(3, False)),
@@ -157,12 +158,49 @@ def evaluate(model, inputs: list[list[np.ndarray]], truth: np.ndarray) -> dict[s
     return out
 
 
+def geometry(trials: int = 12) -> None:
+    """The contour's geometry on the undeformed body (exactly known: particle centres on a circle
+    of radius 2) at random positions and rotations: mean radius, its spread over the trials (the
+    start point's aliasing) and the centroid error, with and without smoothing and offset
+    correction."""
+    from tpnet_ref.sim.render import RenderSettings, body_mask
+    from tpnet_ref.sim.scene import ring_positions
+    print("| image | smoothing | offset correction | mean radius (true 2) | its spread (sd) over "
+          "trials | centroid error |")
+    print("|---|---|---|---|---|---|")
+    for size in (320, 640, 1280):
+        cam = RenderSettings(size=size).camera
+        rng = np.random.default_rng(size)
+        res = {}
+        for _ in range(trials):
+            c = rng.uniform(10, 35, 2)
+            a = rng.uniform(0, 2 * np.pi)
+            rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+            mask = body_mask((ring_positions(*c) - c) @ rot.T + c, size)
+            for smooth in (True, False):
+                for inset in (BODY_INSET, 0.0):
+                    p = points_from_mask(mask, cam, smooth=smooth, inset=inset)
+                    r = np.sqrt(((p - c) ** 2).sum(axis=1)).mean()
+                    e = np.sqrt(((p.mean(axis=0) - c) ** 2).sum())
+                    res.setdefault((smooth, inset), []).append((r, e))
+        for (smooth, inset), v in res.items():
+            v = np.array(v)
+            print(f"| {size} px | {'yes' if smooth else 'no'} | "
+                  f"{'inset %.3f' % inset if inset else 'none'} | {v[:, 0].mean():.3f} | "
+                  f"{v[:, 0].std():.3f} | {v[:, 1].mean():.3f} |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="10 cases x 1 seed")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--only", default=None, help="rows whose name contains this text")
+    ap.add_argument("--geometry", action="store_true",
+                    help="only the contour's geometry on the undeformed body (seconds)")
     args = ap.parse_args(argv)
+    if args.geometry:
+        geometry()
+        return 0
     cases = TEST_CASES[:10] if args.quick else TEST_CASES
     seeds = range(1 if args.quick else args.seeds)
     t0 = time.time()

@@ -207,9 +207,12 @@ def _frames_of_one_case():
     return simulate(1.6, 200.0, 39.8, 39.6, 400)[::4]         # hits two walls
 
 
-def test_drop_outliers_keeps_every_point_of_simulated_bodies():
-    for f in _frames_of_one_case():
-        assert len(drop_outliers(f)) == 30
+def test_drop_outliers_keeps_the_points_of_simulated_bodies():
+    frames = _frames_of_one_case()
+    for f in frames:                                   # without the eager spur test: every one
+        assert len(drop_outliers(f, spur_factor=None)) == 30
+    kept = sum(len(drop_outliers(f)) for f in frames)  # with it: a body point, rarely
+    assert kept >= 0.995 * 30 * len(frames)
 
 
 def test_drop_outliers_removes_stray_points_and_invents_none():

@@ -51,8 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from .checks import (BODY_LINK_FACTOR, BODY_LINK_MIN, BODY_MAX_RADIUS, as_point_set, as_real_array,
-                     body_outliers, check_finite)
+from .checks import (BODY_LINK_FACTOR, BODY_LINK_MIN, BODY_MAX_RADIUS, BODY_SPUR_FACTOR,
+                     as_point_set, as_real_array, body_outliers, check_finite)
 from .extras import require
 from .protocol import FRAME_EVERY, REFERENCE_DT
 
@@ -393,18 +393,23 @@ def points_from_image(image: Any, background: Any, camera: Camera, n: int = 30, 
 
 # --------------------------------------------------------------------------- stray points
 def drop_outliers(points: Any, *, link: float | None = None,
-                  max_radius: float = BODY_MAX_RADIUS, return_mask: bool = False) -> Any:
+                  max_radius: float = BODY_MAX_RADIUS,
+                  spur_factor: float | None = BODY_SPUR_FACTOR, return_mask: bool = False) -> Any:
     """The points of ``points (N, 2)`` (world units) that belong to the body, in their order.
 
     The body is one compact blob of known size: points are joined when closer than ``link``
     (default: ``max(3 x the median nearest-neighbour distance, 1.2)`` world units), the largest
     group is kept, and of it the points within ``max_radius`` (3.6: the scene's bodies reach 2.84
-    from their centroid) of its median centre. Returns fewer points, never new ones (with
+    from their centroid) of its median centre; then *spurs* go, points further than
+    ``spur_factor`` (1.5) x the median nearest-neighbour distance from the next point with both
+    nearest neighbours on one side of them (a stray just off the outline; ``None``: keep them).
+    It errs towards dropping: a missing body point costs the model nothing measurable, a stray
+    point a great deal (docs/robustness.md). Returns fewer points, never new ones (with
     ``return_mask``, also the boolean mask of the kept points). Fewer than 5 points are returned
     unchanged. NumPy only.
     """
     p = as_point_set(points, "points", dtype=np.float64)
-    keep = ~body_outliers(p, link=link, max_radius=max_radius)
+    keep = ~body_outliers(p, link=link, max_radius=max_radius, spur_factor=spur_factor)
     out = np.asarray(points)[keep] if isinstance(points, np.ndarray) and points.ndim == 2 \
         else p[keep]
     return (out, keep) if return_mask else out
@@ -475,4 +480,4 @@ def frames_at_model_rate(times_s: Any, frames: Any, **kwargs: Any) -> Any:
 __all__ = ["Camera", "points_from_mask", "points_from_image", "drop_outliers",
            "frames_at_model_rate", "model_rate_indices", "foreground_mask", "largest_component",
            "outline_offset", "BODY_INSET", "MODEL_FRAME_S", "WALL_LO", "WALL_HI",
-           "BODY_LINK_FACTOR", "BODY_LINK_MIN", "BODY_MAX_RADIUS"]
+           "BODY_LINK_FACTOR", "BODY_LINK_MIN", "BODY_MAX_RADIUS", "BODY_SPUR_FACTOR"]
