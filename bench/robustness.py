@@ -190,6 +190,35 @@ def geometry(trials: int = 12) -> None:
                   f"{v[:, 0].std():.3f} | {v[:, 1].mean():.3f} |")
 
 
+def calibration(count: int = 200) -> None:
+    """The body statistics the thresholds of tpnet_ref.checks come from, on ``count``
+    training-grid trajectories (never the test cases), every model frame."""
+    from tpnet_ref.checks import BODY_SPUR_FACTOR, body_outliers, window_body_problem
+    from tpnet_ref.sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+    grid = [(f, a, x, y) for f in TRAIN_FORCES for a in TRAIN_ANGLES_DEG
+            for (x, y) in TRAIN_POSITIONS]
+    pick = np.random.default_rng(1).choice(len(grid), count, replace=False)
+    fr = simulate_cases([grid[i] for i in pick])
+    f = fr.reshape(-1, *fr.shape[2:])
+    d = np.sqrt(((f - f.mean(axis=1, keepdims=True)) ** 2).sum(axis=2))
+    nd = np.sqrt(((f[:, :, None] - f[:, None]) ** 2).sum(axis=3))
+    nd[:, np.arange(f.shape[1]), np.arange(f.shape[1])] = np.inf
+    nn = nd.min(axis=2)
+    step = np.sqrt((np.diff(fr.mean(axis=2), axis=1) ** 2).sum(axis=2))
+    print(f"{count} training-grid trajectories, {len(f)} frames:")
+    print(f"  largest distance of a particle from its body's centroid: {d.max():.2f}")
+    print(f"  largest nearest-neighbour distance: {nn.max():.2f} world units, "
+          f"{(nn.max(axis=1) / np.median(nn, axis=1)).max():.2f} x the frame's median")
+    print(f"  largest move of the centroid in one model frame: {step.max():.2f}")
+    flagged = sum(body_outliers(x).any() for x in f)
+    spurs = sum(body_outliers(x, spur_factor=BODY_SPUR_FACTOR).any() for x in f)
+    windows = sum(window_body_problem(t[i:i + M]) is not None
+                  for t in fr for i in range(0, len(t) - M + 1, M))
+    print(f"  frames with a point body_outliers flags: {flagged} (the warning's test); with the "
+          f"spur test of drop_outliers: {spurs} ({100 * spurs / len(f):.2f} %)")
+    print(f"  m = 4 windows (every 4th start) window_body_problem warns on: {windows}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="10 cases x 1 seed")
@@ -197,7 +226,12 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default=None, help="rows whose name contains this text")
     ap.add_argument("--geometry", action="store_true",
                     help="only the contour's geometry on the undeformed body (seconds)")
+    ap.add_argument("--calibration", action="store_true",
+                    help="only the training-grid body statistics behind the thresholds")
     args = ap.parse_args(argv)
+    if args.calibration:
+        calibration()
+        return 0
     if args.geometry:
         geometry()
         return 0
