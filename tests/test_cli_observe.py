@@ -88,3 +88,12 @@ def test_errors_are_one_line(tmp_path, capsys, argv, msg):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and msg in err, err
+
+
+def test_predict_warns_in_one_line_on_a_window_with_a_stray_point(video, tmp_path, capsys):
+    w = np.load(video.parent / "run.truth.npy")[0:16:4]
+    w = np.concatenate([w, np.tile([[[40.0, 5.0]]], (4, 1, 1))], axis=1)      # (4, 31, 2)
+    np.save(tmp_path / "w.npy", w)
+    assert main(["predict", str(tmp_path / "w.npy")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not look like one body" in err[0] and "drop_outliers" in err[0]

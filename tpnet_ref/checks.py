@@ -227,13 +227,19 @@ def body_outliers(points: np.ndarray, link: float | None = None,
 def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
     """Why a window (``(F, N, 2)`` or a list of ``(N_i, 2)`` frames, world units) does not look
     like one body moving, or ``None``: stray points or a second blob in a frame
-    (:func:`body_outliers`), or a frame whose body is far from the previous frame's."""
+    (:func:`body_outliers`: at most as many as the body's points), or a frame whose body is far
+    from the previous frame's. A frame without a body of the scene's size (points scattered, or
+    in other units) is left to :func:`training_range_problem`."""
     centres = []
     for i, f in enumerate(frames):
         f = np.asarray(f, dtype=np.float64)
         out = body_outliers(f)
-        if out.any():
-            k = int(out.sum())
+        k = int(out.sum())
+        if k and (len(f) - k < BODY_MIN_POINTS or k > len(f) - k):
+            # no body of the scene's size at all (wrong units or scale, scattered points): the
+            # training-range check says what is wrong
+            return None
+        if k:
             what = "a second blob" if k >= BODY_MIN_POINTS else "stray points"
             return (f"frame {i} does not look like one body: {k} of {len(f)} points lie apart "
                     f"from it (likely {what}: background specks, reflections, another object); "
