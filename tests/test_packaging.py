@@ -77,9 +77,10 @@ def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tm
 
     # the camera path's NumPy-only parts work without OpenCV; reading an image names the extra
     code = ("import numpy as np; from tpnet_ref.observe import Camera, drop_outliers, "
-            "frames_at_model_rate, points_from_mask; "
+            "frames_at_model_rate, points_from_mask; a = np.arange(30) * np.pi / 15; "
+            "ring = np.c_[20 + 2 * np.sin(a), 20 + 2 * np.cos(a)]; "
             "print(Camera(0, 640, 640).to_world([[0, 640]]).tolist(), "
-            "len(drop_outliers(np.r_[np.random.default_rng(0).random((30, 2)) + 20, [[5, 5]]]))); "
+            "len(drop_outliers(np.r_[ring, [[5, 5]]]))); "
             "points_from_mask(np.ones((8, 8)), Camera(0, 8, 8))")
     r = _run([py, "-c", code], cwd=tmp_path)
     assert "[[1.0, 1.0]] 30" in r.stdout, r.stdout + r.stderr[-2000:]
