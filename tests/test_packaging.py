@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-OPTIONAL = ("numba", "llvmlite", "scipy", "pymunk", "torch", "matplotlib", "tqdm", "onnxruntime")
+OPTIONAL = ("numba", "llvmlite", "scipy", "pymunk", "torch", "matplotlib", "tqdm", "onnxruntime",
+            "cv2")
 
 
 def _run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
@@ -74,6 +75,18 @@ def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tm
     r = _run([py, "-m", "pip", "list", "--format=freeze"])
     installed = {ln.split("==")[0].lower() for ln in r.stdout.splitlines()}
     assert not installed & set(OPTIONAL), installed & set(OPTIONAL)
+    assert not {n for n in installed if n.startswith("opencv")}, installed
+
+    # the camera path's NumPy-only parts work without OpenCV; reading an image names the extra
+    code = ("import numpy as np; from tpnet_ref.observe import Camera, drop_outliers, "
+            "frames_at_model_rate, points_from_mask; a = np.arange(30) * np.pi / 15; "
+            "ring = np.c_[20 + 2 * np.sin(a), 20 + 2 * np.cos(a)]; "
+            "print(Camera(0, 640, 640).to_world([[0, 640]]).tolist(), "
+            "len(drop_outliers(np.r_[ring, [[5, 5]]]))); "
+            "points_from_mask(np.ones((8, 8)), Camera(0, 8, 8))")
+    r = _run([py, "-c", code], cwd=tmp_path)
+    assert "[[1.0, 1.0]] 30" in r.stdout, r.stdout + r.stderr[-2000:]
+    assert "pip install 'tpnet-ref[vision]'" in r.stderr.strip().splitlines()[-1], r.stderr
 
     tpnet = str(env_dir / "bin" / "tpnet")
     r = _run([tpnet, "demo"], cwd=tmp_path)

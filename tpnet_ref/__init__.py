@@ -15,6 +15,7 @@ from typing import Any as _Any
 
 import numpy as _np
 
+from .checks import warn_not_one_body as _warn_not_one_body
 from .checks import warn_outside_training_range as _warn_outside_training_range
 from .config import TPNetConfig
 from .config import normalize as _normalize
@@ -71,12 +72,26 @@ def _range_check(net: TPNet, windows: _Any, normalized: bool, name: str) -> None
     _warn_outside_training_range(frames, c.norm_lo, c.norm_hi, name, normalized)
 
 
+def _body_check(net: TPNet, window: _Any, normalized: bool, name: str) -> bool:
+    """One-line ``NotOneBodyWarning`` for a window whose frames do not look like one body (stray
+    points, two blobs, a frame far from its neighbours); whether it warned (then the range warning,
+    which stray points also trip, is left out: one line names the likely cause)."""
+    c = net.config
+    frames = [_np.asarray(f, dtype=_np.float64) for f in window]
+    if normalized:
+        frames = [f * (c.norm_hi - c.norm_lo) + c.norm_lo for f in frames]
+    return _warn_not_one_body(frames, name)
+
+
 def predict(window: _Any, model: TPNet | None = None, normalized: bool = False) -> _np.ndarray:
     """Next point set ``(n_out, 2)`` from a window ``(m, N, 2)`` or m arrays ``(N_i, 2)``.
-    Input outside the training range gives a one-line ``OutsideTrainingRangeWarning``."""
+    Input outside the training range gives a one-line ``OutsideTrainingRangeWarning``, a window
+    that does not look like one body (stray points) a ``NotOneBodyWarning``."""
     net = _model(model)
     out = net.predict(window, normalized=normalized)
-    _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized, "window")
+    if not _body_check(net, window, normalized, "window"):
+        _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized,
+                     "window")
     return out
 
 
@@ -94,7 +109,9 @@ def rollout(window: _Any, steps: int, model: TPNet | None = None,
     """``steps`` recursive predictions ``(steps, n_out, 2)``; the window slides by one frame."""
     net = _model(model)
     out = net.rollout(window, steps, normalized=normalized)
-    _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized, "window")
+    if not _body_check(net, window, normalized, "window"):
+        _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized,
+                     "window")
     return out
 
 
@@ -117,7 +134,7 @@ def example_window() -> _np.ndarray:
 
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
 _LAZY = ("config", "checks", "layers", "model", "blas", "extras", "weights", "metrics", "sim",
-         "data", "protocol", "evaluation", "training", "onnx_peer", "specialize")
+         "data", "protocol", "evaluation", "training", "onnx_peer", "specialize", "observe")
 
 
 def __getattr__(name: str) -> _Any:

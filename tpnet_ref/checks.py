@@ -6,6 +6,7 @@ wrong shape or value (rank, last dimension, empty, NaN/Inf).
 """
 from __future__ import annotations
 
+import math
 import warnings
 from typing import Any
 
@@ -127,3 +128,140 @@ def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: 
     if problem:
         warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
                       "extrapolation", OutsideTrainingRangeWarning, stacklevel=stacklevel)
+
+
+# --------------------------------------------------------------------------- one body?
+class NotOneBodyWarning(OutsideTrainingRangeWarning):
+    """A window whose frames do not look like one body (stray points, two blobs, a frame far from
+    its neighbours); the result is computed unchanged."""
+
+
+#: one body (docs/robustness.md): points closer than max(LINK_FACTOR x the median nearest-neighbour
+#: distance, LINK_MIN) world units are one group; the largest group is the body, and of it the
+#: points within MAX_RADIUS of its median centre (the scene's bodies reach 2.84 from their centroid
+#: and their nearest neighbours lie up to 2.84 median spacings apart: 200 training-grid
+#: trajectories, every frame)
+BODY_LINK_FACTOR = 3.0
+BODY_LINK_MIN = 1.2
+BODY_MAX_RADIUS = 3.6
+#: drop_outliers also removes spurs (see body_outliers): on 200 training-grid trajectories it
+#: flags one clean frame of 30,000 (``python bench/robustness.py --calibration``) and every stray
+#: point about a world unit or more off the undeformed outline; 1.5 would also catch strays 0.8
+#: off, but removes more points of noisy outlines (docs/robustness.md)
+BODY_SPUR_FACTOR = 2.0
+#: frames with fewer points are not judged
+BODY_MIN_POINTS = 5
+#: the body's centre moves at most 2.08 world units per model frame in the training scenes
+BODY_MAX_STEP = 4.0
+
+
+def _groups(adj: np.ndarray) -> np.ndarray:
+    """Connected-component labels of a symmetric boolean adjacency matrix (min-label spreading)."""
+    n = adj.shape[0]
+    lab = np.arange(n)
+    while True:
+        new = np.where(adj, lab[None, :], n).min(axis=1)
+        new = np.minimum(new, lab)
+        new = new[new]                                  # pointer jumping
+        if np.array_equal(new, lab):
+            return lab
+        lab = new
+
+
+def body_outliers(points: np.ndarray, link: float | None = None,
+                  max_radius: float = BODY_MAX_RADIUS,
+                  spur_factor: float | None = None) -> np.ndarray:
+    """Boolean ``(N,)``: which points of a finite ``(N, 2)`` world-unit set lie apart from the body
+    (not in the largest group of points joined closer than ``link``, nor in another group of 3 or
+    more points that fits with it within ``max_radius`` of their common centre, or further than
+    ``max_radius`` from the centre of the body's bounding box). Sets of fewer than 5 points: none.
+
+    ``spur_factor``: also flag *spurs*, points whose nearest neighbour is further than
+    ``spur_factor`` x the median nearest-neighbour distance and whose two nearest neighbours lie on
+    the same side of them (a point on the body's outline has one on each side): a stray point
+    just off the outline. Off (``None``) for the warning, which must stay silent on clean and
+    noisy bodies; :func:`tpnet_ref.observe.drop_outliers` turns it on (2)."""
+    p = np.asarray(points, dtype=np.float64)
+    n = p.shape[0]
+    out = np.zeros(n, dtype=bool)
+    if n < BODY_MIN_POINTS:
+        return out
+    d = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=2))
+    np.fill_diagonal(d, np.inf)
+    if link is None:
+        link = max(BODY_LINK_FACTOR * float(np.median(d.min(axis=1))), BODY_LINK_MIN)
+    elif not (math.isfinite(float(link)) and float(link) > 0):
+        raise ValueError(f"link: must be a finite distance > 0, got {link}")
+    if not (math.isfinite(float(max_radius)) and float(max_radius) > 0):
+        raise ValueError(f"max_radius: must be a finite distance > 0, got {max_radius}")
+    lab = _groups(d <= float(link))
+    sizes = np.bincount(lab)
+    body = lab == sizes.argmax()
+
+    def reach(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centre of the points' bounding box, and each point's distance from it."""
+        centre = 0.5 * (p[mask].min(axis=0) + p[mask].max(axis=0))
+        return centre, np.sqrt(((p - centre) ** 2).sum(axis=1))
+
+    # pieces of a broken outline (an occluded or sparsely sampled body): another group of at
+    # least 3 points is the body too when the two together still fit in the body's reach
+    for g in np.argsort(-sizes):
+        if g != sizes.argmax() and sizes[g] >= 3:
+            both = body | (lab == g)
+            if reach(both)[1][both].max() <= float(max_radius):
+                body = both
+    body &= reach(body)[1] <= float(max_radius)
+    if spur_factor is not None and body.sum() >= BODY_MIN_POINTS:
+        idx = np.nonzero(body)[0]
+        sub = d[np.ix_(idx, idx)]
+        near = np.argsort(sub, axis=1)[:, :2]
+        d1 = sub[np.arange(len(idx)), near[:, 0]]
+        a = p[idx[near[:, 0]]] - p[idx]
+        b = p[idx[near[:, 1]]] - p[idx]
+        same_side = (a * b).sum(axis=1) > 0
+        spur = (d1 > float(spur_factor) * float(np.median(d1))) & same_side
+        body[idx[spur]] = False
+    return ~body
+
+
+def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
+    """Why a window (``(F, N, 2)`` or a list of ``(N_i, 2)`` frames, world units) does not look
+    like one body moving, or ``None``: stray points or a second blob in a frame
+    (:func:`body_outliers`: at most as many as the body's points), or a frame whose body is far
+    from the previous frame's. A frame without a body of the scene's size (points scattered, or
+    in other units) is left to :func:`training_range_problem`."""
+    centres = []
+    for i, f in enumerate(frames):
+        f = np.asarray(f, dtype=np.float64)
+        out = body_outliers(f)
+        k = int(out.sum())
+        if k and (len(f) - k < BODY_MIN_POINTS or k > len(f) - k):
+            # no body of the scene's size at all (wrong units or scale, scattered points): the
+            # training-range check says what is wrong
+            return None
+        if k:
+            what = "a second blob" if k >= BODY_MIN_POINTS else "stray points"
+            return (f"frame {i} does not look like one body: {k} of {len(f)} points lie apart "
+                    f"from it (likely {what}: background specks, reflections, another object); "
+                    "max pooling takes them as part of the body, so clean each frame with "
+                    "tpnet_ref.observe.drop_outliers")
+        centres.append(f.mean(axis=0))
+    for i in range(1, len(centres)):
+        step = float(np.sqrt(((centres[i] - centres[i - 1]) ** 2).sum()))
+        if step > BODY_MAX_STEP:
+            return (f"frame {i}'s body is {step:.3g} world units from frame {i - 1}'s (the "
+                    f"scene's bodies move at most ~2.1 per frame): a frame from another moment "
+                    "or object, or frames not 4/45 s apart? (tpnet_ref.observe."
+                    "frames_at_model_rate picks them; drop_outliers removes stray points)")
+    return None
+
+
+def warn_not_one_body(frames: np.ndarray | list[np.ndarray], name: str,
+                      stacklevel: int = 4) -> bool:
+    """One-line :class:`NotOneBodyWarning` if :func:`window_body_problem` finds one; whether it
+    warned."""
+    problem = window_body_problem(frames)
+    if problem:
+        warnings.warn(f"{name}: {problem}; the prediction is unreliable", NotOneBodyWarning,
+                      stacklevel=stacklevel)
+    return problem is not None

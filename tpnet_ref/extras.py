@@ -18,6 +18,7 @@ EXTRAS: dict[str, str] = {
     "eval": "the evaluation protocol and the demo (metrics, sim, plot, tqdm)",
     "train": "training (PyTorch, scipy, tqdm)",
     "crosscheck": "framework cross-checks (PyTorch, onnx, onnxruntime)",
+    "vision": "the camera path: masks, images and videos (OpenCV headless)",
 }
 
 

@@ -18,11 +18,12 @@ from collections.abc import Sequence
 COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.cli.model",        # info, predict
     "tpnet_ref.cli.weights",      # import
-    "tpnet_ref.cli.sim",          # sim run|show
+    "tpnet_ref.cli.sim",          # sim run|show|render
     "tpnet_ref.cli.data",         # data generate
     "tpnet_ref.cli.evaluation",   # eval, demo
     "tpnet_ref.cli.train",        # train run|export|bench|baselines|score
     "tpnet_ref.cli.specialize",   # specialize
+    "tpnet_ref.cli.observe",      # observe
 )
 
 

@@ -1,4 +1,5 @@
-"""``tpnet sim run`` and ``tpnet sim show``: one trajectory of the scene to a .npy file or a PNG."""
+"""``tpnet sim run``, ``tpnet sim show`` and ``tpnet sim render``: one trajectory of the scene to a
+.npy file, a PNG, or a video / PNG frames from a synthetic camera (:mod:`tpnet_ref.sim.render`)."""
 from __future__ import annotations
 
 from typing import Any
@@ -11,7 +12,9 @@ def add_cli(sub: Any) -> None:
     ssub = p.add_subparsers(dest="sim_command", metavar="SIM_COMMAND")
     ssub.required = True
     for name, helptext in (("show", "write a PNG of one trajectory"),
-                           ("run", "write one trajectory, (steps, 30, 2) world units, to .npy")):
+                           ("run", "write one trajectory, (steps, 30, 2) world units, to .npy"),
+                           ("render", "film one trajectory with a synthetic camera: a video "
+                                      "(.mp4/.avi) or PNG frames, with its calibration (JSON)")):
         q = ssub.add_parser(name, help=helptext)
         q.add_argument("--force", type=float, default=1.3, help="impulse per particle (1.3)")
         q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees (225)")
@@ -27,6 +30,24 @@ def add_cli(sub: Any) -> None:
             q.add_argument("--every", type=int, default=4,
                            help="draw every k-th row (4 = one model frame)")
             q.set_defaults(func=_cli_show)
+        elif name == "render":
+            q.add_argument("-o", "--output", required=True,
+                           help="a .mp4 or .avi video, or a directory for PNG frames; the "
+                                "calibration <stem>.json, the background <stem>.background.png "
+                                "and the true centres <stem>.truth.npy go next to a video "
+                                "(calibration.json, background.png, truth.npy in a directory)")
+            q.add_argument("--size", type=int, default=640,
+                           help="image width = height in px, the whole 45 x 45 box (640)")
+            q.add_argument("--fps", type=float, default=45.0,
+                           help="frames per second (45: one frame per simulation step)")
+            q.add_argument("--noise", type=float, default=3.0,
+                           help="sensor noise, standard deviation in grey levels (3)")
+            q.add_argument("--texture", type=float, default=60.0,
+                           help="background texture, grey levels peak to peak (60; 0: plain)")
+            q.add_argument("--distractors", type=int, default=0,
+                           help="stray blobs per frame, clear of the body (0)")
+            q.add_argument("--seed", type=int, default=0, help="texture, noise, distractors (0)")
+            q.set_defaults(func=_cli_render)
         else:
             q.add_argument("-o", "--output", required=True,
                            help=".npy file to write (exactly this path); row k is the state "
@@ -69,4 +90,26 @@ def _cli_show(args: Any) -> int:
     show(traj, path, every=args.every,
          title=f"F={args.force:g} angle={args.angle:g} start=({args.x:g}, {args.y:g})")
     print(f"wrote {path}")
+    return 0
+
+
+def _cli_render(args: Any) -> int:
+    from ..sim.render import RenderSettings, output_paths, write_render
+    settings = RenderSettings(size=args.size, fps=args.fps, noise=args.noise,
+                              texture=args.texture, distractors=args.distractors, seed=args.seed)
+    if args.steps < 2:
+        raise ValueError(f"--steps: a video needs at least 2 steps, got {args.steps}")
+    paths = output_paths(args.output)                  # a bad name fails before the work
+    traj = _trajectory(args)
+    scene = {"force": args.force, "angle_deg": args.angle, "x": args.x, "y": args.y,
+             "steps": args.steps, "frequency": args.frequency,
+             "damping_ratio": args.damping_ratio, "wall_restitution": args.wall_restitution,
+             "impulse_point": args.impulse_point, "sleep": args.sleep,
+             "rows": "row k is the state after k + 1 steps; video frame j shows t = j / fps "
+                     "with row 0 at t = 0"}
+    calib = write_render(args.output, traj, settings, scene)
+    print(f"wrote {calib['frames']} frames of {args.size} x {args.size} px at {args.fps:g} fps to "
+          f"{args.output}; camera {calib['camera']['left_wall_px']:.4g},"
+          f"{calib['camera']['right_wall_px']:.4g},{calib['camera']['floor_px']:.4g} px "
+          f"(walls, floor) in {paths['calibration']}")
     return 0

@@ -1,0 +1,110 @@
+"""The README's picture of the camera path: render a video, observe the window, predict, draw.
+
+    python bench/observe_figure.py -o docs/observe_example.png
+
+Runs the three commands of the README (`tpnet sim render`, `tpnet observe`, `tpnet predict`) in a
+temporary directory, then draws the four input frames (crops) with the points `tpnet observe`
+extracted, and the whole box at a later frame with the predicted rings beside the true particle
+centres. Needs the vision and plot extras.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tpnet_ref.cli import main as tpnet  # noqa: E402
+
+STEPS = 60                 # predictions
+SHOW = (10, 30, 60)        # horizons drawn
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("-o", "--output", default="docs/observe_example.png")
+    args = ap.parse_args(argv)
+    import cv2
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tpnet_ref.observe import Camera
+
+    tmp = Path(tempfile.mkdtemp(prefix="tpnet-observe-"))
+    t0 = time.time()
+    run = [["sim", "render", "--steps", "320", "--distractors", "3", "-o", str(tmp / "run.mp4")],
+           ["observe", str(tmp / "run.mp4"), "--camera", str(tmp / "run.json"),
+            "-o", str(tmp / "window.npy")],
+           ["predict", str(tmp / "window.npy"), "--steps", str(STEPS),
+            "-o", str(tmp / "pred.npy")]]
+    for argv_ in run:
+        print("tpnet " + " ".join(argv_))
+        if tpnet(argv_) != 0:
+            return 1
+    print(f"the three commands took {time.time() - t0:.1f} s")
+    window = np.load(tmp / "window.npy")
+    pred = np.load(tmp / "pred.npy")
+    truth = np.load(tmp / "run.truth.npy")             # one row per video frame (45 fps)
+    cam = Camera.parse(str(tmp / "run.json"))
+    cap = cv2.VideoCapture(str(tmp / "run.mp4"))
+    frames = []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+    cap.release()
+
+    fig = plt.figure(figsize=(12, 6.4), dpi=100)
+    grid = fig.add_gridspec(2, 4, width_ratios=[1, 1, 1.6, 1.6])
+    for k in range(4):
+        ax = fig.add_subplot(grid[k // 2, k % 2])
+        img = frames[4 * k]
+        px = cam.to_pixels(window[k])
+        c = px.mean(axis=0)
+        half = 55
+        x0, y0 = int(c[0]) - half, int(c[1]) - half
+        ax.imshow(img[max(y0, 0):y0 + 2 * half, max(x0, 0):x0 + 2 * half],
+                  extent=(max(x0, 0), max(x0, 0) + 2 * half, max(y0, 0) + 2 * half, max(y0, 0)))
+        ax.plot(px[:, 0], px[:, 1], "o", ms=3, mfc="none", mec="blue", mew=0.8)
+        tp = cam.to_pixels(truth[4 * k])
+        ax.plot(tp[:, 0], tp[:, 1], ".", ms=2, color="black")
+        ax.set_title(f"video frame {4 * k} (t = {4 * k / 45:.3f} s)", fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    ax = fig.add_subplot(grid[:, 2:])
+    last = 4 * (3 + SHOW[-1])
+    ax.imshow(frames[last], extent=(0, frames[last].shape[1], frames[last].shape[0], 0))
+    ax.plot(*cam.to_pixels(window.reshape(-1, 2)).T, "o", ms=2, mfc="none", mec="blue", mew=0.6,
+            label="observed window (tpnet observe)")
+    for j, h in enumerate(SHOW):
+        t = cam.to_pixels(truth[4 * (3 + h)])
+        p = cam.to_pixels(pred[h - 1])
+        ax.plot(*np.vstack([t, t[:1]]).T, "-", color="black", lw=1,
+                label="true particle centres" if j == 0 else None)
+        ax.plot(p[:, 0], p[:, 1], "x", ms=3.5, color="red",
+                label="prediction (tpnet predict)" if j == 0 else None)
+        ax.annotate(f"+{h}", t.mean(axis=0) + [0, -40], ha="center", fontsize=9)
+    ax.set_title(f"video frame {last}: predictions {', '.join(f'+{h}' for h in SHOW)} "
+                 "(model frames, 4/45 s each)", fontsize=9)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    fig.suptitle("tpnet sim render -> tpnet observe -> tpnet predict (640 px video, noise, "
+                 "3 distractor blobs per frame)\nleft: the 4 input frames, the points tpnet "
+                 "observe extracted (blue circles) and the true particle centres (black dots)",
+                 fontsize=10)
+    fig.tight_layout()
+    fig.savefig(args.output)
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
