@@ -98,6 +98,7 @@ def pareto(lat: dict[str, tuple[float, float]], err: dict[str, tuple[float, floa
 
 def plot(rows: list[dict], front: list[str], path: str) -> None:
     import matplotlib
+    import matplotlib.ticker
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), sharey=False)
@@ -114,6 +115,10 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
                    label="copy last frame (no network)")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):          # plain numbers, no crowded 10^x minor labels
+            axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+            axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set_xticks([0.2, 0.3, 0.5, 1, 2])
         ax.set_xlabel("B = 1 latency of one prediction (ms, log)")
         ax.set_ylabel(f"E_p@{h}, squared reading, 60 test cases (log)")
         ax.set_title(f"error at {h} predictions against run time")
