@@ -225,7 +225,9 @@ def main(argv: list[str] | None = None) -> int:
                 "(B = 1), float32, median over 64 scene windows, the two engines alternating. "
                 "The front ('front') is chosen on the validation trajectories of the training "
                 "grid (`val E_p`, same protocol and reading), never on the test cases; copying "
-                "the last frame counts as a size of no run time.", "", *lines]
+                "the last frame counts as a size of no run time. A file given by a path "
+                "outside `weights/` is not tracked by git (weights/README.md, \"What git "
+                "tracks\").", "", *lines]
         if args.plot:
             rel = os.path.relpath(args.plot, md.parent)
             body += ["", f"![error against run time by network size]({rel})"]
