@@ -98,6 +98,7 @@ def pareto(lat: dict[str, tuple[float, float]], err: dict[str, tuple[float, floa
 
 def plot(rows: list[dict], front: list[str], path: str) -> None:
     import matplotlib
+    import matplotlib.ticker
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), sharey=False)
@@ -114,6 +115,10 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
                    label="copy last frame (no network)")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):          # plain numbers, no crowded 10^x minor labels
+            axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+            axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set_xticks([0.2, 0.3, 0.5, 1, 2])
         ax.set_xlabel("B = 1 latency of one prediction (ms, log)")
         ax.set_ylabel(f"E_p@{h}, squared reading, 60 test cases (log)")
         ax.set_title(f"error at {h} predictions against run time")
@@ -220,7 +225,9 @@ def main(argv: list[str] | None = None) -> int:
                 "(B = 1), float32, median over 64 scene windows, the two engines alternating. "
                 "The front ('front') is chosen on the validation trajectories of the training "
                 "grid (`val E_p`, same protocol and reading), never on the test cases; copying "
-                "the last frame counts as a size of no run time.", "", *lines]
+                "the last frame counts as a size of no run time. A file given by a path "
+                "outside `weights/` is not tracked by git (weights/README.md, \"What git "
+                "tracks\").", "", *lines]
         if args.plot:
             rel = os.path.relpath(args.plot, md.parent)
             body += ["", f"![error against run time by network size]({rel})"]
