@@ -639,6 +639,6 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
     return out
 
 
-__all__ = ["train", "TrainSettings", "export", "bench", "evaluate", "loss_fn", "step_loss", "resolve_compile",
-           "COMPILE_MODES", "make_optimizer", "resolve_device",
+__all__ = ["train", "TrainSettings", "export", "bench", "evaluate", "loss_fn", "step_loss",
+           "resolve_compile", "COMPILE_MODES", "make_optimizer", "resolve_device",
            "hardware", "init_head_template", "LOG_NAME"]
