@@ -33,7 +33,7 @@ def h5(tmp_path):
     return path
 
 
-def test_attributes_are_plain_values_and_their_size_is_checked_before_reading(h5, monkeypatch):
+def test_attributes_are_plain_values_and_their_size_checked_before_reading(h5, monkeypatch):
     monkeypatch.setattr(hdf5, "MAX_ATTR_ELEMENTS", 5)              # read at call time
     with h5py.File(h5, "r") as f:
         assert hdf5.py_value(hdf5.attr(f, "small", "f")) == (0, 1, 2)
