@@ -159,22 +159,6 @@ def test_float64_specialisation_and_tanh_refused():
         tanh.specialize(w, normalized=True)
 
 
-def test_cli_writes_a_specialised_file_and_names_bad_paths_in_one_line(tmp_path, capsys):
-    from tpnet_ref.cli import main
-    src = tmp_path / "w.npy"
-    np.save(src, _rings(np.random.default_rng(5), 16))
-    out = tmp_path / "s.h5"
-    assert main(["specialize", str(src), "-o", str(out)]) == 0
-    assert tpnet_ref.load(out).specialization is not None
-    capsys.readouterr()
-    for argv, msg in ((["specialize", str(tmp_path / "none.npy"), "-o", str(out)], "not found"),
-                      (["specialize", str(src), "-o", str(tmp_path / "no" / "s.h5")],
-                       "does not exist")):
-        assert main(argv) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and msg in err[0]
-
-
 def test_calibration_windows_are_training_grid_windows_and_own_rollouts(monkeypatch):
     """Every window of each picked training-grid trajectory, then every window of the model's own
     rollout from its first m frames; no held-out test case is ever simulated."""

@@ -184,23 +184,3 @@ def test_project_spans_and_folded_layer_norm_equal_the_plain_products(dtype, row
                                    ((0, 32), (32, 64)), fold_max=fold_max)
         assert got.dtype == dtype
         np.testing.assert_allclose(got, want, rtol=0, atol=10 * tol)
-
-
-def test_cli_sort_units_writes_the_same_network_ordered(tmp_path, capsys):
-    from tpnet_ref.cli import main
-    weights, src, out = tmp_path / "w.h5", tmp_path / "win.npy", tmp_path / "sorted.h5"
-    model = init_random(SMALL, seed=4)
-    model.save(weights)
-    np.save(src, _rings(np.random.default_rng(6), 12))
-    assert main(["sort-units", str(src), "--weights", str(weights), "-o", str(out)]) == 0
-    assert "units sorted by use on 12 windows" in capsys.readouterr().out
-    back = tpnet_ref.load(out)
-    assert set(back.unit_order) == set(U.sizes(SMALL))
-    assert "12 windows" in back.meta["units_sorted_on"]
-    for k in model.params:
-        np.testing.assert_array_equal(back.params[k], model.params[k])
-    w = _rings(np.random.default_rng(7), 4)
-    np.testing.assert_allclose(back.predict_batch(w), model.predict_batch(w), rtol=0, atol=1e-3)
-    assert main(["sort-units", str(tmp_path / "none.npy"), "-o", str(out)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "not found" in err[0]
