@@ -62,6 +62,17 @@ def pytest_runtest_protocol(item, nextitem):
     _CURRENT["test"] = item.nodeid
 
 
+_RSS_LOG = os.environ.get("TPNET_TEST_RSS_LOG")
+
+
+def pytest_runtest_logfinish(nodeid, location):
+    """With ``TPNET_TEST_RSS_LOG=path``: each test's resident memory after it ran, one line each
+    (to find which tests hold memory)."""
+    if _RSS_LOG and os.path.exists("/proc/self/statm"):
+        with open(_RSS_LOG, "a") as f:
+            f.write(f"{_rss_bytes() / 2**20:.0f} MiB {nodeid}\n")
+
+
 def pytest_terminal_summary(terminalreporter):
     if _PEAK["bytes"]:
         terminalreporter.write_line(f"peak resident memory of the test process: "

@@ -312,15 +312,22 @@ def _all_one_body(frames: np.ndarray) -> bool:
     f, n = frames.shape[:2]
     if n < BODY_MIN_POINTS:
         return True
+    centre = 0.5 * (frames.min(axis=1) + frames.max(axis=1))
+    ex, ey = frames[..., 0] - centre[:, None, 0], frames[..., 1] - centre[:, None, 1]
+    if not (np.sqrt(ex * ex + ey * ey) <= BODY_MAX_RADIUS).all():
+        return False
+    # an outline (the scene's body is a ring): the points in the order of their angle about the
+    # centre form a closed path; with no step longer than BODY_LINK_MIN (the smallest link) they
+    # are one linked group whatever the link, and no pairwise distances are needed
+    path = np.take_along_axis(frames, np.argsort(np.arctan2(ey, ex), axis=1)[..., None], axis=1)
+    step = path - np.roll(path, 1, axis=1)
+    if (step[..., 0] ** 2 + step[..., 1] ** 2).max() <= BODY_LINK_MIN ** 2:
+        return True
     dx = frames[:, :, None, 0] - frames[:, None, :, 0]
     dy = frames[:, :, None, 1] - frames[:, None, :, 1]
     d = np.sqrt(dx * dx + dy * dy)                  # the same numbers as body_outliers' d
     d[:, np.arange(n), np.arange(n)] = np.inf
     link = np.maximum(BODY_LINK_FACTOR * np.median(d.min(axis=2), axis=1), BODY_LINK_MIN)
-    centre = 0.5 * (frames.min(axis=1) + frames.max(axis=1))
-    ex, ey = frames[..., 0] - centre[:, None, 0], frames[..., 1] - centre[:, None, 1]
-    if not (np.sqrt(ex * ex + ey * ey) <= BODY_MAX_RADIUS).all():
-        return False
     adj = d <= link[:, None, None]
     lab = np.broadcast_to(np.arange(n), (f, n))
     while True:                                     # min-label spreading, as _groups
