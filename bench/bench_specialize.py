@@ -18,19 +18,16 @@ import argparse
 import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-import tpnet_ref  # noqa: E402
-from tpnet_ref import data as D  # noqa: E402
-from tpnet_ref import specialize as S  # noqa: E402
-from tpnet_ref.model import ENGINE_MAX_BATCH  # noqa: E402
-from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
-from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
-from tpnet_ref.sim.scene import simulate  # noqa: E402
+import tpnet_ref
+from tpnet_ref import data as D
+from tpnet_ref import specialize as S
+from tpnet_ref.model import ENGINE_MAX_BATCH
+from tpnet_ref.protocol import FRAME_EVERY
+from tpnet_ref.sim.cases import TEST_CASES
+from tpnet_ref.sim.scene import simulate
 
 
 def windows(frames: np.ndarray, m: int) -> np.ndarray:
