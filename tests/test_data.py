@@ -102,25 +102,6 @@ def test_generate_rejects_bad_settings(tmp_path):
         D.train_grid(positions=0)
 
 
-def test_cli_generate(tmp_path):
-    from tpnet_ref.cli import main
-    out = tmp_path / "new_dir" / "c.h5"
-    rc = main(["data", "generate", "-o", str(out), "--forces", "1.0", "--angles", "225",
-               "--positions", "2", "--limit", "1", "--steps", "81", "--no-test", "--quiet",
-               "--whole", "0"])
-    assert rc == 0
-    with h5py.File(out, "r") as h:
-        assert h["train/positions"].shape == (1, 21, 30, 2)
-        assert "test" not in h
-        assert D.scene_convention(h) == {"impulse_point": "ring_centre", "sleep": False}
-    com = tmp_path / "com.h5"
-    assert main(["data", "generate", "-o", str(com), "--forces", "1.0", "--angles", "225",
-                 "--positions", "1", "--steps", "81", "--no-test", "--quiet", "--whole", "0",
-                 "--impulse-point", "particle_centre"]) == 0
-    with h5py.File(com, "r") as h:
-        assert D.scene_convention(h)["impulse_point"] == "particle_centre"
-
-
 def test_contact_onset_per_wall():
     from tpnet_ref.sim import simulate
     frames = simulate(1.6, 250.0, 30.0, 30.0)[::4]

@@ -115,8 +115,8 @@ def test_permutation_invariance_is_bit_identical_under_the_engine(released_nb64,
 def test_large_batches_take_the_numpy_path_and_agree(released64, released_nb64):
     rng = np.random.default_rng(8)
     wins = _windows(rng, M.ENGINE_MAX_BATCH + 1)
-    assert released_nb64._engine_for(len(wins)) is None
-    assert released_nb64._engine_for(1) is not None
+    assert released_nb64.head_for(len(wins)).name == "numpy"
+    assert released_nb64.head_for(1).name == "numba"
     np.testing.assert_allclose(released_nb64.predict_batch(wins), released64.predict_batch(wins),
                                rtol=0, atol=1e-10)
 
@@ -224,7 +224,7 @@ def test_shipped_model_on_scene_windows_equals_numpy(shipped, scene, dtype, atol
     nb = ref.with_engine("numba")
     wins = _scene_windows(scene, 8)
     # the engine reads zeros out of its products: there must be zeros to skip on these windows
-    feats = ref._frames_to_features(list(wins[0]), False)
+    feats = ref.window_features(wins[:1])
     assert (feats == 0).mean() > 0.5
     for w in wins:
         np.testing.assert_allclose(nb.predict(w), ref.predict(w), rtol=0, atol=atol)
@@ -239,7 +239,7 @@ def _with_order(model, order):
     """``model`` (engine numba) with its engine laid out in ``order`` (what model.py passes once
     it hands the engine its unit order)."""
     out = model.with_engine("numba")
-    out._nb = EN.NumbaHead(out.config, out.params, out.dtype, order)
+    out.heads[0] = EN.NumbaHead(out.config, out.params, out.dtype, order, M.ENGINE_MAX_BATCH)
     return out
 
 
@@ -252,7 +252,7 @@ def test_unit_order_layout_equals_the_file_order(shipped, scene, dtype, atol):
     ref = shipped.astype(dtype)
     plain = _with_order(ref, None)
     ordered = _with_order(ref, ref.unit_order)
-    assert ordered._nb.feature_order is not None and plain._nb.feature_order is None
+    assert ordered.heads[0].feature_order is not None and plain.heads[0].feature_order is None
     wins = _scene_windows(scene, 6)
     y = ordered.predict_batch(wins)
     np.testing.assert_allclose(y, plain.predict_batch(wins), rtol=0, atol=atol)
@@ -278,7 +278,7 @@ def test_tanh_released_shape_equals_numpy(dtype, atol):
     ref = init_random(dataclasses.replace(TPNetConfig(), lstm_activation="tanh"), seed=13,
                       dtype=dtype)
     nb = ref.with_engine("numba")
-    assert not nb._nb.relu
+    assert nb.heads[0].name == "numba" and not nb.heads[0].relu
     wins = _windows(np.random.default_rng(14), 3)
     np.testing.assert_allclose(nb.predict_batch(wins), ref.predict_batch(wins), rtol=0, atol=atol)
     for w in wins:
@@ -316,7 +316,7 @@ def test_every_window_of_a_batch_is_bit_identical_to_it_alone(shipped, scene, dt
     alone = np.stack([nb.sequence_head(f[None])[0] for f in feats])
     atol = 1e-4 if dtype == "float32" else 1e-10
     for b in range(2, M.ENGINE_MAX_BATCH + 1):
-        assert nb._engine_for(b) is not None
+        assert nb.head_for(b).name == "numba"
         with blas.one_thread():
             assert np.array_equal(nb.sequence_head(feats[:b]), alone[:b]), b
             assert np.array_equal(nb.sequence_head(feats[::-1][:b]), alone[::-1][:b]), b
@@ -340,10 +340,9 @@ def test_serial_and_parallel_kernels_and_thread_counts_give_the_same_bits(shippe
     import numba
     head = EN.NumbaHead(shipped.config, shipped.params, np.dtype(dtype), shipped.unit_order)
     wins = _scene_windows(scene, 4)
-    feats = shipped.astype(dtype)._frames_to_features(
-        [f for w in wins for f in w], False).reshape(4, 4, -1)
+    feats = shipped.astype(dtype).window_features(wins)
     rows = feats.transpose(1, 0, 2).reshape(16, -1)            # time-major, 4 windows
-    base = head(head.project(rows, batch=4), 4, 4, parallel=False)
+    base = head.run(head.project_rows(rows, batch=4), 4, 4, parallel=False)
     assert base[1] == 0
     threads = numba.get_num_threads()
     try:
@@ -351,12 +350,12 @@ def test_serial_and_parallel_kernels_and_thread_counts_give_the_same_bits(shippe
             numba.set_num_threads(n)
             for parallel in (False, True):
                 with blas.one_thread():         # where the two-thread kernels run
-                    y, bad = head(head.project(rows, parallel, batch=4), 4, 4, parallel)
+                    y, bad = head.run(head.project_rows(rows, parallel, batch=4), 4, 4, parallel)
                 assert bad == 0 and np.array_equal(y, base[0]), (n, parallel)
     finally:
         numba.set_num_threads(threads)
     # the rows' grouping in project() does not change them either
-    assert np.array_equal(head.project(rows, batch=4), head.project(rows))
+    assert np.array_equal(head.project_rows(rows, batch=4), head.project_rows(rows))
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -437,12 +436,12 @@ def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(tmp_path)
             "from tpnet_ref.config import TPNetConfig\n"
             "cfg = TPNetConfig(m=3, n_out=5, mlp1=(8, 8), mlp2=(8, 16), global_features=12,\n"
             "                  lstm_units=(6, 5, 7))\n"
-            "head = init_random(cfg, seed=1).with_engine('numba')._nb\n"
+            "head = init_random(cfg, seed=1).with_engine('numba').heads[0]\n"
             "g = np.random.default_rng(0).uniform(0, 1, (3, 12)).astype(np.float32)\n"
             "from tpnet_ref.blas import one_thread\n"
-            "a = head(head.project(g), 3, 1, parallel=False)\n"
+            "a = head.run(head.project_rows(g), 3, 1, parallel=False)\n"
             "with one_thread():\n"
-            "    b = head(head.project(g, True), 3, 1, parallel=True)\n"
+            "    b = head.run(head.project_rows(g, True), 3, 1, parallel=True)\n"
             "assert np.array_equal(a[0], b[0])\n"
             "print(numba.threading_layer())\n")
     env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}

@@ -11,18 +11,14 @@ import pytest
 import tpnet_ref
 from tpnet_ref.config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from tpnet_ref import model as M
+from tpnet_ref import reference
 from tpnet_ref.model import init_random
 
-import reference_python as ref
 
 TINY = TPNetConfig(m=3, n_out=3, input_tnet_mlp=(3, 2), input_tnet_fc=(2,), mlp1=(2, 3),
                    feature_tnet_mlp=(2,), feature_tnet_fc=(3, 2), mlp2=(3, 2), global_features=2,
                    lstm_units=(2, 1, 3), input_transform_trained=True,
                    feature_transform_trained=True)
-
-
-def _as_lists(params):
-    return {k: v.tolist() for k, v in params.items()}
 
 
 def _window(rng, m=4, n=30, lo=5.0, hi=40.0):
@@ -42,19 +38,22 @@ def model32(model64):
 # --------------------------------------------------------------- layer semantics
 @pytest.mark.parametrize("act", ["relu", "tanh"])
 @pytest.mark.parametrize("transforms", [True, False])
-def test_tiny_network_matches_scalar_reference(act, transforms):
+def test_tiny_network_matches_the_reference(act, transforms):
+    """The fast paths at a tiny shape with trained transform nets and ragged frames equal the
+    readable forward pass (tpnet_ref.reference, itself checked against the scalar code in
+    tests/test_reference.py)."""
     cfg = dataclasses.replace(TINY, lstm_activation=act, input_transform_trained=transforms,
                               feature_transform_trained=transforms, layer_norm_eps=0.37)
     model = init_random(cfg, seed=11, dtype="float64", transform_scale=0.5)
     rng = np.random.default_rng(5)
     window = [rng.uniform(-1, 2, size=(n, 2)) for n in (4, 1, 6)]  # ragged on purpose
     got = model.predict(window, normalized=True)
-    want = np.array(ref.predict_normalized([w.tolist() for w in window], _as_lists(model.params), cfg))
+    want = reference.forward(cfg, model.params, window, normalized=True)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-13)
 
 
-def test_scalar_reference_sees_gate_order_and_eps():
-    """Guard the guard: swapping two gates or changing eps must change the reference's answer."""
+def test_the_model_sees_gate_order_and_eps():
+    """Guard the guard: swapping two gates or changing eps must change the answer."""
     cfg = dataclasses.replace(TINY, layer_norm_eps=0.37)
     model = init_random(cfg, seed=2, dtype="float64", transform_scale=0.5)
     window = [np.random.default_rng(1).uniform(0, 1, size=(5, 2)) for _ in range(3)]
@@ -347,3 +346,28 @@ def test_large_batches_split_across_threads_give_the_unsplit_results(model32, mo
     huge[-1] *= 1e30
     with pytest.raises(NonFiniteResultError):
         model32.predict_batch(huge)
+
+
+def test_the_model_warns_like_the_package_functions():
+    """One behaviour: TPNet.predict / rollout / predict_batch give the warnings that
+    tpnet_ref.predict gives, pointing at the caller's line."""
+    import warnings
+    from tpnet_ref.checks import NotOneBodyWarning, OutsideTrainingRangeWarning
+    model = tpnet_ref.load()
+    w = tpnet_ref.example_window()
+    stray = w.copy()
+    stray[2, 5] += 6.0                                  # one stray point in one frame
+    calls = {"TPNet.predict": lambda x: model.predict(x),
+             "tpnet_ref.predict": lambda x: tpnet_ref.predict(x, model=model),
+             "TPNet.rollout": lambda x: model.rollout(x, 2)}
+    for name, call in calls.items():
+        for x, kind in ((w, None), (stray, NotOneBodyWarning), (w + 40, OutsideTrainingRangeWarning)):
+            with warnings.catch_warnings(record=True) as got:
+                warnings.simplefilter("always")
+                call(x)
+            assert [type(g.message) for g in got] == ([] if kind is None else [kind]), name
+            assert all(g.filename == __file__ for g in got), name
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        model.predict_batch(np.stack([w, w + 40]))
+    assert [type(g.message) for g in got] == [OutsideTrainingRangeWarning]

@@ -307,3 +307,17 @@ def test_two_blobs_and_a_far_frame_are_named():
     jump[3] += [8.0, 0.0]
     assert "frame 3's body is" in window_body_problem(jump)
     assert window_body_problem(f) is None
+
+
+def test_require_cv2_is_the_public_way_to_opencv(monkeypatch):
+    """The CLI reaches OpenCV through observe.require_cv2 (no private import); without the
+    module the error is one line naming the vision extra."""
+    import sys
+
+    from tpnet_ref import observe
+    from tpnet_ref.extras import MissingExtraError
+    assert observe.require_cv2() is cv2
+    monkeypatch.setitem(sys.modules, "cv2", None)            # import cv2 now fails
+    with pytest.raises(MissingExtraError, match=r"tpnet-ref\[vision\]") as info:
+        observe.require_cv2()
+    assert "\n" not in str(info.value)

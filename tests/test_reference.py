@@ -73,6 +73,13 @@ def test_every_head_equals_the_reference(shipped64, truth, engine, specialised, 
     model = model.astype(dtype).with_engine(engine)
     if specialised:
         model = model.specialize(_rings(np.random.default_rng(4), 40))
+    names = [h.name for h in model.heads]
+    assert names == ["numba"] * (engine == "numba") + ["specialised"] * specialised + ["numpy"]
+    # each of the model's heads, called through the interface on the same features
+    feats = model.window_features(wins)
+    for head in model.heads:
+        y = model.denormalize(head(feats))
+        np.testing.assert_allclose(y, want, rtol=0, atol=atol, err_msg=head.name)
     got = model.predict_batch(wins)
     np.testing.assert_allclose(got, want, rtol=0, atol=atol)
     for w, y in zip(wins[:2], want[:2]):

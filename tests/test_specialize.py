@@ -16,6 +16,7 @@ from tpnet_ref import layers as L
 from tpnet_ref import specialize as S
 from tpnet_ref import unit_order as U
 from tpnet_ref.checks import NonFiniteResultError
+from tpnet_ref.fast_numpy import file_order_lstms
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
 from ring_helpers import SMALL, rings  # noqa: E402
@@ -93,8 +94,7 @@ def test_a_guard_that_trips_sends_exactly_that_window_to_the_full_network(shippe
     full = type(shipped)(shipped.config, params, shipped.dtype)
     spec = full.with_specialization(used)
     w = _rings(np.random.default_rng(3), 5)
-    y, ok = spec.specialization(_quiet(full._frames_to_features, list(w.reshape(-1, 30, 2)),
-                                       False).reshape(5, 4, -1))
+    y, ok = spec.specialization(_quiet(full.window_features, w))
     assert not ok.any()
     np.testing.assert_allclose(_quiet(spec.predict_batch, w), _quiet(full.predict_batch, w),
                                rtol=0, atol=1e-4)
@@ -104,7 +104,7 @@ def test_a_guard_that_trips_sends_exactly_that_window_to_the_full_network(shippe
 def test_a_nonzero_dropped_global_feature_falls_back(shipped, scene):
     drop = scene.specialization.g_drop
     w = _rings(np.random.default_rng(6), 1)
-    f = _quiet(scene._frames_to_features, list(w.reshape(-1, 30, 2)), False).reshape(1, 4, -1)
+    f = _quiet(scene.window_features, w)
     feats = np.concatenate([f, f])
     feats[1, 2, drop[0]] = 1e-3
     _, ok = scene.specialization(feats)
@@ -113,7 +113,7 @@ def test_a_nonzero_dropped_global_feature_falls_back(shipped, scene):
 
 def test_native_round_trip_is_exact(tmp_path, scene):
     path = tmp_path / "scene.h5"
-    S.save(scene, path)
+    scene.save(path)
     back = S.attach(tpnet_ref.load(path), path)
     assert back.specialization is not None
     for k, v in scene.specialization.used.items():
@@ -131,7 +131,7 @@ def test_native_round_trip_is_exact(tmp_path, scene):
 def test_hostile_specialisation_groups_are_refused(tmp_path, scene):
     import h5py
     path = tmp_path / "scene.h5"
-    S.save(scene, path)
+    scene.save(path)
     name = next(iter(scene.specialization.used))
     with h5py.File(path, "r+") as f:                    # a mask replaced by a link
         f.move(f"{S.GROUP}/{name}", "elsewhere")
@@ -157,22 +157,6 @@ def test_float64_specialisation_and_tanh_refused():
     tanh = init_random(TPNetConfig(lstm_activation="tanh", lstm_units=(8, 8, 8)), seed=1)
     with pytest.raises(ValueError, match="ReLU"):
         tanh.specialize(w, normalized=True)
-
-
-def test_cli_writes_a_specialised_file_and_names_bad_paths_in_one_line(tmp_path, capsys):
-    from tpnet_ref.cli import main
-    src = tmp_path / "w.npy"
-    np.save(src, _rings(np.random.default_rng(5), 16))
-    out = tmp_path / "s.h5"
-    assert main(["specialize", str(src), "-o", str(out)]) == 0
-    assert tpnet_ref.load(out).specialization is not None
-    capsys.readouterr()
-    for argv, msg in ((["specialize", str(tmp_path / "none.npy"), "-o", str(out)], "not found"),
-                      (["specialize", str(src), "-o", str(tmp_path / "no" / "s.h5")],
-                       "does not exist")):
-        assert main(argv) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and msg in err[0]
 
 
 def test_calibration_windows_are_training_grid_windows_and_own_rollouts(monkeypatch):
@@ -216,7 +200,7 @@ def _units(model, feats):
     out = {"global": np.abs(feats).max(axis=1)}
     h = feats.transpose(1, 0, 2)
     with np.errstate(over="ignore", invalid="ignore"):
-        for i, (fused, gamma, beta) in enumerate(model._lstms, 1):
+        for i, (fused, gamma, beta) in enumerate(file_order_lstms(model.config, model.params), 1):
             y = L.bilstm_fused(h, *fused, activation="relu", return_sequences=True)
             out[f"lstm{i}"] = np.abs(y).max(axis=0)
             h = L.layer_norm(y, gamma, beta, model.config.layer_norm_eps)
@@ -229,7 +213,7 @@ def _check_head(model, used, feats, tol):
     clearly awake in the full network (or a dropped global feature is not 0) is flagged."""
     spec = model.with_specialization(used)
     head = spec.specialization
-    full = _quiet(model._full_head, feats).reshape(len(feats), -1)
+    full = _quiet(model.sequence_head, feats).reshape(len(feats), -1)
     y, ok = _quiet(head, feats)
     one = [_quiet(head, feats[b:b + 1]) for b in range(len(feats))]
     ok1 = np.array([o[0] for _, o in one])
@@ -246,8 +230,7 @@ def _check_head(model, used, feats, tol):
 
 
 def _features(model, windows):
-    return _quiet(model._frames_to_features, [f for w in windows for f in w], True).reshape(
-        len(windows), model.config.m, -1)
+    return _quiet(model.window_features, windows, True)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -385,7 +368,7 @@ def test_the_saved_masks_are_in_the_file_order_of_units(tmp_path, shipped, scene
         np.testing.assert_array_equal(a[k], b[k])
     spec = shipped.with_specialization(a)
     path = tmp_path / "s.h5"
-    S.save(spec, path)
+    spec.save(path)
     back = S.read(path)
     for k in a:
         np.testing.assert_array_equal(back[k], a[k])

@@ -115,3 +115,21 @@ def test_match_term_trains_and_is_stored_in_thetiny_recipe(dataset, tmp_path):
     assert st["stopped"] == "done" and st["recipe"]["match_weight"] == 2.0
     with pytest.raises(ValueError, match="match_weight"):
         tiny_recipe(match_weight=-1.0)
+
+
+def test_settings_record_and_keywords_are_the_same_call(dataset, tmp_path):
+    """train(..., TrainSettings(...)) and train(..., keyword=...) run the same; a keyword that
+    is no setting is refused before any work."""
+    s = L.TrainSettings(threads=1, progress=False, max_steps=3, log_every=1)
+    a = L.train(dataset, tmp_path / "a", tiny_recipe(), s)
+    b = L.train(dataset, tmp_path / "b", tiny_recipe(), threads=1, progress=False, max_steps=3,
+                log_every=1)
+    assert a["step"] == b["step"] == 3 and a["stopped"] == b["stopped"] == "max_steps"
+    wa, wb = (C.load_checkpoint(tmp_path / n)[0]["model"] for n in "ab")
+    assert all(torch.equal(wa[k], wb[k]) for k in wa if torch.is_tensor(wa[k]))
+    assert s.max_steps == 3 and s.resume is False          # the caller's record is not changed
+    c = L.train(dataset, tmp_path / "a", settings=s, resume=True, max_steps=4)
+    assert c["step"] == 4
+    with pytest.raises(TypeError, match="max_step"):
+        L.train(dataset, tmp_path / "c", tiny_recipe(), s, max_step=5)
+    assert not (tmp_path / "c").exists()

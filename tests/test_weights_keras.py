@@ -9,9 +9,6 @@ import h5py
 import numpy as np
 import pytest
 
-from tpnet_ref.cli import main
-from tpnet_ref import load
-from tpnet_ref.weights import import_checkpoint
 from tpnet_ref.weights.keras import import_keras_h5
 
 FIX = Path(__file__).parent / "fixtures"
@@ -44,16 +41,6 @@ def test_keras_fixture_matches_framework(fname, outputs, trained, says):
         assert np.abs(step - data["step"]).max() <= BOUND, dtype
         roll = np.stack([m.rollout(w, 8, normalized=True) for w in data["windows"]])
         assert np.abs(roll - data["rollout"]).max() <= BOUND, dtype
-
-
-def test_cli_import_keras(tmp_path, capsys):
-    assert main(["import", str(FIX / "k3_trained.keras"), str(tmp_path / "n.h5")]) == 0
-    out = capsys.readouterr().out
-    assert "Keras 3 .keras archive" in out and "m=4" in out and "trained" in out
-    model = load(tmp_path / "n.h5")
-    data = np.load(FIX / "k3_trained.npz")
-    assert np.abs(model.predict_batch(data["windows"], normalized=True) - data["step"]).max() <= BOUND
-    assert import_checkpoint(tmp_path / "n.h5").config == model.config  # native passes through
 
 
 def _copy(tmp_path, name="tf2_released_weights.h5"):

@@ -15,10 +15,7 @@ from typing import Any as _Any
 
 import numpy as _np
 
-from .checks import warn_not_one_body as _warn_not_one_body
-from .checks import warn_outside_training_range as _warn_outside_training_range
 from .config import TPNetConfig
-from .config import normalize as _normalize
 from .model import TPNet, init_random
 from .model import load as _load_file
 
@@ -57,71 +54,29 @@ def _model(model: TPNet | None) -> TPNet:
     return _default_model
 
 
-def _range_check(net: TPNet, windows: _Any, normalized: bool, name: str) -> None:
-    """One-line warning for (already validated) input outside the training range."""
-    c = net.config
-
-    def model_units(x: _Any) -> _np.ndarray:
-        x = _np.asarray(x, dtype=_np.float64)
-        return x if normalized else _normalize(x, c.norm_lo, c.norm_hi)
-
-    if isinstance(windows, _np.ndarray):                # one (F, N, 2) array, checked at once
-        frames = model_units(windows).reshape(-1, *windows.shape[-2:])
-    else:
-        frames = [model_units(f) for w in windows for f in w]
-    _warn_outside_training_range(frames, c.norm_lo, c.norm_hi, name, normalized)
-
-
-def _body_check(net: TPNet, window: _Any, normalized: bool, name: str) -> bool:
-    """One-line ``NotOneBodyWarning`` for a window whose frames do not look like one body (stray
-    points, two blobs, a frame far from its neighbours); whether it warned (then the range warning,
-    which stray points also trip, is left out: one line names the likely cause)."""
-    c = net.config
-    frames = [_np.asarray(f, dtype=_np.float64) for f in window]
-    if normalized:
-        frames = [f * (c.norm_hi - c.norm_lo) + c.norm_lo for f in frames]
-    return _warn_not_one_body(frames, name)
-
-
 def predict(window: _Any, model: TPNet | None = None, normalized: bool = False) -> _np.ndarray:
     """Next point set ``(n_out, 2)`` from a window ``(m, N, 2)`` or m arrays ``(N_i, 2)``.
     Input outside the training range gives a one-line ``OutsideTrainingRangeWarning``, a window
     that does not look like one body (stray points) a ``NotOneBodyWarning``."""
-    net = _model(model)
-    out = net.predict(window, normalized=normalized)
-    if not _body_check(net, window, normalized, "window"):
-        _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized,
-                     "window")
-    return out
+    return _model(model).predict(window, normalized=normalized)
 
 
 def predict_batch(windows: _Any, model: TPNet | None = None,
                   normalized: bool = False) -> _np.ndarray:
     """Next point set of each window: ``(B, m, N, 2)`` or a list of windows -> ``(B, n_out, 2)``."""
-    net = _model(model)
-    out = net.predict_batch(windows, normalized=normalized)
-    _range_check(net, windows, normalized, "windows")
-    return out
+    return _model(model).predict_batch(windows, normalized=normalized)
 
 
 def rollout(window: _Any, steps: int, model: TPNet | None = None,
             normalized: bool = False) -> _np.ndarray:
     """``steps`` recursive predictions ``(steps, n_out, 2)``; the window slides by one frame."""
-    net = _model(model)
-    out = net.rollout(window, steps, normalized=normalized)
-    if not _body_check(net, window, normalized, "window"):
-        _range_check(net, window if isinstance(window, _np.ndarray) else [window], normalized,
-                     "window")
-    return out
+    return _model(model).rollout(window, steps, normalized=normalized)
 
 
 def rollout_batch(windows: _Any, steps: int, model: TPNet | None = None,
                   normalized: bool = False) -> _np.ndarray:
     """:func:`rollout` of every window, stepped together: ``(B, m, N, 2)`` -> ``(B, steps, n_out, 2)``."""
-    net = _model(model)
-    out = net.rollout_batch(windows, steps, normalized=normalized)
-    _range_check(net, windows, normalized, "windows")
-    return out
+    return _model(model).rollout_batch(windows, steps, normalized=normalized)
 
 
 def example_window() -> _np.ndarray:

@@ -5,7 +5,7 @@
   differently: the same window gave two outputs within ten calls while a policy switched the
   BLAS between one and two threads. So every product the model computes runs on a one-thread
   BLAS (:func:`one_thread`), and the work is cut into BLAS calls by the input's shapes alone
-  (a large batch in chunks of a fixed number of windows, ``tpnet_ref.model.SPLIT_CHUNK``).
+  (a large batch in chunks of a fixed number of windows, :data:`SPLIT_CHUNK`).
   Threads only schedule calls that are fixed beforehand, so no thread count, load or policy can
   change a bit (docs/architecture.md, "Determinism").
 - The second core. A large batch's chunks run on threads, each with the one-thread BLAS. For
@@ -221,6 +221,36 @@ class ThreadPolicy:
 #: the process-wide policy :mod:`tpnet_ref.model` runs the Numba engine's single windows under
 adaptive = ThreadPolicy()
 
+
+
+#: batches of this many windows or more are cut into chunks of ``SPLIT_CHUNK`` windows (the last
+#: one shorter) that run on threads; the cut depends on the batch size alone, never on the
+#: thread count, so neither changes a bit (docs/architecture.md, "Determinism")
+SPLIT_MIN_BATCH = 64
+SPLIT_CHUNK = 64
+_POOLS: dict[int, Any] = {}
+
+
+def split_batch(fn: Any, frames: list, batch: int, m: int, threads: int | None,
+                *args: Any) -> Any:
+    """``fn(frames, batch, *args)`` (``batch * m`` frames, window after window) with a one-thread
+    BLAS: a batch of fewer than ``SPLIT_MIN_BATCH`` windows as it is (``fn`` sets its own BLAS
+    block), a larger one in chunks of ``SPLIT_CHUNK`` consecutive windows joined along the batch
+    axis, on ``threads`` threads (None: every core; 1: one after another). The chunks depend on
+    ``batch`` alone, so the thread count changes no bit."""
+    if batch < SPLIT_MIN_BATCH:
+        return fn(frames, batch, *args)
+    import numpy as np
+    from concurrent.futures import ThreadPoolExecutor
+    parts = [(frames[b0 * m:(b0 + SPLIT_CHUNK) * m], min(SPLIT_CHUNK, batch - b0))
+             for b0 in range(0, batch, SPLIT_CHUNK)]
+    n = min(threads or cpu_count(), len(parts))
+    with one_thread():
+        if n < 2:
+            return np.concatenate([fn(f, b, *args) for f, b in parts])
+        if n not in _POOLS:                  # a process-wide pool per size, made on first use
+            _POOLS[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tpnet")
+        return np.concatenate(list(_POOLS[n].map(lambda p: fn(p[0], p[1], *args), parts)))
 
 def describe() -> str:
     """The BLAS NumPy uses, its kernel and threads (threadpoolctl's view), one line."""

@@ -7,7 +7,10 @@ wrong shape or value (rank, last dimension, empty, NaN/Inf).
 from __future__ import annotations
 
 import math
+import os
+import sys
 import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -15,6 +18,15 @@ import numpy as np
 
 class NonFiniteResultError(ArithmeticError):
     """Raised when finite input would give a non-finite result (for example float32 overflow)."""
+
+
+def overflow_error(dtype: np.dtype, where: str) -> NonFiniteResultError:
+    """The one-line error of a prediction network that overflowed in ``dtype`` at ``where``."""
+    remedy = ("try dtype='float64'" if dtype == np.float32
+              else "rescale the input towards the training range")
+    return NonFiniteResultError(
+        f"the prediction network overflowed in {dtype.name} at {where} (the ReLU LSTM's state "
+        "is unbounded); the input is far outside the training range — " + remedy)
 
 
 def as_real_array(x: Any, name: str, dtype: np.dtype | type | None = None) -> np.ndarray:
@@ -65,6 +77,73 @@ def as_point_sets(x: Any, name: str, dim: int = 2, dtype: np.dtype | type | None
     if arr.shape[-2] == 0:
         raise ValueError(f"{name}: is empty (0 points per set, shape {arr.shape})")
     return check_finite(arr, name)
+
+
+def check_params(params: dict[str, Any], shapes: dict[str, tuple[int, ...]],
+                 dtype: np.dtype) -> dict[str, np.ndarray]:
+    """``params`` checked against ``shapes`` (names and shapes, no NaN or Inf), as contiguous
+    ``dtype`` arrays in the order of ``shapes``."""
+    missing = [k for k in shapes if k not in params]
+    extra = [k for k in params if k not in shapes]
+    if missing or extra:
+        raise ValueError(f"parameters do not fit the config: missing {missing}, unexpected {extra}")
+    out = {}
+    for name, shape in shapes.items():
+        p = as_real_array(params[name], f"parameter {name!r}")
+        if p.shape != shape:
+            raise ValueError(f"parameter {name!r}: expected shape {shape}, got {p.shape}")
+        if not np.isfinite(p).all():
+            raise ValueError(f"parameter {name!r}: contains NaN or infinite values")
+        out[name] = np.ascontiguousarray(p, dtype=dtype)
+    return out
+
+
+def check_window(window: Any, m: int, dim: int, dtype: np.dtype,
+                 name: str = "window") -> list[np.ndarray]:
+    """One window, ``(m, N, dim)`` or a sequence of ``m`` arrays ``(N_i, dim)``, as its ``m``
+    finite frames; refuses paths and strings, and values beyond the model's ``dtype``."""
+    if isinstance(window, (str, bytes, os.PathLike)):
+        raise TypeError(f"{name}: expected points, got the path or string {window!r}; "
+                        "load the file first, e.g. np.load(path), or run `tpnet predict PATH`")
+    if isinstance(window, np.ndarray) or not isinstance(window, Sequence):
+        arr = as_real_array(window, name)
+        if arr.ndim != 3 or arr.shape[-1] != dim:
+            raise ValueError(f"{name}: expected shape (m={m}, N, {dim}) or a sequence of m "
+                             f"arrays (N_i, {dim}), got an array of shape {arr.shape}")
+        frames = [arr[i] for i in range(arr.shape[0])]
+    else:
+        frames = list(window)
+    if len(frames) != m:
+        raise ValueError(f"{name}: the model takes m={m} frames, got {len(frames)}")
+    out = [as_point_set(f, f"{name}[{i}]", dim) for i, f in enumerate(frames)]
+    big = np.finfo(dtype).max
+    for i, f in enumerate(out):
+        if f.dtype.itemsize > dtype.itemsize and np.abs(f).max() > big:
+            raise ValueError(f"{name}[{i}]: values beyond the {dtype.name} range "
+                             f"(|x| > {big:.3g}); use a float64 model")
+    return out
+
+
+def check_windows(windows: Any, m: int, dim: int, dtype: np.dtype) -> tuple[list[np.ndarray], int]:
+    """A batch, ``(B, m, N, dim)`` or a sequence of windows -> its frames, window after window
+    (:func:`check_window` each), and ``B``."""
+    if isinstance(windows, np.ndarray):
+        arr = as_real_array(windows, "windows")
+        if arr.ndim != 4:
+            raise ValueError(f"windows: expected shape (B, m, N, {dim}) or a sequence of "
+                             f"windows, got an array of shape {arr.shape}")
+        windows = list(arr)
+    elif isinstance(windows, (str, bytes, os.PathLike)):
+        check_window(windows, m, dim, dtype, "windows")          # the one-line path error
+    elif not isinstance(windows, Sequence):
+        raise TypeError(f"windows: expected an array or a sequence of windows, "
+                        f"got {type(windows).__name__}")
+    if len(windows) == 0:
+        raise ValueError("windows: empty batch")
+    frames: list[np.ndarray] = []
+    for b, w in enumerate(windows):
+        frames.extend(check_window(w, m, dim, dtype, f"windows[{b}]"))
+    return frames, len(windows)
 
 
 class OutsideTrainingRangeWarning(UserWarning):
@@ -122,12 +201,14 @@ def training_range_problem(frames: np.ndarray | list[np.ndarray], norm_lo: float
 
 def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: float, norm_hi: float,
                                 name: str, normalized: bool = False,
-                                stacklevel: int = 4) -> None:
-    """One-line :class:`OutsideTrainingRangeWarning` if :func:`training_range_problem` finds one."""
+                                stacklevel: int | None = None) -> None:
+    """One-line :class:`OutsideTrainingRangeWarning` if :func:`training_range_problem` finds one
+    (``stacklevel`` None: the first caller outside the package)."""
     problem = training_range_problem(frames, norm_lo, norm_hi, normalized)
     if problem:
         warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
-                      "extrapolation", OutsideTrainingRangeWarning, stacklevel=stacklevel)
+                      "extrapolation", OutsideTrainingRangeWarning,
+                      stacklevel=stacklevel or _caller_level())
 
 
 # --------------------------------------------------------------------------- one body?
@@ -224,6 +305,32 @@ def body_outliers(points: np.ndarray, link: float | None = None,
     return ~body
 
 
+def _all_one_body(frames: np.ndarray) -> bool:
+    """Whether every frame of ``frames (F, N, 2)`` is one linked group lying within
+    ``BODY_MAX_RADIUS`` of its bounding box's centre, in which case :func:`body_outliers` finds
+    no outlier in any frame (the common case, decided for all frames at once)."""
+    f, n = frames.shape[:2]
+    if n < BODY_MIN_POINTS:
+        return True
+    dx = frames[:, :, None, 0] - frames[:, None, :, 0]
+    dy = frames[:, :, None, 1] - frames[:, None, :, 1]
+    d = np.sqrt(dx * dx + dy * dy)                  # the same numbers as body_outliers' d
+    d[:, np.arange(n), np.arange(n)] = np.inf
+    link = np.maximum(BODY_LINK_FACTOR * np.median(d.min(axis=2), axis=1), BODY_LINK_MIN)
+    centre = 0.5 * (frames.min(axis=1) + frames.max(axis=1))
+    ex, ey = frames[..., 0] - centre[:, None, 0], frames[..., 1] - centre[:, None, 1]
+    if not (np.sqrt(ex * ex + ey * ey) <= BODY_MAX_RADIUS).all():
+        return False
+    adj = d <= link[:, None, None]
+    lab = np.broadcast_to(np.arange(n), (f, n))
+    while True:                                     # min-label spreading, as _groups
+        new = np.minimum(np.where(adj, lab[:, None, :], n).min(axis=2), lab)
+        new = np.take_along_axis(new, new, axis=1)
+        if np.array_equal(new, lab):
+            return bool((lab == 0).all())
+        lab = new
+
+
 def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
     """Why a window (``(F, N, 2)`` or a list of ``(N_i, 2)`` frames, world units) does not look
     like one body moving, or ``None``: stray points or a second blob in a frame
@@ -231,6 +338,12 @@ def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
     from the previous frame's. A frame without a body of the scene's size (points scattered, or
     in other units) is left to :func:`training_range_problem`."""
     centres = []
+    if isinstance(frames, np.ndarray) or len({len(f) for f in frames}) == 1:
+        stacked = np.asarray(np.stack(frames) if isinstance(frames, list) else frames,
+                             dtype=np.float64)
+        if np.isfinite(stacked).all() and _all_one_body(stacked):
+            centres = list(stacked.mean(axis=1))     # no outliers: only the steps to judge
+            frames = []
     for i, f in enumerate(frames):
         f = np.asarray(f, dtype=np.float64)
         out = body_outliers(f)
@@ -257,11 +370,40 @@ def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
 
 
 def warn_not_one_body(frames: np.ndarray | list[np.ndarray], name: str,
-                      stacklevel: int = 4) -> bool:
-    """One-line :class:`NotOneBodyWarning` if :func:`window_body_problem` finds one; whether it
-    warned."""
+                      stacklevel: int | None = None) -> bool:
+    """One-line :class:`NotOneBodyWarning` if :func:`window_body_problem` finds one (``stacklevel``
+    None: the first caller outside the package); whether it warned."""
     problem = window_body_problem(frames)
     if problem:
         warnings.warn(f"{name}: {problem}; the prediction is unreliable", NotOneBodyWarning,
-                      stacklevel=stacklevel)
+                      stacklevel=stacklevel or _caller_level())
     return problem is not None
+
+
+def _caller_level() -> int:
+    """The ``stacklevel`` that points a warning raised by this module's caller at the first
+    frame outside the package (the user's line, however deep the call came from)."""
+    package = os.path.dirname(os.path.abspath(__file__))
+    frame, level = sys._getframe(2), 2
+    while frame is not None and frame.f_code.co_filename.startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+def warn_about_input(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
+                     normalized: bool, name: str, one_window: bool) -> None:
+    """The input warnings of a prediction on checked ``frames``: for ``one_window`` a :class:`NotOneBodyWarning` when its frames do not look like one body (stray points,
+    two blobs, a frame far from its neighbours), otherwise an
+    :class:`OutsideTrainingRangeWarning` when it leaves the training range (stray points trip
+    both; one line names the likely cause)."""
+    scale = norm_hi - norm_lo
+    with np.errstate(over="ignore", invalid="ignore"):      # far-out input: judged, not warned twice
+        x: Any = ([np.asarray(f, dtype=np.float64) for f in frames]
+                  if len({f.shape[0] for f in frames}) > 1 else
+                  np.asarray(np.stack(frames), dtype=np.float64))      # (F, N, dim) at once
+        each = (lambda fn: fn(x)) if isinstance(x, np.ndarray) else (lambda fn: [fn(f) for f in x])
+        world = each(lambda f: f * scale + norm_lo) if normalized else x
+        if one_window and warn_not_one_body(world, name):
+            return
+        model = x if normalized else each(lambda f: (f - norm_lo) / scale)
+        warn_outside_training_range(model, norm_lo, norm_hi, name, normalized)

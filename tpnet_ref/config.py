@@ -143,4 +143,34 @@ def param_shapes(cfg: TPNetConfig) -> dict[str, tuple[int, ...]]:
     return shapes
 
 
-__all__ = ["TPNetConfig", "param_shapes", "normalize", "denormalize", "NORM_LO", "NORM_HI"]
+def random_params(config: TPNetConfig, seed: int = 0,
+                  transform_scale: float = 0.1) -> dict[str, np.ndarray]:
+    """Random float64 parameters of ``config`` (Glorot-uniform kernels, small random biases, LSTM
+    forget bias 1, non-trivial transform nets when the config asks for trained ones), for tests
+    and benchmarks. Deterministic in ``seed``."""
+    cfg = config
+    rng = np.random.default_rng(seed)
+    params: dict[str, np.ndarray] = {}
+    for name, shape in param_shapes(cfg).items():
+        if len(shape) == 2:
+            limit = math.sqrt(6.0 / (shape[0] + shape[1]))
+            if name.endswith(".out.w"):
+                limit = transform_scale / math.sqrt(shape[0])
+            params[name] = rng.uniform(-limit, limit, size=shape)
+        elif name.endswith(".out.b"):
+            k = int(round(math.sqrt(shape[0])))
+            params[name] = np.eye(k).ravel() + rng.uniform(-transform_scale, transform_scale, shape)
+        elif name.endswith("gamma"):
+            params[name] = 1.0 + rng.uniform(-0.2, 0.2, size=shape)
+        elif name.endswith(".bias") and name.startswith("lstm"):
+            u = shape[0] // 4
+            b = rng.uniform(-0.1, 0.1, size=shape)
+            b[u:2 * u] += 1.0  # Keras unit_forget_bias
+            params[name] = b
+        else:
+            params[name] = rng.uniform(-0.1, 0.1, size=shape)
+    return params
+
+
+__all__ = ["TPNetConfig", "param_shapes", "random_params", "normalize", "denormalize", "NORM_LO",
+           "NORM_HI"]

@@ -47,7 +47,8 @@ from typing import Any
 
 import numpy as np
 
-from .blas import in_one_thread
+from .blas import in_one_thread, two_threads
+from .checks import overflow_error
 from .extras import require
 
 numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
@@ -558,13 +559,20 @@ def _two_threads(parallel: bool) -> bool:
 
 
 class NumbaHead:
-    """A model's prediction network laid out for the kernels above (built once per model):
-    ``params`` in the file's order (``model.params``), ``unit_order`` the model's
-    (:mod:`tpnet_ref.unit_order`; None: the file's order) -- only the layout, and so the order
-    of the sums, depends on it."""
+    """A model's prediction network laid out for the kernels above (built once per model), the
+    :class:`tpnet_ref.heads.Head` "numba": ``params`` in the file's order (``model.params``),
+    ``unit_order`` the model's (:mod:`tpnet_ref.unit_order`; None: the file's order) -- only the
+    layout, and so the order of the sums, depends on it. Its calls take the second thread that
+    :data:`tpnet_ref.blas.adaptive` offers (``threaded``); the bits do not depend on it."""
+
+    name = "numba"
+    threaded = True
 
     def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype,
-                 unit_order: dict[str, np.ndarray] | None = None) -> None:
+                 unit_order: dict[str, np.ndarray] | None = None,
+                 max_batch: int | None = None) -> None:
+        #: the largest batch it runs (None: any; :data:`tpnet_ref.heads.ENGINE_MAX_BATCH`)
+        self.max_batch = max_batch
         self.dtype = dt = np.dtype(dtype)
         self.relu = config.lstm_activation == "relu"
         if not self.relu and config.lstm_activation != "tanh":
@@ -615,10 +623,31 @@ class NumbaHead:
         self.head_w = np.ascontiguousarray(np.asarray(params["head.w"])[prev], dtype=dt)
         self.head_b = np.ascontiguousarray(params["head.b"], dtype=dt)
         t = dt.type
+        self.out_shape = (config.n_out, config.dim)
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
 
-    def project(self, x: np.ndarray, parallel: bool = False, batch: int = 1) -> np.ndarray:
+    def project(self, features: np.ndarray, batch: int = 1) -> np.ndarray:
+        """BiLSTM 1's input projection of each frame's feature ``(F, k)`` -> ``(F, 2N)``, in this
+        head's layout (:meth:`project_rows`, bias included)."""
+        return self.project_rows(features, two_threads(), batch).reshape(len(features), -1)
+
+    def __call__(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
+        """``features (B, m, k)`` -> ``(B, n_out, dim)`` in [0, 1]; ``proj1`` ``(m, B, 2N)``:
+        :meth:`project` of the frames, time-major, if already known."""
+        batch, m = features.shape[:2]
+        parallel = two_threads()
+        if proj1 is None:
+            proj1 = self.project_rows(features.transpose(1, 0, 2).reshape(m * batch, -1),
+                                      parallel, batch)
+        y, bad = self.run(proj1.reshape(m * batch, 2, -1, 4), m, batch, parallel)
+        if bad:
+            raise overflow_error(self.dtype, f"BiLSTM {bad}")
+        if not np.isfinite(y).all():
+            raise overflow_error(self.dtype, "the output layer")
+        return y.reshape(-1, *self.out_shape)
+
+    def project_rows(self, x: np.ndarray, parallel: bool = False, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, N)``
         (each direction's gates i, f, c, o, then zero padding up to ``N``, whole vectors).
         ``parallel``: the two directions on two threads if :func:`_two_threads` allows.
@@ -640,9 +669,9 @@ class NumbaHead:
             _project_serial(x, k, self.csts[0], out, steps, bsz)
         return out
 
-    def __call__(self, xp1: np.ndarray, steps: int, batch: int,
-                 parallel: bool = False) -> tuple[np.ndarray, int]:
-        """The network from BiLSTM 1's projection ``xp1`` (:meth:`project`'s rows, time-major,
+    def run(self, xp1: np.ndarray, steps: int, batch: int,
+            parallel: bool = False) -> tuple[np.ndarray, int]:
+        """The network from BiLSTM 1's projection ``xp1`` (:meth:`project_rows`' rows, time-major,
         ``T*B`` of them, any shape with ``2N`` numbers per row) -> ``(y (B, n_out*dim) in
         [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0. ``parallel``: each
         layer's two directions on two threads if :func:`_two_threads` allows."""

@@ -303,10 +303,13 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`,
     time-major: ``x (T, B, C)`` -> ``(T, B, 2u)`` or, with ``return_sequences=False``, ``(B, 2u)``.
 
-    The fused kernel the model runs. Its documented specification is :func:`lstm` (one
-    direction, written for reading) and :func:`bidirectional_lstm`; ``tests/test_layers.py``
-    checks that this function equals them. It computes the same thing faster: one product
-    projects every step of both directions (:func:`project`), then :func:`bilstm_steps`.
+    The fused layer as one function, for measuring units' use (:mod:`tpnet_ref.unit_order`)
+    and for tests: the NumPy head (:mod:`tpnet_ref.fast_numpy`) runs its two parts itself, the
+    input projection (:func:`project_spans` / :func:`project_layer_norm`, LayerNorm folded) and
+    :func:`bilstm_steps`. Its specification is :func:`lstm` (one direction, written for reading)
+    and :func:`bidirectional_lstm`; ``tests/test_layers.py`` checks that this function equals
+    them, and ``tests/test_reference.py`` checks the head the model runs against
+    :mod:`tpnet_ref.reference`.
     ``xp`` ``(T, B, 8u)``, when given, is the input projection ``x @ kernel`` (without the bias)
     computed beforehand, e.g. one frame at a time by a rollout; ``x`` then only gives the shapes.
     """

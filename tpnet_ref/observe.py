@@ -67,7 +67,8 @@ BODY_RING_RADIUS = 2.0
 BODY_PARTICLE_RADIUS = 0.15
 
 
-def _cv2() -> Any:
+def require_cv2() -> Any:
+    """OpenCV (the module `cv2`), or a one-line error naming the `vision` extra."""
     return require("cv2", "vision", "reading masks, images and videos (OpenCV)")
 
 
@@ -261,7 +262,7 @@ def _as_mask(mask: Any) -> np.ndarray:
 def largest_component(mask: Any) -> np.ndarray:
     """The largest 8-connected blob of ``mask`` (nonzero = foreground) as a ``uint8`` 0/1 array;
     ``ValueError`` for a mask without foreground."""
-    cv2 = _cv2()
+    cv2 = require_cv2()
     m = _as_mask(mask)
     if not m.any():
         raise ValueError(f"mask: no foreground pixel in the {m.shape[1]} x {m.shape[0]} mask (an "
@@ -295,7 +296,7 @@ def points_from_mask(mask: Any, camera: Camera, n: int = 30, *, inset: float = B
     inset = float(inset)
     if not math.isfinite(inset):
         raise ValueError(f"inset: must be finite, got {inset}")
-    cv2 = _cv2()
+    cv2 = require_cv2()
     comp = largest_component(mask)
     x0, y0, w, h = cv2.boundingRect(comp)
     comp = comp[y0:y0 + h, x0:x0 + w]
@@ -354,7 +355,7 @@ def foreground_mask(image: Any, background: Any, threshold: float | None = None)
     finds the body: its largest blob; the edge then lies where a pixel is half covered, whatever
     the body's contrast).
     """
-    cv2 = _cv2()
+    cv2 = require_cv2()
     img = _as_image(image, "image")
     bg = _as_image(background, "background")
     if img.shape != bg.shape:
@@ -487,5 +488,5 @@ def frames_at_model_rate(times_s: Any, frames: Any, **kwargs: Any) -> Any:
 
 __all__ = ["Camera", "points_from_mask", "points_from_image", "drop_outliers",
            "frames_at_model_rate", "model_rate_indices", "foreground_mask", "largest_component",
-           "outline_offset", "BODY_INSET", "MODEL_FRAME_S", "WALL_LO", "WALL_HI",
+           "outline_offset", "require_cv2", "BODY_INSET", "MODEL_FRAME_S", "WALL_LO", "WALL_HI",
            "BODY_LINK_FACTOR", "BODY_LINK_MIN", "BODY_MAX_RADIUS", "BODY_SPUR_FACTOR"]

@@ -62,7 +62,7 @@ def calibrate(model: Any, windows: np.ndarray, normalized: bool = False,
 
 
 #: a window goes to the full network when an LSTM output reaches this share of the bound above
-#: which the full network refuses to answer (``sqrt(max) / 4``, ``TPNet._full_head``): a margin
+#: which the full network refuses to answer (``sqrt(max) / 4``, :class:`tpnet_ref.fast_numpy.NumpyHead`): a margin
 #: for the two networks' different rounding
 LIMIT_SHARE = 0.5
 
@@ -517,6 +517,39 @@ class _Run1:
         return np.zeros((1, self.h_y.size), self.head.dtype), np.zeros(1, bool)
 
 
+class SpecialisedHead:
+    """The :class:`tpnet_ref.heads.Head` of a specialised model: the :class:`SceneHead` on every
+    window, the full network on the windows it flags: the first of the heads ``full`` (fastest
+    first, the last one takes any batch) that runs that many; outputs ``(B, n_out, dim)``
+    (``out_shape``). ``counts`` (a dict with "windows" and "fallbacks", shared with the model)
+    counts both. It projects its own inputs (:meth:`project` gives None: a rollout does not
+    cache BiLSTM 1's projection)."""
+
+    name = "specialised"
+    max_batch: int | None = None
+    threaded = False
+
+    def __init__(self, scene: SceneHead, full: list, counts: dict[str, int],
+                 out_shape: tuple[int, int]) -> None:
+        self.scene, self.full, self.counts, self.out_shape = scene, full, counts, out_shape
+
+    def project(self, features: np.ndarray, batch: int = 1) -> None:
+        return None
+
+    def __call__(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
+        """``features (B, m, k)`` -> ``(B, n_out, dim)`` in [0, 1], equal to the full network's
+        up to rounding."""
+        y, ok = self.scene(features)
+        y = y.reshape(-1, *self.out_shape)
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            head = next(h for h in self.full if h.max_batch is None or bad.size <= h.max_batch)
+            y[bad] = head(features[bad])
+        self.counts["windows"] += len(ok)
+        self.counts["fallbacks"] += int(bad.size)
+        return y
+
+
 def fraction_used(used: dict[str, np.ndarray]) -> dict[str, tuple[int, int]]:
     """``{mask name: (used units, all units)}``."""
     return {k: (int(v.sum()), int(v.size)) for k, v in used.items()}
@@ -542,13 +575,6 @@ def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
     return {k: a.astype(bool) for k, a in masks.items()}
 
 
-def save(model: Any, path: str | os.PathLike, **provenance: Any) -> None:
-    """Write a (specialised) model to a native weights file, its masks included."""
-    model.save(path, **provenance)
-    if model.specialization is not None:
-        write(path, model.specialization.used)
-
-
 def attach(model: Any, path: str | os.PathLike) -> Any:
     """``model`` (just read from the native file ``path``) specialised as the file says, or
     ``model`` itself when the file has no ``specialization`` group."""
@@ -556,5 +582,5 @@ def attach(model: Any, path: str | os.PathLike) -> Any:
     return model if used is None else model.with_specialization(used)
 
 
-__all__ = ["calibrate", "SceneHead", "fraction_used", "write", "read", "save", "attach",
+__all__ = ["calibrate", "SceneHead", "SpecialisedHead", "fraction_used", "write", "read", "attach",
            "GROUP", "FORMAT"]

@@ -8,8 +8,8 @@ every input whatever the order. With the units laid out most-used first, that pr
 the windows the order was measured on, so a prediction reads a fraction of the weights.
 
 Permuting the units of a layer is an exact re-parameterisation (the same function, up to the
-rounding of LayerNorm's sums): the order only changes the model's private layout
-(:meth:`tpnet_ref.model.TPNet._prepare`); ``model.params`` keep the file's order.
+rounding of LayerNorm's sums): the order only changes the fast paths' layout
+(:mod:`tpnet_ref.fast_numpy`, :mod:`tpnet_ref.engine_numba`); ``model.params`` keep the file's order.
 :meth:`tpnet_ref.model.TPNet.sort_units` measures an order; :func:`write` / :func:`read` keep
 it in the native weights file as a group ``unit_order`` (ignored by readers that do not know it).
 
@@ -26,6 +26,8 @@ from typing import Any
 import numpy as np
 
 from . import layers as L
+from .checks import check_window
+from .fast_numpy import file_order_lstms
 from .hdf5 import read_vectors, write_vectors
 
 #: name of the HDF5 group that holds a unit order in the native weights file
@@ -87,8 +89,8 @@ def measure(model: Any, windows: Any, normalized: bool = False, chunk: int = 256
         [("mlp1", len(cfg.mlp1))] + ([] if cfg.feature_transform_trained else [("mlp2", len(cfg.mlp2))]))
     for s in range(0, len(windows), chunk):
         part = windows[s:s + chunk]
-        frames = [f for w in part for f in model._check_window(w, "windows")]
-        pts, n = model._canonical_points(frames, normalized)
+        frames = [f for w in part for f in check_window(w, cfg.m, cfg.dim, model.dtype, "windows")]
+        pts, n = model.canonical_points(frames, normalized)
         x = pts                                  # the per-point MLPs in the file's order
         points += len(x)
         for name, width in mlps:
@@ -103,7 +105,7 @@ def measure(model: Any, windows: Any, normalized: bool = False, chunk: int = 256
         counts["global"] += (g != 0).sum(axis=(0, 1))
         h = g.transpose(1, 0, 2)
         with np.errstate(over="ignore", invalid="ignore"):
-            for i, (fused, gamma, beta) in enumerate(model._lstms, 1):     # the file's order
+            for i, (fused, gamma, beta) in enumerate(file_order_lstms(cfg, p), 1):
                 y = L.bilstm_fused(h, *fused, activation=cfg.lstm_activation,
                                    return_sequences=True)
                 counts[f"lstm{i}"] += (y != 0).sum(axis=(0, 1))

@@ -56,8 +56,8 @@ def _calibration(text: str) -> tuple[Any, dict, Path | None]:
 
 
 def _read_image(path: Path, what: str) -> np.ndarray:
-    from ..observe import _cv2
-    cv2 = _cv2()
+    from ..observe import require_cv2
+    cv2 = require_cv2()
     if not path.is_file():
         raise FileNotFoundError(f"{what} not found: {path}")
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
@@ -70,8 +70,8 @@ class _Source:
     """Frames of a video file or of a directory of PNGs, by index."""
 
     def __init__(self, source: str) -> None:
-        from ..observe import _cv2
-        self.cv2 = _cv2()
+        from ..observe import require_cv2
+        self.cv2 = require_cv2()
         self.path = Path(source)
         if self.path.is_dir():
             self.files = sorted(f for f in self.path.glob("*.png")

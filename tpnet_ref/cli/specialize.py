@@ -92,7 +92,7 @@ def _cli_specialize(args: Any) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         spec = model.specialize(windows, normalized=normalized)
-    S.save(spec, out, specialized_from=str(args.weights or "shipped m=4"),
+    spec.save(out, specialized_from=str(args.weights or "shipped m=4"),
            calibration_windows=len(windows))
     used = S.fraction_used(spec.specialization.used)
     print(f"wrote {out}: calibrated on {len(windows)} windows; units used: "

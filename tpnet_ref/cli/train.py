@@ -25,13 +25,21 @@ def add_cli(sub: Any) -> None:
     tsub = p.add_subparsers(dest="train_command", metavar="TRAIN_COMMAND")
     tsub.required = True
 
+    _add_run(tsub)
+    _add_export(tsub)
+    _add_bench(tsub)
+    _add_score(tsub)
+    _add_baselines(tsub)
+
+
+def _add_run(tsub: Any) -> None:
+    d = Recipe()
     q = tsub.add_parser("run", help="train (or --resume) a run on a `tpnet data generate` file")
     q.add_argument("data", help="HDF5 dataset from `tpnet data generate`")
     q.add_argument("-o", "--run-dir", required=True,
                    help="run directory: checkpoint.pt, checkpoint.json, log.jsonl")
     q.add_argument("--resume", action="store_true",
                    help="continue the run in --run-dir (its stored recipe is used)")
-    d = Recipe()
     q.add_argument("--recipe", choices=("paper", "curriculum"), default=d.recipe)
     q.add_argument("--size", choices=sorted(SIZES), default="full",
                    help="network widths: full (released), half, quarter (every width halved, quartered), small, tiny")
@@ -101,12 +109,16 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--quiet", action="store_true", help="no progress bar")
     q.set_defaults(func=_cli_run)
 
+
+def _add_export(tsub: Any) -> None:
     e = tsub.add_parser("export", help="native weights file from a checkpoint (with provenance)")
     e.add_argument("checkpoint", help="run directory or checkpoint.pt")
     e.add_argument("output", help="native HDF5 weights file to write")
     e.add_argument("--dtype", choices=("float32", "float64"), default="float32")
     e.set_defaults(func=_cli_export)
 
+
+def _add_bench(tsub: Any) -> None:
     b = tsub.add_parser("bench", help="training throughput (windows/s) at a batch size")
     b.add_argument("--size", choices=sorted(SIZES), default="full")
     b.add_argument("--batch", type=int, default=128)
@@ -119,6 +131,9 @@ def add_cli(sub: Any) -> None:
     b.add_argument("--match-weight", type=float, default=0.0, help="μ of the timed loss")
     b.set_defaults(func=_cli_bench)
 
+
+def _add_score(tsub: Any) -> None:
+    d = Recipe()
     s = tsub.add_parser("score", help="model selection on validation trajectories (the test "
                                       "protocol, never the test cases): E_p/E_s at 40/80")
     s.add_argument("data")
@@ -133,6 +148,9 @@ def add_cli(sub: Any) -> None:
                    help="score on a dataset made with another scene convention")
     s.set_defaults(func=_cli_score)
 
+
+def _add_baselines(tsub: Any) -> None:
+    d = Recipe()
     c = tsub.add_parser("baselines", help="copy-last-frame and constant-velocity scores on the "
                                           "validation windows")
     c.add_argument("data")

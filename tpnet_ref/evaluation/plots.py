@@ -28,6 +28,13 @@ def _plt() -> Any:
     return plt
 
 
+def _fit(text: str, width_in: float, fontsize: float) -> str:
+    """``text`` wrapped to lines that fit ``width_in`` inches at ``fontsize`` points (an average
+    character of the default font is about 0.55 em wide)."""
+    import textwrap
+    return textwrap.fill(text, max(20, int(width_in * 72 / (0.55 * fontsize))))
+
+
 def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     """Error against prediction step, one column per window length m (each model with the two
     baselines of its m, ordering ``given``), E_p on top and E_s below; reading ``squared``,
@@ -61,7 +68,9 @@ def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
         axes[0, j].legend(fontsize=7, loc="lower right")
     axes[0, 0].set_ylabel(f"position error E_p ({HEADLINE})")
     axes[1, 0].set_ylabel(f"shape error E_s ({HEADLINE})")
-    fig.suptitle("Rollout error on the held-out cases (mean over cases, normalised coordinates)")
+    # one line across several columns; wrapped where one column is too narrow for it
+    fig.suptitle(_fit("Rollout error on the held-out cases (mean over cases, normalised "
+                      "coordinates)", 4.6 * len(ms), 12))
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -110,9 +119,13 @@ def plot_groups(groups: dict[str, Sequence[Curve]], path: str | os.PathLike) -> 
 
 
 def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
-    """E_p at 40 (hollow) and 80 (filled) predictions against ms per predicted frame."""
+    """E_p after 40 (hollow) and 80 (filled) predictions against ms per predicted frame (one
+    rollout), one colour per row; the legend, beside the axes, says what the markers mean."""
+    from matplotlib.lines import Line2D
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig, ax = plt.subplots(figsize=(10, 5), layout="constrained")
+    handles: list[Any] = []
+    horizons: set[tuple[int, ...]] = set()
     for i, r in enumerate(rows):
         ms = r.ms_single if r.ms_single is not None else r.ms_batch
         e = r.err.get(f"Ep_{HEADLINE}")
@@ -120,22 +133,30 @@ def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
             continue
         c = plt.cm.tab20(i % 20)       # one colour per row (11+ rows)
         if not e.any():        # the reference itself: no error to draw on a log axis
-            ax.axvline(ms, color=c, ls="--", lw=1, label=f"{r.name} (reference, error 0)")
+            handles.append(ax.axvline(ms, color=c, ls="--", lw=1,
+                                      label=f"{r.name} (reference, error 0)"))
             continue
         hs = table_horizons(e.shape[1])
-        pts = [(h, float(e[:, h - 1].mean())) for h in hs]
-        for h, v in pts:
-            ax.scatter(ms, max(v, 1e-6), color=c, s=40,
-                       facecolors="none" if h == hs[0] and len(hs) > 1 else c,
-                       label=r.name if h == pts[-1][0] else None)
+        horizons.add(hs)
+        for h in hs:
+            hollow = h == hs[0] and len(hs) > 1
+            dot = ax.scatter(ms, max(float(e[:, h - 1].mean()), 1e-6), color=c, s=45, lw=1.3,
+                             facecolors="none" if hollow else c, label=r.name)
+        handles.append(dot)
+    if len(horizons) == 1 and len(hs := next(iter(horizons))) == 2:   # what the markers mean
+        grey = dict(ls="none", marker="o", markersize=7, color="0.3")
+        handles = [Line2D([], [], mfc="none", label=f"hollow: after {hs[0]} predictions",
+                          **grey),
+                   Line2D([], [], label=f"filled: after {hs[1]} predictions", **grey),
+                   *handles]
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("ms per predicted frame (one rollout)")
-    ax.set_ylabel(f"E_p ({HEADLINE}), hollow @{HORIZONS[0]}, filled @{HORIZONS[1]}")
-    ax.set_title("Position error against run time (held-out cases)", fontsize=11)
+    ax.set_ylabel(f"position error E_p ({HEADLINE})")
+    ax.set_title("Position error against run time (held-out cases, mean over cases)",
+                 fontsize=11)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
+    fig.legend(handles=handles, loc="outside right upper", fontsize=8, frameon=False)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return Path(path)

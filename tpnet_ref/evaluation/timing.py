@@ -86,21 +86,56 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
     largest difference from the float32 row's predictions.
     """
     frames_n = normalize(np.asarray(frames, dtype=np.float64))
-    inputs, targets = split_protocol(frames_n, m, horizon)
-    C = inputs.shape[0]
-    rows: list[TimingRow] = []
+    t = _Timer(*split_protocol(frames_n, m, horizon), horizon, repeats)
+    preds: dict[str, np.ndarray | None] = {}
+    todo = _network_rows(models, m, specialized, peers)
+    for name, model, kind in progress_bar(todo, progress, len(todo), "timing"):
+        if kind == "numpy":
+            preds[name] = _time_numpy(t, name, model)
+        elif kind == "specialised":
+            _time_specialised(t, name, model, calibration_trajectories,
+                              preds.get(name.replace(", scene-specialised", "")))
+        elif kind == "torch":
+            _time_torch(t, name, model)
+        else:
+            _time_onnx(t, name, model)
+    _time_baselines(t)
+    _time_simulator(t, cases, m, dt_factors)
+    return t.rows
 
-    def add(name: str, fn_batch: Callable[[], np.ndarray] | None,
-            fn_single: Callable[[], Any] | None, note: str = "", reps: int = repeats,
+
+class _Timer:
+    """Times the ways of predicting ``targets`` from ``inputs`` (all cases, then the first one
+    alone) and keeps a :class:`TimingRow` for each."""
+
+    def __init__(self, inputs: np.ndarray, targets: np.ndarray, horizon: int,
+                 repeats: int) -> None:
+        self.inputs, self.targets, self.horizon, self.repeats = inputs, targets, horizon, repeats
+        self.rows: list[TimingRow] = []
+
+    def add(self, name: str, fn_batch: Callable[[], np.ndarray] | None,
+            fn_single: Callable[[], Any] | None, note: str = "", reps: int | None = None,
             kind: str = "model") -> np.ndarray | None:
+        """Time ``fn_batch`` (all cases; its result is scored) and ``fn_single`` (the first
+        case), best of ``reps`` (default ``repeats``) each; returns the batch predictions."""
+        reps = self.repeats if reps is None else reps
+        n_cases, horizon = self.inputs.shape[0], self.horizon
         tb, pred = _best_time(fn_batch, reps) if fn_batch else (None, None)
         ts = _best_time(fn_single, reps)[0] if fn_single else None
-        rows.append(TimingRow(name,
-                              None if tb is None else 1e3 * tb / (C * horizon),
-                              None if ts is None else 1e3 * ts / horizon,
-                              errors(targets, pred), note, kind))
+        self.rows.append(TimingRow(name,
+                                   None if tb is None else 1e3 * tb / (n_cases * horizon),
+                                   None if ts is None else 1e3 * ts / horizon,
+                                   errors(self.targets, pred), note, kind))
         return pred
 
+    def skip(self, name: str, why: str) -> None:
+        self.rows.append(TimingRow(name, None, None, {}, why))
+
+
+def _network_rows(models: Sequence[ModelSpec], m: int, specialized: bool,
+                  peers: bool) -> list[tuple[str, Any, str]]:
+    """``(row name, model, kind)`` for each network row, in table order (models of window
+    length ``m`` only)."""
     todo = []
     for spec in models:
         if spec.model.config.m != m:
@@ -113,104 +148,121 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
         if peers:
             todo.append((f"{spec.label} PyTorch", spec.model.astype("float32"), "torch"))
             todo.append((f"{spec.label} onnxruntime", spec.model.astype("float32"), "onnx"))
-    preds: dict[str, np.ndarray] = {}
-    for name, model, kind in progress_bar(todo, progress, len(todo), "timing"):
-        if kind == "numpy":
-            model.rollout(inputs[0], 2, normalized=True)     # warm caches
-            preds[name] = add(name, lambda mo=model: batched_rollout(mo, inputs, horizon),
-                              lambda mo=model: mo.rollout(inputs[0], horizon, normalized=True),
-                              "tpnet_ref, windows stepped together (batch) / model.rollout "
-                              "(single)")
-        elif kind == "specialised":
-            if model.config.lstm_activation != "relu":
-                rows.append(TimingRow(name, None, None, {}, "not a ReLU-LSTM network: no unit "
-                                                            "stays exactly zero"))
-                continue
-            from ..data import calibration_windows
-            t0 = time.perf_counter()
-            with warnings.catch_warnings():        # training-range warnings of the rollouts
-                warnings.simplefilter("ignore")
-                cal = calibration_windows(model, calibration_trajectories,
-                                          rollout=CALIBRATION_ROLLOUT)
-                model = model.specialize(cal)
-            t_cal = time.perf_counter() - t0
-            model.rollout(inputs[0], 2, normalized=True)     # warm caches
-            model.counts.update(windows=0, fallbacks=0)
-            pred = add(name, lambda mo=model: batched_rollout(mo, inputs, horizon),
-                       lambda mo=model: mo.rollout(inputs[0], horizon, normalized=True))
-            n_win, n_fb = model.counts["windows"], model.counts["fallbacks"]
-            note = (f"`TPNet.specialize` calibrated ({t_cal:.0f} s, not timed) on {len(cal):,} "
-                    f"windows of {calibration_trajectories} simulated training-grid "
-                    f"trajectories and the model's own {CALIBRATION_ROLLOUT}-frame rollouts "
-                    f"from them; {n_fb / max(n_win, 1):.1%} of the {n_win:,} timed windows fell "
-                    "back to the full network")
-            ref = preds.get(name.replace(", scene-specialised", ""))
-            if ref is not None:
-                scale = model.config.norm_hi - model.config.norm_lo
-                d = float(np.abs(np.asarray(pred, np.float64) - ref).max()) * scale
-                note += (f"; max abs difference from the float32 row's predictions over the "
-                         f"{horizon}-frame rollouts {d:.1e} world units")
-            rows[-1].note = note
-        elif kind == "torch":
-            if importlib.util.find_spec("torch") is None:
-                rows.append(TimingRow(name, None, None, {}, "PyTorch not installed"))
-                continue
-            import torch
-            from ..torch_model import TorchTPNet
-            net = TorchTPNet.from_numpy(model).eval()
-            xb = torch.from_numpy(np.ascontiguousarray(inputs, dtype=np.float32))
+    return todo
 
-            def run_t(x: Any, net: Any = net) -> np.ndarray:
-                with torch.inference_mode():
-                    return net.rollout(x, horizon).numpy()
-            run_t(xb[:1, :, :, :])
-            add(name, lambda: run_t(xb), lambda: run_t(xb[:1]),
-                f"torch {torch.__version__}, {torch.get_num_threads()} threads, float32")
-        else:
-            if importlib.util.find_spec("onnxruntime") is None \
-                    or importlib.util.find_spec("onnx") is None:
-                rows.append(TimingRow(name, None, None, {}, "onnx/onnxruntime not installed"))
-                continue
-            from ..onnx_peer import onnx_session     # the crosscheck extra
-            sess = onnx_session(model, n_points=inputs.shape[2])
 
-            def run_o(x: np.ndarray, sess: Any = sess) -> np.ndarray:
-                w = np.ascontiguousarray(x, dtype=np.float32)
-                out = np.empty((w.shape[0], horizon) + w.shape[2:], np.float32)
-                for s in range(horizon):
-                    y = sess.run(None, {"window": w})[0]
-                    out[:, s] = y
-                    w = np.concatenate([w[:, 1:], y[:, None]], axis=1)
-                return out
-            run_o(inputs[:1])
-            add(name, lambda: run_o(inputs), lambda: run_o(inputs[:1]),
-                "one-step ONNX graph in a loop: recomputes the m frames' features every step")
-    add("copy last input frame", lambda: copy_last(inputs, horizon),
-        lambda: copy_last(inputs[:1], horizon), "baseline", kind="baseline")
-    add("constant velocity", lambda: constant_velocity(inputs, horizon),
-        lambda: constant_velocity(inputs[:1], horizon), "baseline, points matched by order",
-        kind="baseline")
-    last_frame = m - 1 + horizon
+def _time_numpy(t: _Timer, name: str, model: Any) -> np.ndarray | None:
+    inputs, horizon = t.inputs, t.horizon
+    model.rollout(inputs[0], 2, normalized=True)     # warm caches
+    return t.add(name, lambda: batched_rollout(model, inputs, horizon),
+                 lambda: model.rollout(inputs[0], horizon, normalized=True),
+                 "tpnet_ref, windows stepped together (batch) / model.rollout (single)")
+
+
+def _time_specialised(t: _Timer, name: str, model: Any, calibration_trajectories: int,
+                      ref: np.ndarray | None) -> None:
+    """The float32 network specialised on simulated training-grid windows (calibrated before
+    and outside the timed part); ``ref``: the float32 row's predictions, for the note."""
+    if model.config.lstm_activation != "relu":
+        t.skip(name, "not a ReLU-LSTM network: no unit stays exactly zero")
+        return
+    from ..data import calibration_windows
+    inputs, horizon = t.inputs, t.horizon
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():        # training-range warnings of the rollouts
+        warnings.simplefilter("ignore")
+        cal = calibration_windows(model, calibration_trajectories, rollout=CALIBRATION_ROLLOUT)
+        model = model.specialize(cal)
+    t_cal = time.perf_counter() - t0
+    model.rollout(inputs[0], 2, normalized=True)     # warm caches
+    model.counts.update(windows=0, fallbacks=0)
+    pred = t.add(name, lambda: batched_rollout(model, inputs, horizon),
+                 lambda: model.rollout(inputs[0], horizon, normalized=True))
+    n_win, n_fb = model.counts["windows"], model.counts["fallbacks"]
+    note = (f"`TPNet.specialize` calibrated ({t_cal:.0f} s, not timed) on {len(cal):,} "
+            f"windows of {calibration_trajectories} simulated training-grid "
+            f"trajectories and the model's own {CALIBRATION_ROLLOUT}-frame rollouts "
+            f"from them; {n_fb / max(n_win, 1):.1%} of the {n_win:,} timed windows fell "
+            "back to the full network")
+    if ref is not None:
+        scale = model.config.norm_hi - model.config.norm_lo
+        d = float(np.abs(np.asarray(pred, np.float64) - ref).max()) * scale
+        note += (f"; max abs difference from the float32 row's predictions over the "
+                 f"{horizon}-frame rollouts {d:.1e} world units")
+    t.rows[-1].note = note
+
+
+def _time_torch(t: _Timer, name: str, model: Any) -> None:
+    if importlib.util.find_spec("torch") is None:
+        t.skip(name, "PyTorch not installed")
+        return
+    import torch
+    from ..torch_model import TorchTPNet
+    net = TorchTPNet.from_numpy(model).eval()
+    xb = torch.from_numpy(np.ascontiguousarray(t.inputs, dtype=np.float32))
+
+    def run(x: Any) -> np.ndarray:
+        with torch.inference_mode():
+            return net.rollout(x, t.horizon).numpy()
+    run(xb[:1, :, :, :])
+    t.add(name, lambda: run(xb), lambda: run(xb[:1]),
+          f"torch {torch.__version__}, {torch.get_num_threads()} threads, float32")
+
+
+def _time_onnx(t: _Timer, name: str, model: Any) -> None:
+    if importlib.util.find_spec("onnxruntime") is None \
+            or importlib.util.find_spec("onnx") is None:
+        t.skip(name, "onnx/onnxruntime not installed")
+        return
+    from ..onnx_peer import onnx_session     # the crosscheck extra
+    sess = onnx_session(model, n_points=t.inputs.shape[2])
+
+    def run(x: np.ndarray) -> np.ndarray:
+        w = np.ascontiguousarray(x, dtype=np.float32)
+        out = np.empty((w.shape[0], t.horizon) + w.shape[2:], np.float32)
+        for s in range(t.horizon):
+            y = sess.run(None, {"window": w})[0]
+            out[:, s] = y
+            w = np.concatenate([w[:, 1:], y[:, None]], axis=1)
+        return out
+    run(t.inputs[:1])
+    t.add(name, lambda: run(t.inputs), lambda: run(t.inputs[:1]),
+          "one-step ONNX graph in a loop: recomputes the m frames' features every step")
+
+
+def _time_baselines(t: _Timer) -> None:
+    inputs, horizon = t.inputs, t.horizon
+    t.add("copy last input frame", lambda: copy_last(inputs, horizon),
+          lambda: copy_last(inputs[:1], horizon), "baseline", kind="baseline")
+    t.add("constant velocity", lambda: constant_velocity(inputs, horizon),
+          lambda: constant_velocity(inputs[:1], horizon), "baseline, points matched by order",
+          kind="baseline")
+
+
+def _time_simulator(t: _Timer, cases: np.ndarray, m: int, dt_factors: Sequence[int]) -> None:
+    """The simulator from each case's initial condition to the last predicted frame, at the
+    reference step and ``dt_factors`` times it."""
     from ..sim import simulate
+    horizon = t.horizon
+    last_frame = m - 1 + horizon
     simulate(*cases[0], 9)                                   # compile / load the kernel
     for k in (1, *dt_factors):
-        def run_s(cs: np.ndarray, k: int = k) -> np.ndarray:
+        def run(cs: np.ndarray, k: int = k) -> np.ndarray:
             if k == 1:
                 return np.stack([simulate(*c, last_frame * FRAME_EVERY + 1)[::FRAME_EVERY]
                                  for c in cs])
             return np.stack([sim_coarse(c, k, last_frame + 1) for c in cs])
 
-        def pred_s(k: int = k) -> np.ndarray:
-            return normalize(run_s(cases, k)[:, m:m + horizon])
+        def pred(k: int = k) -> np.ndarray:
+            return normalize(run(cases, k)[:, m:m + horizon])
         steps = last_frame * FRAME_EVERY / k
         note = (f"dt = {k}/45 s, {steps:g} steps to frame {last_frame}"
                 + ("; frames between two steps linearly interpolated" if FRAME_EVERY % k else ""))
         if k == 1:
             note = f"reference dt = 1/45 s ({steps:g} steps): differs from the targets only " \
                    "if they come from another simulator (--data)"
-        add(f"pymunk simulator dt x{k}", pred_s, lambda k=k: run_s(cases[:1], k), note,
-            reps=max(1, min(repeats, 2)), kind="simulator")
-    return rows
+        t.add(f"pymunk simulator dt x{k}", pred, lambda k=k: run(cases[:1], k), note,
+              reps=max(1, min(t.repeats, 2)), kind="simulator")
 
 
 __all__ = ["TimingRow", "sim_coarse", "timing_table", "CALIBRATION_TRAJECTORIES",

@@ -182,65 +182,116 @@ def _trim_log(run_dir: Path, step: int) -> None:
         path.write_text("".join(keep))
 
 
+@dataclasses.dataclass
+class TrainSettings:
+    """How one call of :func:`train` runs (the ``tpnet train run`` flags other than the recipe's).
+
+    Not the recipe: these belong to the process, not the run; only ``val_every``, the
+    checkpoint's ``part_mib``/``optimizer``, ``compile`` and a budget's outcome are written to
+    ``checkpoint.json`` (and the first three are kept on resume unless given again).
+
+    - ``resume``: continue the run in ``run_dir`` with its stored recipe.
+    - ``epochs``: the run's length (on resume: extends or shortens it; the cosine schedule
+      follows the new length from there).
+    - ``device`` (``auto``, ``cpu``, ``cuda``), ``threads`` (torch CPU threads; None: torch's).
+    - ``max_steps`` (a global step count), ``max_minutes``: stop early with a checkpoint, so a
+      long run can be done in pieces (as do SIGINT/SIGTERM, after the current step).
+    - ``checkpoint_minutes``: a checkpoint every that many minutes (also at every validation
+      and when stopping).
+    - ``log_every``: steps between train-loss records of ``log.jsonl``; ``val_every``: also
+      validate every that many steps (None: at epoch ends only; on resume: the run's).
+    - ``limit_windows``: use only that many windows of the dataset; ``progress``: a tqdm bar.
+    - ``export_path``: when the run completes, write the native weights file (:func:`export`).
+    - ``budget_minutes`` (new runs only): fit the run to a wall-clock budget on this device: a
+      few steps of the longest loss (``r.rollout`` predictions, batch ``r.batch``) are timed on
+      random windows and the run's length (hence its learning-rate schedule) is set to 90 % of
+      what that rate allows; ``max_minutes`` defaults to the budget as a hard stop.
+    - ``checkpoint_part_mib`` writes the checkpoint as parts of at most that many MiB and
+      ``checkpoint_optimizer`` (``full``, ``bf16``, ``none``) how much of Adam's state it keeps
+      (:mod:`~tpnet_ref.training.checkpoint`). A run resumed from a checkpoint without optimizer
+      state starts a fresh Adam at its step (recorded in ``optimizer_resets``).
+    - ``allow_other_scene``: train on a dataset made with another scene convention than the
+      simulator's default.
+    - ``compile`` (:data:`COMPILE_MODES`) captures the step's loss with ``torch.compile``
+      (:func:`step_loss`); recorded per call in ``compile`` of ``checkpoint.json``.
+    """
+    resume: bool = False
+    epochs: float | None = None
+    device: str = "auto"
+    threads: int | None = 2
+    max_steps: int | None = None
+    max_minutes: float | None = None
+    checkpoint_minutes: float = 5.0
+    log_every: int = 50
+    val_every: int | None = None
+    limit_windows: int | None = None
+    progress: bool = True
+    export_path: str | os.PathLike | None = None
+    budget_minutes: float | None = None
+    checkpoint_part_mib: float | None = None
+    checkpoint_optimizer: str | None = None
+    allow_other_scene: bool = False
+    compile: str = "off"
+
+
 def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Recipe | None = None,
-          *, resume: bool = False, epochs: int | None = None, device: str = "auto",
-          threads: int | None = 2, max_steps: int | None = None,
-          max_minutes: float | None = None, checkpoint_minutes: float = 5.0,
-          log_every: int = 50, val_every: int | None = None, limit_windows: int | None = None, progress: bool = True,
-          export_path: str | os.PathLike | None = None,
-          budget_minutes: float | None = None, checkpoint_part_mib: float | None = None,
-          checkpoint_optimizer: str | None = None, allow_other_scene: bool = False,
-          compile: str = "off") -> dict:
-    """Train (or, with ``resume``, continue) the run in ``run_dir``; returns the final state.
+          settings: TrainSettings | None = None, **changes: Any) -> dict:
+    """Train (or, with ``resume``, continue) the run in ``run_dir``; returns the final state
+    (what ``checkpoint.json`` holds).
 
-    ``max_steps`` (a global step count), ``max_minutes`` and SIGINT/SIGTERM (after the current
-    step) stop early with a checkpoint, so a
-    long run can be done in pieces; ``epochs`` on resume extends or shortens the run (the cosine
-    schedule follows the new length from there). A checkpoint is written every
-    ``checkpoint_minutes``, at every epoch end and when stopping.
+    ``settings`` (:class:`TrainSettings`) with ``changes`` applied to it: ``train(data, run,
+    recipe, threads=1, max_steps=100)`` and ``train(data, run, recipe, TrainSettings(...))``
+    alike. The run: set up (:class:`_Run`: state, data, network, optimizer, budget), the first
+    validation, then steps (:meth:`_Run.step`) with validation and checkpoints at epoch ends,
+    until the run's length, ``max_steps``, ``max_minutes`` or a stop signal; a last checkpoint,
+    and the export when the run is complete."""
+    s = dataclasses.replace(settings or TrainSettings(), **changes)
+    run = _Run(data_path, Path(run_dir), recipe, s)
+    run.state["stopped"] = run.fit()
+    run.checkpoint()
+    if s.export_path is not None and run.state["step"] >= run.total:
+        export(run.run_dir, s.export_path)
+    return run.state
 
-    ``budget_minutes`` (new runs only) fits the run to a wall-clock budget on this device: a
-    few steps of the longest loss (``r.rollout`` predictions, batch ``r.batch``) are timed on
-    random windows and the run's length (hence its learning-rate schedule) is set to 90 % of
-    what that rate allows; ``max_minutes`` defaults to the budget as a hard stop.
 
-    ``checkpoint_part_mib`` writes the checkpoint as parts of at most that many MiB and
-    ``checkpoint_optimizer`` (``full``, ``bf16``, ``none``) how much of Adam's state it keeps
-    (:mod:`~tpnet_ref.training.checkpoint`); both are stored with the run and kept on resume
-    unless given again. A run resumed from a checkpoint without optimizer state starts a fresh
-    Adam at its step (recorded in ``optimizer_resets``). ``allow_other_scene`` trains on a
-    dataset made with another scene convention than the simulator's default. ``compile``
-    (:data:`COMPILE_MODES`) captures the step's loss with ``torch.compile`` (:func:`step_loss`);
-    it is a setting of this process, recorded per call in ``compile`` of ``checkpoint.json``."""
-    run_dir = Path(run_dir)
-    t_start = time.perf_counter()
-    if threads:
-        torch.set_num_threads(int(threads))
-    dev = resolve_device(device)
-    compile_mode = resolve_compile(compile, dev)
+def _start_state(run_dir: Path, recipe: Recipe | None,
+                 s: TrainSettings) -> tuple[dict | None, dict, Recipe, int | None]:
+    """``(payload, state, recipe, val_every)`` a call starts from: the checkpoint's on resume
+    (log records past it dropped), else a new state at step 0 (refused where a run exists)."""
     payload: dict | None = None
-    if resume:
+    val_every = s.val_every
+    if s.resume:
         payload, state = load_checkpoint(run_dir)
         _trim_log(run_dir, int(state["step"]))
         r = Recipe.from_dict(state["recipe"])
-        if epochs is not None:
-            r.epochs = float(epochs)
         if val_every is None:                 # keep the run's validation cadence
             val_every = state.get("val_every")
     else:
         if (run_dir / SIDECAR_NAME).exists():
             raise ValueError(f"{run_dir} already holds a run; pass --resume or another directory")
         r = recipe or Recipe()
-        if epochs is not None:
-            r.epochs = float(epochs)
         state = {"step": 0, "windows_seen": 0, "wall_s": 0.0, "nonfinite_skipped": 0,
                  "epoch_loss_sum": 0.0, "epoch_loss_n": 0}
-    cfg = r.tpnet_config
-    data = WindowData(data_path, r.val_fraction, r.split_seed, limit_windows, allow_other_scene)
-    if data.m != cfg.m:
-        raise ValueError(f"dataset has m={data.m}, the recipe's network m={cfg.m}")
+    if s.epochs is not None:
+        r.epochs = float(s.epochs)
+    return payload, state, r, val_every
+
+
+def _load_data(data_path: str | os.PathLike, r: Recipe, s: TrainSettings) -> WindowData:
+    data = WindowData(data_path, r.val_fraction, r.split_seed, s.limit_windows,
+                      s.allow_other_scene)
+    if data.m != r.tpnet_config.m:
+        raise ValueError(f"dataset has m={data.m}, the recipe's network m={r.tpnet_config.m}")
     if len(data.train_win) == 0:
         raise ValueError(f"{data_path}: no training windows")
+    return data
+
+
+def _build_network(r: Recipe, dev: str, data: WindowData, payload: dict | None,
+                   state: dict) -> tuple[Any, Any]:
+    """``(net, optimizer)``: seeded initialisation, then the checkpoint's weights and Adam state
+    (resume), the parent's weights (``init_from``) or the template head."""
+    cfg = r.tpnet_config
     torch.manual_seed(r.seed)
     net = TorchTPNet(cfg).to(dev)
     if payload is None and r.init_from:
@@ -263,153 +314,223 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
             opt.load_state_dict(payload["optimizer"])
         else:                       # saved with checkpoint_optimizer="none": a fresh Adam here
             state.setdefault("optimizer_resets", []).append(int(state["step"]))
-    ck = state.setdefault("checkpoint_settings", {"part_mib": None, "optimizer": "full"})
-    if checkpoint_part_mib is not None:
-        ck["part_mib"] = float(checkpoint_part_mib) if checkpoint_part_mib > 0 else None
-    if checkpoint_optimizer is not None:
-        if checkpoint_optimizer not in OPTIMIZER_MODES:
-            raise ValueError(f"checkpoint_optimizer must be one of {OPTIMIZER_MODES}, "
-                             f"got {checkpoint_optimizer!r}")
-        ck["optimizer"] = checkpoint_optimizer
-    run_dir.mkdir(parents=True, exist_ok=True)
+    return net, opt
 
-    n_train = len(data.train_win)
-    spe = max(1, n_train // r.batch)          # full batches only: every step has batch r.batch
-    if budget_minutes is not None and not resume:
-        if not budget_minutes > 0:
-            raise ValueError(f"budget_minutes must be > 0, got {budget_minutes}")
-        wps = bench(cfg, batch=r.batch, rollouts=(r.rollout,), iters=5, warmup=2, device=dev,
-                    threads=threads, seed=r.seed, shape_weight=r.shape_weight,
-                    match_weight=r.match_weight, compile=compile_mode)[r.rollout]
-        r.epochs = max(1.0 / spe, 0.9 * 60.0 * budget_minutes * wps / (spe * r.batch))
-        state["budget"] = {"minutes": float(budget_minutes), "bench_windows_per_s": float(wps),
-                           "epochs": r.epochs}
-        if max_minutes is None:
-            max_minutes = float(budget_minutes)
-    total = max(1, int(round(r.epochs * spe)))
-    state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
-                  "total_steps": total, "train_windows": n_train,
-                  "val_windows": len(data.val_win), "device": dev, "hardware": hardware(dev),
-                  "torch": torch.__version__, "val_every": val_every})
-    state.setdefault("compile", []).append({"step": int(state["step"]), "mode": compile_mode})
+
+def _checkpoint_settings(state: dict, s: TrainSettings) -> dict:
+    """The run's ``checkpoint_settings`` (kept in ``state``), updated by those given."""
+    ck = state.setdefault("checkpoint_settings", {"part_mib": None, "optimizer": "full"})
+    if s.checkpoint_part_mib is not None:
+        ck["part_mib"] = float(s.checkpoint_part_mib) if s.checkpoint_part_mib > 0 else None
+    if s.checkpoint_optimizer is not None:
+        if s.checkpoint_optimizer not in OPTIMIZER_MODES:
+            raise ValueError(f"checkpoint_optimizer must be one of {OPTIMIZER_MODES}, "
+                             f"got {s.checkpoint_optimizer!r}")
+        ck["optimizer"] = s.checkpoint_optimizer
+    return ck
+
+
+def _validation_windows(data: WindowData, r: Recipe) -> np.ndarray:
+    """The validation windows used: all, or ``r.val_windows`` evenly spaced ones."""
     val_win = data.val_win
     if r.val_windows and len(val_win) > r.val_windows:
         val_win = val_win[np.linspace(0, len(val_win) - 1, r.val_windows).round().astype(int)]
-    state["val_windows_used"] = len(val_win)
-    if state["step"] == 0 and not resume:
-        ev = evaluate(net, data, val_win, r, dev)
-        _log(run_dir, {"kind": "val", "step": 0, "epoch": 0.0, "windows_seen": 0, "wall_s": 0.0,
-                       **ev})
-        state["last_val"] = ev
-    stop_step = total if max_steps is None else min(total, int(max_steps))
-    deadline = None if max_minutes is None else t_start + 60.0 * max_minutes
-    wall0 = state["wall_s"]
-    last_ckpt = time.perf_counter()
+    return val_win
 
-    def checkpoint() -> None:
-        nonlocal last_ckpt
-        state["wall_s"] = wall0 + (time.perf_counter() - t_start)
-        save_checkpoint(run_dir, net, opt, state, ck["part_mib"], ck["optimizer"])
-        last_ckpt = time.perf_counter()
 
-    bar = None
-    if progress:
-        try:
-            from tqdm import tqdm
-            bar = tqdm(total=stop_step, initial=min(state["step"], stop_step), unit="step",
-                       desc=f"train {r.recipe}", dynamic_ncols=True)
-        except ImportError:  # tqdm is optional
-            bar = None
-    if progress:
-        print(data.describe(), file=sys.stderr)
-    net.train()
-    step_fn = step_loss(net, compile_mode)
-    stop_signal: list[int] = []
-    restore = _install_stop_handlers(stop_signal)
-    perm_epoch, perm = -1, None
-    consecutive_bad = 0
-    reason = "done"
+def _progress_bar(s: TrainSettings, r: Recipe, start: int, stop: int) -> Any:
+    if not s.progress:
+        return None
     try:
-        while state["step"] < stop_step:
-            step = state["step"]
-            epoch, b = divmod(step, spe)
-            if epoch != perm_epoch:
-                perm = np.random.default_rng([r.seed, epoch]).permutation(n_train)
-                perm_epoch = epoch
-            idx = perm[b * r.batch:(b + 1) * r.batch]
-            x, y = data.gather(data.train_win[np.sort(idx)])
-            x = torch.from_numpy(x)
-            if r.noise > 0:
-                g = torch.Generator().manual_seed(r.seed * 1_000_003 + step)
-                x = x + r.noise * torch.randn(x.shape, generator=g, dtype=x.dtype)
-            x, y = x.to(dev), torch.from_numpy(y).to(dev)
-            n_steps = r.steps_at(step / spe)
-            lr = r.lr_at(step, total)
-            for grp in opt.param_groups:
-                grp["lr"] = lr
-            opt.zero_grad(set_to_none=True)
-            loss = step_fn(x, y, n_steps, r.first_weight, r.shape_weight, r.match_weight)
-            lv = float(loss.detach())
-            if not math.isfinite(lv):
-                state["nonfinite_skipped"] += 1
-                consecutive_bad += 1
-                if consecutive_bad >= 10:
-                    checkpoint()
-                    raise FloatingPointError(f"loss not finite for 10 steps in a row at step {step}")
-            else:
-                consecutive_bad = 0
-                loss.backward()
-                if r.clip > 0:
-                    torch.nn.utils.clip_grad_norm_(net.parameters(), r.clip)
-                opt.step()
-                state["epoch_loss_sum"] += lv
-                state["epoch_loss_n"] += 1
-            state["step"] = step + 1
-            state["windows_seen"] += len(idx)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{lv:.4g}", k=n_steps, lr=f"{lr:.2g}")
-            if log_every and state["step"] % log_every == 0:
-                _log(run_dir, {"kind": "train", "step": state["step"], "epoch": state["step"] / spe,
-                               "loss": lv, "rollout": n_steps, "lr": lr,
-                               "windows_seen": state["windows_seen"],
-                               "wall_s": wall0 + time.perf_counter() - t_start})
-            epoch_end = state["step"] % spe == 0
-            if epoch_end or (val_every and state["step"] % val_every == 0):
-                # validate and log at every epoch end (and every val_every steps); checkpoint
-                ev = evaluate(net, data, val_win, r, dev)
-                n = max(1, state["epoch_loss_n"])
-                rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / spe,
-                       "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
-                       "windows_seen": state["windows_seen"],
-                       "wall_s": wall0 + time.perf_counter() - t_start, **ev}
-                _log(run_dir, rec)
-                state["last_val"] = ev
-                if epoch_end:
-                    state["epoch_loss_sum"], state["epoch_loss_n"] = 0.0, 0
+        from tqdm import tqdm
+    except ImportError:  # tqdm is optional
+        return None
+    return tqdm(total=stop, initial=min(start, stop), unit="step", desc=f"train {r.recipe}",
+                dynamic_ncols=True)
+
+
+class _Run:
+    """One call of :func:`train`: the recipe ``r``, data, network, optimizer and ``state`` (what
+    ``checkpoint.json`` holds), set up on construction."""
+
+    def __init__(self, data_path: str | os.PathLike, run_dir: Path, recipe: Recipe | None,
+                 s: TrainSettings) -> None:
+        self.run_dir, self.s = run_dir, s
+        self.t_start = time.perf_counter()
+        if s.threads:
+            torch.set_num_threads(int(s.threads))
+        self.dev = resolve_device(s.device)
+        self.compile_mode = resolve_compile(s.compile, self.dev)
+        payload, self.state, self.r, self.val_every = _start_state(run_dir, recipe, s)
+        r, state = self.r, self.state
+        self.data = _load_data(data_path, r, s)
+        self.net, self.opt = _build_network(r, self.dev, self.data, payload, state)
+        self.ck = _checkpoint_settings(state, s)
+        run_dir.mkdir(parents=True, exist_ok=True)
+
+        self.n_train = len(self.data.train_win)
+        # full batches only: every step has batch r.batch
+        self.spe = spe = max(1, self.n_train // r.batch)
+        max_minutes = s.max_minutes
+        if s.budget_minutes is not None and not s.resume:
+            self._fit_budget(s.budget_minutes)
+            if max_minutes is None:
+                max_minutes = float(s.budget_minutes)
+        self.total = max(1, int(round(r.epochs * spe)))
+        state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
+                      "total_steps": self.total, "train_windows": self.n_train,
+                      "val_windows": len(self.data.val_win), "device": self.dev,
+                      "hardware": hardware(self.dev), "torch": torch.__version__,
+                      "val_every": self.val_every})
+        state.setdefault("compile", []).append({"step": int(state["step"]),
+                                                "mode": self.compile_mode})
+        self.val_win = _validation_windows(self.data, r)
+        state["val_windows_used"] = len(self.val_win)
+        if state["step"] == 0 and not s.resume:
+            ev = evaluate(self.net, self.data, self.val_win, r, self.dev)
+            _log(run_dir, {"kind": "val", "step": 0, "epoch": 0.0, "windows_seen": 0,
+                           "wall_s": 0.0, **ev})
+            state["last_val"] = ev
+        self.stop_step = self.total if s.max_steps is None else min(self.total, int(s.max_steps))
+        self.deadline = None if max_minutes is None else self.t_start + 60.0 * max_minutes
+        self.wall0 = state["wall_s"]
+        self.last_ckpt = time.perf_counter()
+
+    def _fit_budget(self, minutes: float) -> None:
+        """Set the run's epochs to 90 % of what ``minutes`` allow at the benchmarked rate."""
+        if not minutes > 0:
+            raise ValueError(f"budget_minutes must be > 0, got {minutes}")
+        r = self.r
+        wps = bench(r.tpnet_config, batch=r.batch, rollouts=(r.rollout,), iters=5, warmup=2,
+                    device=self.dev, threads=self.s.threads, seed=r.seed,
+                    shape_weight=r.shape_weight, match_weight=r.match_weight,
+                    compile=self.compile_mode)[r.rollout]
+        r.epochs = max(1.0 / self.spe, 0.9 * 60.0 * minutes * wps / (self.spe * r.batch))
+        self.state["budget"] = {"minutes": float(minutes), "bench_windows_per_s": float(wps),
+                                "epochs": r.epochs}
+
+    def wall(self) -> float:
+        """The run's wall time so far (earlier calls included)."""
+        return self.wall0 + (time.perf_counter() - self.t_start)
+
+    def checkpoint(self) -> None:
+        self.state["wall_s"] = self.wall()
+        save_checkpoint(self.run_dir, self.net, self.opt, self.state, self.ck["part_mib"],
+                        self.ck["optimizer"])
+        self.last_ckpt = time.perf_counter()
+
+    def fit(self) -> str:
+        """Steps until the end or a stop; returns why it stopped (``done``, ``max_steps``,
+        ``max_minutes``, ``interrupted``)."""
+        bar = _progress_bar(self.s, self.r, self.state["step"], self.stop_step)
+        if self.s.progress:
+            print(self.data.describe(), file=sys.stderr)
+        self.net.train()
+        step_fn = step_loss(self.net, self.compile_mode)
+        stop_signal: list[int] = []
+        restore = _install_stop_handlers(stop_signal)
+        self._perm_epoch, self._perm = -1, np.empty(0, dtype=np.int64)
+        self._consecutive_bad = 0
+        reason = "done"
+        try:
+            while self.state["step"] < self.stop_step:
+                lv, n_steps, lr = self.step(step_fn)
                 if bar is not None:
-                    bar.write(f"epoch {rec['epoch']:.2f}: train {rec['train_loss']:.4g} "
-                              + " ".join(f"{k} {v:.4g}" for k, v in ev.items()))
-                checkpoint()
-            elif time.perf_counter() - last_ckpt > 60.0 * checkpoint_minutes:
-                checkpoint()
-            if deadline is not None and time.perf_counter() > deadline:
-                reason = "max_minutes"
-                break
-            if stop_signal:
-                reason = "interrupted"
-                break
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{lv:.4g}", k=n_steps, lr=f"{lr:.2g}")
+                self.after_step(lv, n_steps, lr, bar)
+                if self.deadline is not None and time.perf_counter() > self.deadline:
+                    reason = "max_minutes"
+                    break
+                if stop_signal:
+                    reason = "interrupted"
+                    break
+            else:
+                reason = "done" if self.state["step"] >= self.total else "max_steps"
+        finally:
+            restore()
+        if bar is not None:
+            bar.close()
+        return reason
+
+    def batch(self, step: int) -> tuple[Any, Any, int]:
+        """``(x, y, windows)`` of ``step``: the epoch's permutation from ``(seed, epoch)``, the
+        input noise from a generator seeded with ``(seed, step)``."""
+        r = self.r
+        epoch, b = divmod(step, self.spe)
+        if epoch != self._perm_epoch:
+            self._perm = np.random.default_rng([r.seed, epoch]).permutation(self.n_train)
+            self._perm_epoch = epoch
+        idx = self._perm[b * r.batch:(b + 1) * r.batch]
+        x, y = self.data.gather(self.data.train_win[np.sort(idx)])
+        x = torch.from_numpy(x)
+        if r.noise > 0:
+            g = torch.Generator().manual_seed(r.seed * 1_000_003 + step)
+            x = x + r.noise * torch.randn(x.shape, generator=g, dtype=x.dtype)
+        return x.to(self.dev), torch.from_numpy(y).to(self.dev), len(idx)
+
+    def step(self, step_fn: Any) -> tuple[float, int, float]:
+        """One optimisation step (a non-finite loss is skipped; 10 in a row stop the run);
+        returns ``(loss, rollout length, learning rate)``."""
+        r, state = self.r, self.state
+        step = state["step"]
+        x, y, n_win = self.batch(step)
+        n_steps = r.steps_at(step / self.spe)
+        lr = r.lr_at(step, self.total)
+        for grp in self.opt.param_groups:
+            grp["lr"] = lr
+        self.opt.zero_grad(set_to_none=True)
+        loss = step_fn(x, y, n_steps, r.first_weight, r.shape_weight, r.match_weight)
+        lv = float(loss.detach())
+        if not math.isfinite(lv):
+            state["nonfinite_skipped"] += 1
+            self._consecutive_bad += 1
+            if self._consecutive_bad >= 10:
+                self.checkpoint()
+                raise FloatingPointError(f"loss not finite for 10 steps in a row at step {step}")
         else:
-            reason = "done" if state["step"] >= total else "max_steps"
-    finally:
-        restore()
-    if bar is not None:
-        bar.close()
-    state["stopped"] = reason
-    checkpoint()
-    if export_path is not None and state["step"] >= total:
-        export(run_dir, export_path)
-    return state
+            self._consecutive_bad = 0
+            loss.backward()
+            if r.clip > 0:
+                torch.nn.utils.clip_grad_norm_(self.net.parameters(), r.clip)
+            self.opt.step()
+            state["epoch_loss_sum"] += lv
+            state["epoch_loss_n"] += 1
+        state["step"] = step + 1
+        state["windows_seen"] += n_win
+        return lv, n_steps, lr
+
+    def after_step(self, lv: float, n_steps: int, lr: float, bar: Any) -> None:
+        """The train-loss record every ``log_every`` steps; validation and a checkpoint at every
+        epoch end (and every ``val_every`` steps), else a checkpoint when one is due."""
+        state, step = self.state, self.state["step"]
+        if self.s.log_every and step % self.s.log_every == 0:
+            _log(self.run_dir, {"kind": "train", "step": step, "epoch": step / self.spe,
+                                "loss": lv, "rollout": n_steps, "lr": lr,
+                                "windows_seen": state["windows_seen"], "wall_s": self.wall()})
+        epoch_end = step % self.spe == 0
+        if epoch_end or (self.val_every and step % self.val_every == 0):
+            self.validate(n_steps, lr, epoch_end, bar)
+            self.checkpoint()
+        elif time.perf_counter() - self.last_ckpt > 60.0 * self.s.checkpoint_minutes:
+            self.checkpoint()
+
+    def validate(self, n_steps: int, lr: float, epoch_end: bool, bar: Any) -> None:
+        """Score the validation windows and log them with the epoch's mean training loss (reset
+        at an epoch end)."""
+        state = self.state
+        ev = evaluate(self.net, self.data, self.val_win, self.r, self.dev)
+        n = max(1, state["epoch_loss_n"])
+        rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / self.spe,
+               "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
+               "windows_seen": state["windows_seen"], "wall_s": self.wall(), **ev}
+        _log(self.run_dir, rec)
+        state["last_val"] = ev
+        if epoch_end:
+            state["epoch_loss_sum"], state["epoch_loss_n"] = 0.0, 0
+        if bar is not None:
+            bar.write(f"epoch {rec['epoch']:.2f}: train {rec['train_loss']:.4g} "
+                      + " ".join(f"{k} {v:.4g}" for k, v in ev.items()))
 
 
 def _install_stop_handlers(flag: list[int]):
@@ -518,6 +639,6 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
     return out
 
 
-__all__ = ["train", "export", "bench", "evaluate", "loss_fn", "step_loss", "resolve_compile",
-           "COMPILE_MODES", "make_optimizer", "resolve_device",
+__all__ = ["train", "TrainSettings", "export", "bench", "evaluate", "loss_fn", "step_loss",
+           "resolve_compile", "COMPILE_MODES", "make_optimizer", "resolve_device",
            "hardware", "init_head_template", "LOG_NAME"]

@@ -325,28 +325,7 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
     where = str(path)
     f, cfg_json, layout = _open_keras(path)
     with f:
-        root = f["model_weights"] if "model_weights" in f else f
-        if "layer_names" in root.attrs:
-            layers = _named_layout(root, where)
-            ver = py_str(attr(f, "keras_version", where,
-                                attr(root, "keras_version", where, "?")))
-            fw = "TF-Keras 2" if ver.startswith("2") else f"Keras {ver}"
-            colon = any(py_str(n).endswith(":0")
-                        for ln in _py_list(attr(root, "layer_names", where))
-                        for n in _py_list(attr(safe_child(root, ln, where), "weight_names",
-                                                where, [])))
-            layout = layout or (f"{fw} HDF5 " + ("whole model (model_weights/)" if "model_weights"
-                                                  in f else "save_weights")
-                                + f", names {'with' if colon else 'without'} ':0'")
-            ordered = True
-        elif "layers" in root:
-            layers = _vars_layout(root, where)
-            layout = layout or "Keras 3 .weights.h5"
-            ordered = False
-        else:
-            raise ValueError(f"{where}: unknown layout: neither a TF-Keras HDF5 weights file "
-                             "(attribute layer_names) nor a Keras 3 weights file (group layers/); "
-                             f"top-level keys {sorted(f.keys())[:8]}")
+        layers, layout, ordered = _find_layers(f, layout, where)
         unknown = [ln.name for ln in layers if ln.kind not in _KERAS_TYPES]
         if unknown:
             raise ValueError(f"{where}: unexpected layer(s) with weights {unknown}")
@@ -361,22 +340,97 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
     return model
 
 
+def _find_layers(f: Any, layout: str | None, where: str) -> tuple[list[_KLayer], str, bool]:
+    """``(layers, layout, ordered)`` of an open Keras file: TF-Keras HDF5 (``layer_names``,
+    creation-ordered) or Keras 3 (``layers/``, counters per model)."""
+    root = f["model_weights"] if "model_weights" in f else f
+    if "layer_names" in root.attrs:
+        layers = _named_layout(root, where)
+        ver = py_str(attr(f, "keras_version", where, attr(root, "keras_version", where, "?")))
+        fw = "TF-Keras 2" if ver.startswith("2") else f"Keras {ver}"
+        colon = any(py_str(n).endswith(":0")
+                    for ln in _py_list(attr(root, "layer_names", where))
+                    for n in _py_list(attr(safe_child(root, ln, where), "weight_names",
+                                           where, [])))
+        layout = layout or (f"{fw} HDF5 " + ("whole model (model_weights/)" if "model_weights"
+                                              in f else "save_weights")
+                            + f", names {'with' if colon else 'without'} ':0'")
+        return layers, layout, True
+    if "layers" in root:
+        return _vars_layout(root, where), layout or "Keras 3 .weights.h5", False
+    raise ValueError(f"{where}: unknown layout: neither a TF-Keras HDF5 weights file "
+                     "(attribute layer_names) nor a Keras 3 weights file (group layers/); "
+                     f"top-level keys {sorted(f.keys())[:8]}")
+
+
+#: one point-wise or FC layer in forward order: (layer, (w, b)); see _PointLayers.rows
+_Row = tuple[_KLayer, tuple[np.ndarray, np.ndarray], bool, bool]
+
+
 def _keras_to_native(layers: list[_KLayer], ordered: bool, facts: dict[str, Any],
                      m: int | None, ln_eps: float | None, act: str | None, where: str,
                      dtype: Any) -> tuple[TPNet, str]:
+    """The :class:`TPNet` of the layers found, and the import report: settings from the config
+    facts or the keywords, then the per-frame layers (transform nets, MLPs, global FC) with any
+    BatchNorm folded in, the BiLSTMs with their layer norms and the head, in the forward order
+    of :func:`~tpnet_ref.config.param_shapes`."""
     if facts["unsupported"]:
         raise ValueError(f"{where}: the model config uses what TP-Net does not: "
                          f"{sorted(set(facts['unsupported']))}")
+    by = _layers_by_kind(layers, ordered)
+    notes: list[str] = []
+    m, ln_eps, act, bn_eps = _settings(facts, m, ln_eps, act, where, notes)
+    convs, bilstms, lns = by["conv2d"], by["bidirectional"], by["layer_normalization"]
+    has_tnets = _has_transform_nets(convs, where)
+    if not bilstms:
+        raise ValueError(f"{where}: no Bidirectional LSTM layer found")
+    if len(lns) != len(bilstms):
+        raise ValueError(f"{where}: {len(bilstms)} Bidirectional layers but {len(lns)} "
+                         "LayerNormalization layers; expected one after each")
+    pts = _PointLayers(convs, by["dense"], where)
+    pts.frame_network(has_tnets)
+    if by["batch_normalization"]:
+        pts.fold_batchnorms(by["batch_normalization"], bn_eps, notes)
+    # tensors in forward order (the order of param_shapes), with what each one is
+    tensors = [t for ly, (w, b), _, kept in pts.rows if kept
+               for t in ((w, f"{ly.name}/kernel"), (b, f"{ly.name}/bias"))]
+    seq, units = _sequence_tensors(bilstms, lns, pts.global_features, where)
+    tensors += seq
+    ly, (w, b) = pts.take_dense(2 * units[-1], "head FC")
+    if w.shape[1] % pts.dim:
+        raise ValueError(f"{where}: head {ly.name!r} has {w.shape[1]} outputs, not N*{pts.dim}")
+    tensors += [(w, f"{ly.name}/kernel"), (b, f"{ly.name}/bias")]
+    if pts.dense:
+        raise ValueError(f"{where}: unexpected Dense layer(s) {[x.name for x in pts.dense]} "
+                         f"with kernels {[x.shape('kernel') for x in pts.dense]}")
+    cfg = TPNetConfig(
+        m=int(m), n_out=w.shape[1] // pts.dim, global_features=pts.global_features,
+        lstm_units=tuple(units), lstm_activation=act, layer_norm_eps=ln_eps, **pts.cfg_kw)
+    shapes = param_shapes(cfg)
+    if len(shapes) != len(tensors):   # cannot happen for a layout accepted above
+        raise ValueError(f"{where}: found {len(tensors)} tensors, the network needs {len(shapes)}")
+    params = {name: check_shape(arr, shape, f"{where}: {what}")
+              for (name, shape), (arr, what) in zip(shapes.items(), tensors)}
+    model = TPNet(cfg, params, dtype)
+    model.meta["dropped_params"] = int(pts.dropped)
+    return model, _report(model, has_tnets, pts.dropped, notes)
+
+
+def _layers_by_kind(layers: list[_KLayer], ordered: bool) -> dict[str, list[_KLayer]]:
+    """The layers of each kind in creation order (Keras 3 counts per model: the frame layers
+    live in the model that holds the convs, which comes first)."""
     by = {k: [ln for ln in layers if ln.kind == k] for k in _KERAS_TYPES}
     if not ordered:
-        # Keras 3: counters per model; frame layers live in the model that holds the convs
         conv_box = by["conv2d"][0].order[0] if by["conv2d"] else None
         for k in by:
             by[k].sort(key=lambda ln: (ln.order[0] != conv_box, ln.order))
-    convs, denses, bilstms, lns, bns = (by["conv2d"], by["dense"], by["bidirectional"],
-                                        by["layer_normalization"], by["batch_normalization"])
-    notes: list[str] = []
+    return by
 
+
+def _settings(facts: dict[str, Any], m: int | None, ln_eps: float | None, act: str | None,
+              where: str, notes: list[str]) -> tuple[int, float, str, float]:
+    """``(m, layer_norm_eps, lstm_activation, batchnorm_eps)``: the keyword where given, else
+    the model config's value, else the default (noted in ``notes``)."""
     def pick(name: str, given: Any, found: set, default: Any) -> Any:
         if given is not None:
             return given
@@ -395,112 +449,127 @@ def _keras_to_native(layers: list[_KLayer], ordered: bool, facts: dict[str, Any]
         if m is None:
             m = 4
             notes.append("m=4 (not in file, default)")
+    return int(m), ln_eps, act, bn_eps
 
-    # ---- per-frame layers: counts decide whether transform nets are present
+
+def _has_transform_nets(convs: list[_KLayer], where: str) -> bool:
+    """Whether the file has transform nets, from the number of Conv2D point layers."""
     d = _DEPTHS
     n_tnet = len(d.input_tnet_mlp) + len(d.mlp1) + len(d.feature_tnet_mlp) + len(d.mlp2)
     n_plain = len(d.mlp1) + len(d.mlp2)
-    if len(convs) == n_tnet:
-        has_tnets = True
-    elif len(convs) == n_plain:
-        has_tnets = False
-    else:
+    if len(convs) not in (n_tnet, n_plain):
         raise ValueError(f"{where}: found {len(convs)} Conv2D layers {[c.name for c in convs]}; "
                          f"the released layout has {n_tnet} (with transform nets) or {n_plain}")
-    if not bilstms:
-        raise ValueError(f"{where}: no Bidirectional LSTM layer found")
-    if len(lns) != len(bilstms):
-        raise ValueError(f"{where}: {len(bilstms)} Bidirectional layers but {len(lns)} "
-                         "LayerNormalization layers; expected one after each")
-    conv_w = [_dense_kernel(c, where) for c in convs]
-    dim = conv_w[0][0].shape[0]
-    queue_c = list(zip(convs, conv_w))
-    queue_d = list(denses)
+    return len(convs) == n_tnet
 
-    def take_convs(n: int, cin: int, what: str) -> list[tuple[_KLayer, tuple]]:
-        got = [queue_c.pop(0) for _ in range(n)]
+
+class _PointLayers:
+    """The per-frame network read from the Conv2D and Dense layers in creation order.
+
+    ``rows``: every point-wise / FC layer in forward order as ``(layer, (w, b), may carry
+    BatchNorm, kept)``; the names come from ``param_shapes`` of the config read, never spelled
+    here. ``cfg_kw``: the config fields found (``dim``, widths, transform-net flags);
+    ``dropped``: parameters of untrained transform-net branches. ``dense`` holds the Dense
+    layers not taken yet (the head's comes last)."""
+
+    def __init__(self, convs: list[_KLayer], dense: list[_KLayer], where: str) -> None:
+        self.where = where
+        conv_w = [_dense_kernel(c, where) for c in convs]
+        self.dim = conv_w[0][0].shape[0]
+        self.convs = list(zip(convs, conv_w))
+        self.dense = list(dense)
+        self.rows: list[_Row] = []
+        self.cfg_kw: dict[str, Any] = {"dim": self.dim}
+        self.dropped = 0
+        self.global_features = 0
+
+    def take_convs(self, n: int, cin: int, what: str) -> list[tuple[_KLayer, tuple]]:
+        """The next ``n`` point layers, each taking the previous one's width (``cin`` first)."""
+        got = [self.convs.pop(0) for _ in range(n)]
         for layer, (w, _) in got:
             if w.shape[0] != cin:
-                raise ValueError(f"{where}: {what}: {layer.name!r} takes {w.shape[0]} inputs, "
-                                 f"expected {cin} (kernel {layer.shape('kernel')})")
+                raise ValueError(f"{self.where}: {what}: {layer.name!r} takes {w.shape[0]} "
+                                 f"inputs, expected {cin} (kernel {layer.shape('kernel')})")
             cin = w.shape[1]
         return got
 
-    def take_dense(cin: int, what: str, cout: int | None = None) -> tuple[_KLayer, tuple]:
-        if not queue_d:
-            raise ValueError(f"{where}: missing Dense layer for {what}")
-        layer = queue_d.pop(0)
-        w, b = _dense_kernel(layer, where)
+    def take_dense(self, cin: int, what: str, cout: int | None = None) -> tuple[_KLayer, tuple]:
+        """The next Dense layer, asserted to map ``cin`` to ``cout`` (any, if None) features."""
+        if not self.dense:
+            raise ValueError(f"{self.where}: missing Dense layer for {what}")
+        layer = self.dense.pop(0)
+        w, b = _dense_kernel(layer, self.where)
         if w.shape[0] != cin or (cout is not None and w.shape[1] != cout):
-            raise ValueError(f"{where}: {what}: {layer.name!r} has kernel {w.shape}, expected "
-                             f"({cin}, {cout if cout is not None else 'any'})")
+            raise ValueError(f"{self.where}: {what}: {layer.name!r} has kernel {w.shape}, "
+                             f"expected ({cin}, {cout if cout is not None else 'any'})")
         return layer, (w, b)
 
-    # every point-wise / FC layer in forward order: (layer, (w, b), may carry BN, kept); the
-    # names come from param_shapes of the config read below, never spelled here
-    roles: list[tuple[_KLayer, tuple, bool, bool]] = []
-    cfg_kw: dict[str, Any] = {"dim": dim}
-    dropped = 0
+    def frame_network(self, has_tnets: bool) -> None:
+        """Input transform net, MLP1, feature transform net, MLP2, global FC (in that order)."""
+        d = _DEPTHS
+        if has_tnets:
+            self.cfg_kw["input_transform_trained"] = self.tnet(
+                "input_tnet", self.dim, len(d.input_tnet_mlp), len(d.input_tnet_fc))
+        mlp1 = self.mlp("mlp1", len(d.mlp1), self.dim, "MLP1")
+        if has_tnets:
+            self.cfg_kw["feature_transform_trained"] = self.tnet(
+                "feature_tnet", mlp1, len(d.feature_tnet_mlp), len(d.feature_tnet_fc))
+        mlp2 = self.mlp("mlp2", len(d.mlp2), mlp1, "MLP2")
+        ly, wb = self.take_dense(mlp2, "global feature FC")
+        self.rows.append((ly, wb, True, True))
+        self.global_features = wb[0].shape[1]
 
-    def tnet(prefix: str, k: int, nmlp: int, nfc: int) -> bool:
-        nonlocal dropped
-        mlp = take_convs(nmlp, k, f"{prefix} MLP")
+    def mlp(self, key: str, n: int, cin: int, what: str) -> int:
+        """A shared MLP of ``n`` point layers; returns its output width."""
+        layers = self.take_convs(n, cin, what)
+        self.rows.extend((ly, wb, True, True) for ly, wb in layers)
+        self.cfg_kw[key] = tuple(wb[0].shape[1] for _, wb in layers)
+        return self.cfg_kw[key][-1]
+
+    def tnet(self, prefix: str, k: int, nmlp: int, nfc: int) -> bool:
+        """A transform net on ``k`` features: its MLP and FCs, and its output FC ``(fc, k*k)``
+        if the file has one (trained); without it the branch is dead weight, dropped."""
+        mlp = self.take_convs(nmlp, k, f"{prefix} MLP")
         c = mlp[-1][1][0].shape[1]
         fcs = []
         for i in range(nfc):
-            fcs.append(take_dense(c, f"{prefix} FC {i}"))
+            fcs.append(self.take_dense(c, f"{prefix} FC {i}"))
             c = fcs[-1][1][0].shape[1]
-        trained = bool(queue_d) and queue_d[0].shape("kernel") == (c, k * k)
-        rows = [(ly, wb, True, trained) for ly, wb in mlp + fcs]
+        trained = bool(self.dense) and self.dense[0].shape("kernel") == (c, k * k)
+        rows: list[_Row] = [(ly, wb, True, trained) for ly, wb in mlp + fcs]
         if trained:
-            ly, wb = take_dense(c, f"{prefix} output", k * k)
+            ly, wb = self.take_dense(c, f"{prefix} output", k * k)
             rows.append((ly, wb, False, True))
-            cfg_kw[f"{prefix}_mlp"] = tuple(wb_[0].shape[1] for _, wb_ in mlp)
-            cfg_kw[f"{prefix}_fc"] = tuple(wb_[0].shape[1] for _, wb_ in fcs)
+            self.cfg_kw[f"{prefix}_mlp"] = tuple(wb_[0].shape[1] for _, wb_ in mlp)
+            self.cfg_kw[f"{prefix}_fc"] = tuple(wb_[0].shape[1] for _, wb_ in fcs)
         else:
-            dropped += sum(w.size + b.size for _, (w, b), _, _ in rows)
-        roles.extend(rows)
+            self.dropped += sum(w.size + b.size for _, (w, b), _, _ in rows)
+        self.rows.extend(rows)
         return trained
 
-    if has_tnets:
-        cfg_kw["input_transform_trained"] = tnet("input_tnet", dim, len(d.input_tnet_mlp),
-                                                 len(d.input_tnet_fc))
-    mlp1 = take_convs(len(d.mlp1), dim, "MLP1")
-    roles.extend((ly, wb, True, True) for ly, wb in mlp1)
-    c1 = mlp1[-1][1][0].shape[1]
-    if has_tnets:
-        cfg_kw["feature_transform_trained"] = tnet("feature_tnet", c1, len(d.feature_tnet_mlp),
-                                                   len(d.feature_tnet_fc))
-    mlp2 = take_convs(len(d.mlp2), c1, "MLP2")
-    roles.extend((ly, wb, True, True) for ly, wb in mlp2)
-    ly, wb = take_dense(mlp2[-1][1][0].shape[1], "global feature FC")
-    roles.append((ly, wb, True, True))
-    k = wb[0].shape[1]
-
-    # ---- BatchNorm: folded, in order, into the layer whose width it has
-    if bns:
-        queue_bn = list(bns)
+    def fold_batchnorms(self, bns: list[_KLayer], eps: float, notes: list[str]) -> None:
+        """Fold the BatchNorm layers, in order, into the layer whose width each has."""
+        queue = list(bns)
         folded = []
-        for i, (ly, (w, b), may_bn, kept) in enumerate(roles):
-            if may_bn and queue_bn and queue_bn[0].shape("gamma") == (w.shape[1],):
-                bn = queue_bn.pop(0)
-                roles[i] = (ly, _fold_bn(w, b, bn, bn_eps, where), may_bn, kept)
+        for i, (ly, (w, b), may_bn, kept) in enumerate(self.rows):
+            if may_bn and queue and queue[0].shape("gamma") == (w.shape[1],):
+                bn = queue.pop(0)
+                self.rows[i] = (ly, _fold_bn(w, b, bn, eps, self.where), may_bn, kept)
                 folded.append(bn.name)
-        if queue_bn:
-            raise ValueError(f"{where}: BatchNormalization layer(s) {[x.name for x in queue_bn]} "
-                             "do not follow any point-wise or FC layer of matching width")
-        notes.append(f"folded {len(folded)} BatchNorm layers (eps {bn_eps})")
+        if queue:
+            raise ValueError(f"{self.where}: BatchNormalization layer(s) "
+                             f"{[x.name for x in queue]} do not follow any point-wise or FC "
+                             "layer of matching width")
+        notes.append(f"folded {len(folded)} BatchNorm layers (eps {eps})")
 
-    # tensors in forward order (the order of param_shapes), with what each one is
+
+def _sequence_tensors(bilstms: list[_KLayer], lns: list[_KLayer], c: int,
+                      where: str) -> tuple[list[tuple[np.ndarray, str]], list[int]]:
+    """The BiLSTMs' tensors (kernel, recurrent kernel, bias per direction) each followed by its
+    layer norm's gamma and beta, on ``c`` input features; and the units of each BiLSTM."""
     tensors: list[tuple[np.ndarray, str]] = []
-    for ly, (w, b), _, kept in roles:
-        if kept:
-            tensors += [(w, f"{ly.name}/kernel"), (b, f"{ly.name}/bias")]
-
-    # ---- sequence network
-    c = k
     units = []
-    for i, (bl, ln) in enumerate(zip(bilstms, lns), start=1):
+    for bl, ln in zip(bilstms, lns):
         u = None
         for dname in ("fwd", "bwd"):
             kern = bl.get(f"{dname}.kernel", where)
@@ -514,31 +583,17 @@ def _keras_to_native(layers: list[_KLayer], ordered: bool, facts: dict[str, Any]
         c = 2 * u
         tensors += [(ln.get("gamma", where), f"{ln.name}/gamma"),
                     (ln.get("beta", where), f"{ln.name}/beta")]
-    ly, (w, b) = take_dense(c, "head FC")
-    if w.shape[1] % dim:
-        raise ValueError(f"{where}: head {ly.name!r} has {w.shape[1]} outputs, not N*{dim}")
-    tensors += [(w, f"{ly.name}/kernel"), (b, f"{ly.name}/bias")]
-    if queue_d:
-        raise ValueError(f"{where}: unexpected Dense layer(s) {[x.name for x in queue_d]} "
-                         f"with kernels {[x.shape('kernel') for x in queue_d]}")
-    cfg = TPNetConfig(
-        m=int(m), n_out=w.shape[1] // dim, mlp1=tuple(x[1][0].shape[1] for x in mlp1),
-        mlp2=tuple(x[1][0].shape[1] for x in mlp2), global_features=k, lstm_units=tuple(units),
-        lstm_activation=act, layer_norm_eps=ln_eps, **cfg_kw)
-    shapes = param_shapes(cfg)
-    if len(shapes) != len(tensors):   # cannot happen for a layout accepted above
-        raise ValueError(f"{where}: found {len(tensors)} tensors, the network needs {len(shapes)}")
-    params = {name: check_shape(arr, shape, f"{where}: {what}")
-              for (name, shape), (arr, what) in zip(shapes.items(), tensors)}
-    model = TPNet(cfg, params, dtype)
+    return tensors, units
+
+
+def _report(model: TPNet, has_tnets: bool, dropped: int, notes: list[str]) -> str:
+    cfg = model.config
     tr = {False: "identity (output FC not saved)", True: "trained"}
-    report = (f"m={cfg.m}, N={cfg.n_out}, params={model.num_params:,}; "
-              + (f"input transform {tr[cfg.input_transform_trained]}, feature transform "
-                 f"{tr[cfg.feature_transform_trained]}" if has_tnets else "no transform nets")
-              + (f"; dropped {dropped:,} dead transform-net parameters" if dropped else "")
-              + (f"; {'; '.join(notes)}" if notes else ""))
-    model.meta["dropped_params"] = int(dropped)
-    return model, report
+    return (f"m={cfg.m}, N={cfg.n_out}, params={model.num_params:,}; "
+            + (f"input transform {tr[cfg.input_transform_trained]}, feature transform "
+               f"{tr[cfg.feature_transform_trained]}" if has_tnets else "no transform nets")
+            + (f"; dropped {dropped:,} dead transform-net parameters" if dropped else "")
+            + (f"; {'; '.join(notes)}" if notes else ""))
 
 
 __all__ = ["import_keras_h5"]

@@ -1,0 +1,125 @@
+"""tpnet_ref.hdf5: the guards every reader of an untrusted HDF5 file goes through, one by one --
+links, outside storage, declared sizes before reading, dtypes and shapes, NaN, damaged files."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+h5py = pytest.importorskip("h5py")
+
+from tpnet_ref import hdf5  # noqa: E402
+
+
+@pytest.fixture
+def h5(tmp_path):
+    """A file with a plain dataset, a group, a soft link, an external link, an external-storage
+    dataset, a big attribute and a NaN dataset."""
+    (tmp_path / "raw.bin").write_bytes(np.arange(4, dtype="<f8").tobytes())
+    path = tmp_path / "f.h5"
+    with h5py.File(path, "w") as f:
+        f["w"] = np.ones((2, 3))
+        g = f.create_group("g")
+        g["b"] = np.zeros(3)
+        g["ints"] = np.arange(3)
+        f["soft"] = h5py.SoftLink("/w")
+        f["g/soft"] = h5py.SoftLink("/g/b")
+        f["ext"] = h5py.ExternalLink("other.h5", "/w")
+        f.create_dataset("outside", shape=(4,), dtype="<f8",
+                         external=[(str(tmp_path / "raw.bin"), 0, 32)])
+        f["nan"] = np.array([1.0, np.nan])
+        f.attrs["small"] = np.arange(3)
+        f.attrs["big"] = np.zeros(10, dtype=np.uint8)
+        f.attrs["name"] = b"bytes"
+    return path
+
+
+def test_attributes_are_plain_values_and_their_size_checked_before_reading(h5, monkeypatch):
+    monkeypatch.setattr(hdf5, "MAX_ATTR_ELEMENTS", 5)              # read at call time: limit 5
+    with h5py.File(h5, "r") as f:
+        assert hdf5.py_value(hdf5.attr(f, "small", "f")) == (0, 1, 2)
+        assert hdf5.py_str(hdf5.attr(f, "name", "f")) == "bytes"
+        assert hdf5.attr(f, "absent", "f", default=7) == 7
+        with pytest.raises(ValueError, match=r"f: attribute 'big' of / declares 10 elements"):
+            hdf5.attr(f, "big", "f")
+        with pytest.raises(ValueError, match="'big'"):
+            hdf5.attrs(f, "f")                              # every attribute goes through attr
+
+
+@pytest.mark.parametrize("value, plain", [(np.bool_(True), True), (np.int64(3), 3),
+                                          (np.float32(0.5), 0.5), (b"x", "x"), ("y", "y")])
+def test_py_value(value, plain):
+    got = hdf5.py_value(value)
+    assert got == plain and type(got) is type(plain)
+
+
+def test_links_and_outside_storage_are_refused(h5):
+    with h5py.File(h5, "r") as f:
+        assert hdf5.safe_dataset(f, "w", "f").shape == (2, 3)
+        assert hdf5.safe_child(f, "g/b", "f").shape == (3,)
+        assert isinstance(hdf5.safe_group(f, "g", "f"), h5py.Group)
+        for name, kind in (("soft", "SoftLink"), ("ext", "ExternalLink")):
+            with pytest.raises(ValueError, match=f"'{name}' is a {kind}; links are not accepted"):
+                hdf5.safe_dataset(f, name, "f")
+        with pytest.raises(ValueError, match="/g/soft is a SoftLink"):
+            hdf5.safe_child(f, "g/soft", "f")                # a link anywhere on the path
+        for fn in (hdf5.safe_dataset, hdf5.safe_child):
+            with pytest.raises(ValueError, match="'outside' stores its data outside the file"):
+                fn(f, "outside", "f")
+        with pytest.raises(KeyError, match="missing dataset 'nope'"):
+            hdf5.safe_dataset(f, "nope", "f")
+        with pytest.raises(ValueError, match="missing 'g/nope'"):
+            hdf5.safe_child(f, "g/nope", "f")
+        with pytest.raises(ValueError, match="'w' is not a group"):
+            hdf5.safe_group(f, "w", "f")
+        with pytest.raises(ValueError, match="'g' is not a dataset"):
+            hdf5.safe_dataset(f, "g", "f")
+
+
+def test_read_array_checks_dtype_shape_and_values(h5):
+    with h5py.File(h5, "r") as f:
+        np.testing.assert_array_equal(hdf5.read_array(f, "w", (2, 3), "f"), np.ones((2, 3)))
+        with pytest.raises(ValueError, match=r"'w' has shape \(2, 3\), expected \(3, 2\)"):
+            hdf5.read_array(f, "w", (3, 2), "f")
+        with pytest.raises(ValueError, match="'ints' has dtype int64, expected floating point"):
+            hdf5.read_array(f["g"], "ints", (3,), "f")
+        with pytest.raises(ValueError, match="'nan' contains NaN or infinite values"):
+            hdf5.read_array(f, "nan", (2,), "f")
+    with pytest.raises(ValueError, match=r"x: shape \(2,\), expected \(3,\)"):
+        hdf5.check_shape(np.zeros(2), (3,), "x")
+
+
+def test_vectors_round_trip_and_refuse_other_content(h5):
+    hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"a": [1, 2, 3]}, np.int32, layers=2)
+    hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"b": [4]}, np.int32)     # replaced
+    got = hdf5.read_vectors(h5, "masks", "tpnet-masks-1", "mask set")
+    assert list(got) == ["b"] and got["b"].tolist() == [4] and got["b"].dtype == np.int32
+    assert hdf5.read_vectors(h5, "absent", "tpnet-masks-1", "mask set") is None
+    with pytest.raises(ValueError, match="group 'masks' is not a other-1 mask set"):
+        hdf5.read_vectors(h5, "masks", "other-1", "mask set")
+    hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"b": [0.5]}, np.float64)
+    with pytest.raises(ValueError, match="masks/b is not a mask set"):          # not integers
+        hdf5.read_vectors(h5, "masks", "tpnet-masks-1", "mask set")
+
+
+def test_open_h5_and_damaged_files_give_one_documented_error(tmp_path, h5):
+    with pytest.raises(FileNotFoundError, match="weights file not found"):
+        hdf5.open_h5(tmp_path / "missing.h5")
+    text = tmp_path / "t.h5"
+    text.write_text("not hdf5")
+    with pytest.raises(ValueError, match="not a readable HDF5 file"):
+        hdf5.open_h5(text)
+    with hdf5.open_h5(h5) as f:
+        assert "w" in f
+
+    @hdf5.damaged_file_is_value_error
+    def reader(path):
+        with h5py.File(path, "r"):
+            pass
+
+    damaged = tmp_path / "d.h5"
+    damaged.write_bytes(hdf5.HDF5_MAGIC + b"\0" * 100)           # the magic, then nothing
+    with pytest.raises(ValueError, match=r"d\.h5: damaged or unreadable file") as info:
+        reader(damaged)
+    assert "\n" not in str(info.value)
+    with pytest.raises(FileNotFoundError):                        # a missing file stays missing
+        reader(tmp_path / "missing.h5")
