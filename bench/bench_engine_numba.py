@@ -26,6 +26,7 @@ import numpy as np
 import tpnet_ref
 from _common import alternate, load_average, scene_windows
 from tpnet_ref.blas import one_thread
+from tpnet_ref.heads import ENGINE_MAX_BATCH
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -47,15 +48,15 @@ def main(argv: list[str] | None = None) -> int:
     nb = npy.with_engine("numba")
     from tpnet_ref.engine_numba import NumbaHead
     class AskTwo(NumbaHead):                    # always asks for the two-thread kernels
-        def project(self, x, parallel=False, batch=1):
-            return super().project(x, True, batch)
+        def project_rows(self, x, parallel=False, batch=1):
+            return super().project_rows(x, True, batch)
 
-        def __call__(self, xp1, steps, batch, parallel=False):
-            return super().__call__(xp1, steps, batch, True)
+        def run(self, xp1, steps, batch, parallel=False):
+            return super().run(xp1, steps, batch, True)
 
     head = AskTwo if args.engine_parallel else NumbaHead
     if args.engine_parallel:      # the engine laid out as the model does, asking for two threads
-        nb._nb = head(nb.config, nb.params, nb.dtype, nb.unit_order)
+        nb.heads[0] = head(nb.config, nb.params, nb.dtype, nb.unit_order, ENGINE_MAX_BATCH)
         print("(two threads asked for on every call)")
     x1, x256 = scene_windows(npy)
     ws = list(x256[::4])
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         from tpnet_ref.onnx_peer import onnx_session
         sess = onnx_session(npy, threads=args.ort_threads)
         calls["onnxruntime"] = lambda w: sess.run(None, {"window": w[None]})
-    feats = [npy._frames_to_features(list(w), True)[None] for w in ws]
+    feats = [npy.window_features(w[None], normalized=True) for w in ws]
     heads = {"numpy": lambda g: npy.sequence_head(g), "numba": lambda g: nb.sequence_head(g)}
     ctx = one_thread() if args.one_thread else contextlib.nullcontext()
     with ctx:

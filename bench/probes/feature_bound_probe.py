@@ -50,7 +50,7 @@ def last_layer_inputs(model, wins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     layer reads the weight rows up to its input's last non-zero column over the window)."""
     b, m, n, _ = wins.shape
     x = model.normalize(wins.reshape(b, m * n, 2))
-    layers = model._mlp1 + model._mlp2
+    layers = model.features.mlp1 + model.features.mlp2
     macs = np.zeros(b)
     for w, bias in layers[:-1]:
         k = x.shape[-1] if x.shape[-1] <= 2 else \
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     m = model.config.m
     cal = D.calibration_windows(tpnet_ref.load(), n_cal, seed=0, rollout=40)
     test = np.concatenate([windows(simulate(*c)[::FRAME_EVERY], m) for c in TEST_CASES])
-    w, b = model._mlp2[-1]
+    w, b = model.features.mlp2[-1]
     h_cal, _ = last_layer_inputs(model, cal)
     pre = h_cal @ w + b                                        # (B, m, N, 512)
     drop = ~(pre.max(axis=(0, 1, 2)) > 0)

@@ -31,8 +31,9 @@ from _common import scene_windows
 
 STAGES = {  # label: (owner, attribute)
     "predict (whole call)": (M.TPNet, "predict"),
-    "input checks": (M.TPNet, "_check_window"),
-    "canonical order + normalise": (M.TPNet, "_canonical_points"),
+    "input checks and warnings": (M, "check_window"),
+    "  warnings (range, one body)": (M, "warn_about_input"),
+    "canonical order + normalise": (M.TPNet, "canonical_points"),
     "feature extractor": (M.TPNet, "frame_features"),
     "sequence head": (M.TPNet, "sequence_head"),
     "  BiLSTM 1 input projection": (M.TPNet, "project_frames"),
