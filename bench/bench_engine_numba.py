@@ -4,7 +4,7 @@ onnxruntime, alternating call by call (ratios from medians of the same minutes).
     python bench/bench_engine_numba.py [--reps 6] [--one-thread] [--no-ort] [--batches 2,4,8]
                                        [--ort-threads 1]
 
-Inputs as in ``bench_inference.py`` (normalised windows of simulated test cases): B = 1 on the
+Inputs: ``_common.scene_windows`` (normalised windows of simulated test cases): B = 1 on the
 64 windows ``x256[::4]``, each window once per repeat and engine; the prediction network alone
 (``sequence_head`` on precomputed global features) on the same windows; the rollout of 80
 frames from test case 0's first window (onnxruntime: a loop of 80 calls); with ``--batches``,
@@ -18,33 +18,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import sys
-import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
-
-import tpnet_ref  # noqa: E402
-from bench_inference import scene_windows  # noqa: E402
-from tpnet_ref.blas import one_thread  # noqa: E402
-
-
-def alternate(calls: dict, inputs: list, reps: int) -> dict[str, float]:
-    """Median seconds of each of ``calls`` (name -> fn(input)), alternating call by call."""
-    t: dict[str, list[float]] = {k: [] for k in calls}
-    for _ in range(reps):
-        for x in inputs:
-            for k, f in calls.items():
-                t0 = time.perf_counter()
-                f(x)
-                t[k].append(time.perf_counter() - t0)
-    return {k: float(np.median(v)) for k, v in t.items()}
+import tpnet_ref
+from _common import alternate, load_average, scene_windows
+from tpnet_ref.blas import one_thread
+from tpnet_ref.heads import ENGINE_MAX_BATCH
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,21 +42,21 @@ def main(argv: list[str] | None = None) -> int:
                     help="ask the engine for its two-thread kernels on every call (they run "
                          "inside blas.one_thread only); model.py asks only outside it")
     args = ap.parse_args(argv)
-    print("load average:", " ".join(f"{v:.2f}" for v in os.getloadavg()))
+    print(load_average())
     warnings.simplefilter("ignore")
     npy = tpnet_ref.load()
     nb = npy.with_engine("numba")
     from tpnet_ref.engine_numba import NumbaHead
     class AskTwo(NumbaHead):                    # always asks for the two-thread kernels
-        def project(self, x, parallel=False, batch=1):
-            return super().project(x, True, batch)
+        def project_rows(self, x, parallel=False, batch=1):
+            return super().project_rows(x, True, batch)
 
-        def __call__(self, xp1, steps, batch, parallel=False):
-            return super().__call__(xp1, steps, batch, True)
+        def run(self, xp1, steps, batch, parallel=False):
+            return super().run(xp1, steps, batch, True)
 
     head = AskTwo if args.engine_parallel else NumbaHead
     if args.engine_parallel:      # the engine laid out as the model does, asking for two threads
-        nb._nb = head(nb.config, nb.params, nb.dtype, nb.unit_order)
+        nb.heads[0] = head(nb.config, nb.params, nb.dtype, nb.unit_order, ENGINE_MAX_BATCH)
         print("(two threads asked for on every call)")
     x1, x256 = scene_windows(npy)
     ws = list(x256[::4])
@@ -84,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         from tpnet_ref.onnx_peer import onnx_session
         sess = onnx_session(npy, threads=args.ort_threads)
         calls["onnxruntime"] = lambda w: sess.run(None, {"window": w[None]})
-    feats = [npy._frames_to_features(list(w), True)[None] for w in ws]
+    feats = [npy.window_features(w[None], normalized=True) for w in ws]
     heads = {"numpy": lambda g: npy.sequence_head(g), "numba": lambda g: nb.sequence_head(g)}
     ctx = one_thread() if args.one_thread else contextlib.nullcontext()
     with ctx:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -52,51 +51,12 @@ THREADS = _pin_env()
 
 import numpy as np  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
-
 import tpnet_ref  # noqa: E402
+from _common import TEST_CASE_B1, machine, scene_windows  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
 
-
-def machine() -> str:
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    from tpnet_ref.blas import describe   # the BLAS as loaded: library, version, kernel, threads
-    return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
-            f"NumPy {np.__version__} ({describe()}; OPENBLAS_CORETYPE="
-            f"{os.environ.get('OPENBLAS_CORETYPE', 'unset')})")
-
-
-#: the test case whose first window is the B = 1 input (and the rollout's start)
-TEST_CASE_B1 = 0
 #: busy/idle: short paired rounds (idle block, then busy block), ratio = median of the rounds'
 BUSY_ROUNDS = 6
-
-
-def scene_windows(model) -> tuple[np.ndarray, np.ndarray]:
-    """``(1, m, 30, 2)`` and ``(256, m, 30, 2)`` normalised float32 windows of simulated test
-    cases (the scene's inputs; only timed): test case ``TEST_CASE_B1``'s first window, and 32
-    windows spread over each of the first 8 test cases."""
-    from tpnet_ref.protocol import FRAME_EVERY
-    from tpnet_ref.sim.cases import TEST_CASES
-    from tpnet_ref.sim.scene import simulate
-    m = model.config.m
-    wins = []
-    for case in TEST_CASES[:8]:
-        traj = simulate(*case)[::FRAME_EVERY]
-        starts = np.linspace(0, len(traj) - m, 32).astype(int)
-        wins.append(np.stack([traj[s:s + m] for s in starts]))
-    x256 = model.normalize(np.concatenate(wins).astype(np.float32))
-    x1 = model.normalize(simulate(*TEST_CASES[TEST_CASE_B1])[::FRAME_EVERY][:m].astype(np.float32))
-    return x1[None], x256
 
 
 def timeit(fn, min_time: float, min_reps: int = 3) -> float:

@@ -18,19 +18,16 @@ import argparse
 import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-import tpnet_ref  # noqa: E402
-from tpnet_ref import data as D  # noqa: E402
-from tpnet_ref import specialize as S  # noqa: E402
-from tpnet_ref.model import ENGINE_MAX_BATCH  # noqa: E402
-from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
-from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
-from tpnet_ref.sim.scene import simulate  # noqa: E402
+import tpnet_ref
+from tpnet_ref import data as D
+from tpnet_ref import specialize as S
+from tpnet_ref.model import ENGINE_MAX_BATCH
+from tpnet_ref.protocol import FRAME_EVERY
+from tpnet_ref.sim.cases import TEST_CASES
+from tpnet_ref.sim.scene import simulate
 
 
 def windows(frames: np.ndarray, m: int) -> np.ndarray:
@@ -94,11 +91,11 @@ def main(argv: list[str] | None = None) -> int:
     # allows, as in use); alternating: full and specialised on each window in turn (each evicts
     # the other's weights from the cache)
     sample = sim_w[np.random.default_rng(2).choice(len(sim_w), 64, replace=False)]
-    feats = [full._frames_to_features(list(w), False).reshape(1, m, -1) for w in sample]
+    feats = [full.window_features(np.asarray(w)[None]) for w in sample]
     jobs = {"full": lambda i: full.predict(sample[i]), "spec": lambda i: spec.predict(sample[i]),
             "full head": lambda i: full.sequence_head(feats[i]),
             "spec head": lambda i: spec.sequence_head(feats[i]),
-            "features": lambda i: full._frames_to_features(list(sample[i]), False)}
+            "features": lambda i: full.window_features(np.asarray(sample[i])[None])}
     t: dict[str, list[float]] = {k: [] for k in (*jobs, "full alt", "spec alt")}
     stages: dict[str, list[float]] = {}
     clock = time.perf_counter

@@ -1,6 +1,9 @@
-"""Compare tpnet_ref.sim with the Box2D 2.3 scene (bench/box2d_scene.py) over the 60 test cases.
+"""Compare tpnet_ref.sim with the Box2D 2.3 scene (tpnet_ref.sim.box2d) over the 60 test cases.
 
-    python bench/compare_box2d.py [--cases N] [--both] [key=value ...]
+    python bench/compare_box2d.py [--cases N] [--both] [--model sim|naive|box2d-perturbed]
+                                  [key=value ...]
+    python bench/compare_box2d.py --checks          # the point checks of docs/simulator.md
+    python bench/compare_box2d.py --speed [--repeats 7]   # one 600-step trajectory, both engines
 
 Both engines run the scene as the released code does by default (start impulse at the ring
 centre, no sleeping); ``impulse_point=particle_centre`` runs both with the centre-of-mass
@@ -12,25 +15,77 @@ error, squared distances averaged over points, after centring each set on its ce
 world units, and both errors in the released-code metric on normalised coordinates. Extra
 ``key=value`` arguments are passed to ``tpnet_ref.sim.simulate``, and to the Box2D scene too
 where it has a parameter of that name (e.g. ``wall_restitution=1``, ``frequency=2``).
+``--model naive`` runs a plain pymunk port instead (:func:`simulate_naive`).
+
+``--checks`` prints (both engines in the released convention, impulse at the ring centre): the
+first step against Box2D's, when a body dropped from rest falls asleep (sleep=True), how far a
+particle that starts inside the wall (start x = 41.9) is pushed out after one step.
+
+``--speed``: one 600-step trajectory of test case (1.3, 195, 39.5, 29.5), each engine building
+the scene from scratch and returning the (600, 30, 2) positions, interleaved so both see the same
+machine load (one untimed run before each timed one: Numba's compilation is excluded); the best
+and the median of the repeats, and the ratio Box2D / ours (> 1: ours is faster).
 """
 from __future__ import annotations
 
 import argparse
-import os
+import math
+import statistics
 import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(__file__))
-from box2d_scene import simulate_box2d  # noqa: E402
-from naive_pymunk import simulate_naive  # noqa: E402
-
-from tpnet_ref.sim import TEST_CASES, SceneParams, simulate  # noqa: E402
+from tpnet_ref.sim import TEST_CASES, SceneParams, ring_positions, simulate, spring_pairs
+from tpnet_ref.sim.box2d import simulate_box2d
 
 STEPS = (40, 160, 320, 600)
 #: issue targets (mean centroid distance, world units) and the steps they apply to
 TARGETS = {160: 0.05, 600: 0.5}
+
+#: the case of ``--checks``' first step and of ``--speed``
+CASE = (1.3, 195.0, 39.5, 29.5)
+
+
+def simulate_naive(force: float, angle_deg: float, x: float, y: float, steps: int = 600, *,
+                   frequency: float = 1.0, dt: float = 1 / 45) -> np.ndarray:
+    """A straightforward pymunk port of the scene (for comparison only): pymunk defaults
+    everywhere, DampedSpring springs of stiffness mu (2 pi f)^2 (explicit), contact slop 0.1,
+    default collision bias, friction and restitution multiplied, no continuous collision, no
+    velocity clamps, no sleeping; walls are 1-thick boxes without skin."""
+    import pymunk
+
+    space = pymunk.Space()
+    space.gravity = (0.0, -0.5)
+    space.iterations = 10
+    for x0, y0, x1, y1 in ((0, 0, 45, 1), (0, 44, 45, 45), (0, 0, 1, 45), (44, 0, 45, 45)):
+        w = pymunk.Poly(space.static_body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+        w.friction, w.elasticity = 1.0, 0.0
+        space.add(w)
+    start = ring_positions(x, y)
+    bodies = []
+    for i in range(30):
+        b = pymunk.Body()
+        b.position = tuple(start[i])
+        s = pymunk.Circle(b, 0.15)
+        s.density, s.friction, s.elasticity = 1.0, 1.0, 0.0
+        s.filter = pymunk.ShapeFilter(group=1)  # no particle-particle contacts at all
+        space.add(b, s)
+        bodies.append(b)
+    m = bodies[0].mass
+    k = 0.5 * m * (2 * math.pi * frequency) ** 2
+    for i, j in spring_pairs():
+        a, b = bodies[i], bodies[j]
+        rest = float(np.linalg.norm(start[i] - start[j]))
+        space.add(pymunk.DampedSpring(a, b, (0, 0), (0, 0), rest, k, 0.0))
+    for b in bodies:
+        b.apply_impulse_at_local_point((force * math.cos(math.radians(angle_deg)),
+                                        force * math.sin(math.radians(angle_deg))))
+    out = np.empty((steps, 30, 2))
+    for t in range(steps):      # row t: after t + 1 steps, as tpnet_ref.sim
+        space.step(dt)
+        out[t] = [tuple(b.position) for b in bodies]
+    return out
 
 
 def chamfer_paper(p: np.ndarray, q: np.ndarray) -> float:
@@ -121,16 +176,69 @@ def compare(cases: list, model: str, kw: dict) -> dict:
     return {"centroid": cen, "shape": shp, "ms": (ms_ours, ms_b2), "met": all(ok)}
 
 
+def last_moving_step(traj: np.ndarray) -> int:
+    moved = np.nonzero(np.abs(np.diff(traj, axis=0)).max(axis=(1, 2)) > 0)[0]
+    return int(moved.max()) + 1 if len(moved) else 0
+
+
+def checks() -> None:
+    """The point checks against Box2D quoted in docs/simulator.md."""
+    d = np.abs(simulate(*CASE, 1) - simulate_box2d(*CASE, 1)).max()
+    print(f"after the first step, largest difference to Box2D: {d:.2g}")
+    drop = (0.0, 270.0, 22.0, 3.3)
+    b = simulate_box2d(*drop, 1500, include_initial=True, sleep=True)
+    s = simulate(*drop, 1500, include_initial=True, sleep=True)
+    diff = np.abs(b[-1] - s[-1]).max()
+    print(f"dropped from rest: asleep after {last_moving_step(s)} steps "
+          f"(Box2D {last_moving_step(b)}); final positions differ by {diff:.2g}")
+    b0 = b1 = s1 = 0.0
+    for a in (180.0, 225.0, 270.0):
+        for f in (1.0, 1.6):
+            b = simulate_box2d(f, a, 41.9, 39.3, 2, include_initial=True)
+            b0, b1 = max(b0, b[0].max()), max(b1, b[1].max())
+            s1 = max(s1, simulate(f, a, 41.9, 39.3, 1).max())
+    print(f"start (41.9, 39.3): largest centre initially {b0:.4f}, after one step "
+          f"Box2D {b1:.4f}, tpnet_ref.sim {s1:.4f}")
+
+
+def speed(repeats: int) -> None:
+    """Seconds of one 600-step trajectory of :data:`CASE`, the engines interleaved."""
+    def once(fn) -> float:
+        fn(*CASE, 600)                  # untimed: compilation, caches
+        t = time.perf_counter()
+        fn(*CASE, 600)
+        return time.perf_counter() - t
+    ours, ref = [], []
+    for _ in range(repeats):            # interleave so both see the same machine load
+        ours.append(once(simulate))
+        ref.append(once(simulate_box2d))
+    for name, t in (("tpnet_ref.sim", ours), ("Box2D 2.3.10", ref)):
+        print(f"{name:14s} best {1e3 * min(t):7.1f} ms  "
+              f"median {1e3 * statistics.median(t):7.1f} ms")
+    print(f"ratio Box2D/ours: best {min(ref) / min(ours):.2f}x, "
+          f"median {statistics.median(ref) / statistics.median(ours):.2f}x")
+
+
 def main() -> int:
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", type=int, default=60, help="first N of the 60 test cases")
     ap.add_argument("--model", default="sim", choices=("sim", "naive", "box2d-perturbed"),
-                    help="sim: tpnet_ref.sim; naive: bench/naive_pymunk.py; box2d-perturbed: "
-                         "Box2D started 1e-4 to the right (Box2D's own sensitivity)")
+                    help="sim: tpnet_ref.sim; naive: a plain pymunk port (simulate_naive); "
+                         "box2d-perturbed: Box2D started 1e-4 to the right (Box2D's own "
+                         "sensitivity)")
     ap.add_argument("--both", action="store_true",
                     help="also run the centre-of-mass convention (impulse_point=particle_centre)")
+    ap.add_argument("--checks", action="store_true", help="only the point checks")
+    ap.add_argument("--speed", action="store_true", help="only the speed of one trajectory")
+    ap.add_argument("--repeats", type=int, default=7, help="--speed: timed runs of each engine")
     ap.add_argument("kw", nargs="*", help="key=value SceneParams overrides")
     args = ap.parse_args()
+    if args.checks:
+        checks()
+        return 0
+    if args.speed:
+        speed(args.repeats)
+        return 0
     kw = parse_kw(args.kw)
     cases = list(TEST_CASES)[: args.cases]
     compare(cases, args.model, kw)

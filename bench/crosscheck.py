@@ -12,18 +12,17 @@ own outputs stored next to the fixtures (one step and the recursive model's 8 ou
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from tpnet_ref.model import TPNetConfig, init_random
+from tpnet_ref.weights.keras import import_keras_h5
+from tpnet_ref.weights.torch import import_torch
 
-from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-from tpnet_ref.weights.keras import import_keras_h5  # noqa: E402
-from tpnet_ref.weights.torch import import_torch  # noqa: E402
+#: the repository (the Keras fixtures are in tests/fixtures)
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def ring_windows(b: int, m: int = 4, n: int = 30, seed: int = 0) -> np.ndarray:

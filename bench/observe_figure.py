@@ -17,9 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tpnet_ref.cli import main as tpnet  # noqa: E402
+from tpnet_ref.cli import main as tpnet
 
 STEPS = 60                 # predictions
 SHOW = (10, 30, 60)        # horizons drawn

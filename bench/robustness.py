@@ -29,16 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tpnet_ref  # noqa: E402
-from tpnet_ref.checks import NotOneBodyWarning, OutsideTrainingRangeWarning  # noqa: E402
-from tpnet_ref.config import normalize  # noqa: E402
-from tpnet_ref.evaluation import errors, simulate_cases  # noqa: E402
-from tpnet_ref.metrics import position_error  # noqa: E402
-from tpnet_ref.observe import (BODY_INSET, drop_outliers, points_from_image,  # noqa: E402
+import tpnet_ref
+from tpnet_ref.checks import NotOneBodyWarning, OutsideTrainingRangeWarning
+from tpnet_ref.config import normalize
+from tpnet_ref.evaluation import errors, simulate_cases
+from tpnet_ref.metrics import position_error
+from tpnet_ref.observe import (BODY_INSET, drop_outliers, points_from_image,
                                points_from_mask)
-from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
+from tpnet_ref.sim.cases import TEST_CASES
 
 M = 4
 HORIZONS = (1, 10, 40, 80)

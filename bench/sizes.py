@@ -6,8 +6,8 @@ For each file (the same TP-Net architecture at different widths, m = 4): trained
 file size, E_p / E_s at 40 and 80 predictions in the squared reading (the paper comparison's;
 ``docs/evaluation.md``) on the 60 held-out test cases of the faithful scene (frames 0..3 in, 80
 recursive predictions, ``tpnet eval``'s protocol), and the B = 1 latency of one prediction on
-both engines (``engine="numpy"`` and ``engine="numba"``; median over the 64 scene windows of
-``bench/bench_inference.py``'s ``x256[::4]``, engines alternating call by call, float32).
+both engines (``engine="numpy"`` and ``engine="numba"``; median over the 64 scene windows
+``x256[::4]`` of ``_common.scene_windows``, engines alternating call by call, float32).
 
 The Pareto front (which sizes are worth shipping) is chosen WITHOUT the test cases: with
 ``--data`` (a ``tpnet data generate`` file), the same protocol runs on its validation
@@ -29,13 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
-
-import tpnet_ref  # noqa: E402
-from tpnet_ref import evaluation as E  # noqa: E402
-from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
+import tpnet_ref
+from _common import alternate, scene_windows
+from tpnet_ref import evaluation as E
+from tpnet_ref.sim.cases import TEST_CASES
 
 HORIZONS = (40, 80)
 
@@ -47,16 +44,11 @@ def n_params(model) -> int:
 def latency_b1(models: dict[str, dict[str, object]], x: np.ndarray, reps: int) -> dict:
     """Median seconds of one ``predict_batch`` of one window, per (label, engine), alternating
     label by label and engine by engine within each round."""
-    t: dict[tuple[str, str], list[float]] = {(k, e): [] for k in models for e in models[k]}
-    for (k, e) in t:                                   # warm up (compile, caches)
-        models[k][e].predict_batch(x[:1], normalized=True)
-    for _ in range(reps):
-        for w in x:
-            for (k, e), ts in t.items():
-                s = time.perf_counter()
-                models[k][e].predict_batch(w[None], normalized=True)
-                ts.append(time.perf_counter() - s)
-    return {key: float(np.median(v)) for key, v in t.items()}
+    calls = {(k, e): (lambda w, mo=mo: mo.predict_batch(w[None], normalized=True))
+             for k in models for e, mo in models[k].items()}
+    for f in calls.values():                           # warm up (compile, caches)
+        f(x[0])
+    return alternate(calls, list(x), reps)
 
 
 COPY_LAST = "copy last frame"
@@ -142,7 +134,6 @@ def main(argv: list[str] | None = None) -> int:
                     "sizes' of this markdown file (docs/results.md; kept by tpnet eval)")
     args = ap.parse_args(argv)
 
-    from bench_inference import scene_windows
     warnings.simplefilter("ignore")
     t_start = time.perf_counter()
     load0 = os.getloadavg()[0]

@@ -18,15 +18,14 @@ long-run table prints that first-step ratio E0 / E_built separately.
 """
 from __future__ import annotations
 
+import importlib.util
 import math
-import os
 import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(__file__))
-from tpnet_ref.sim import SceneParams, build_scene, spring_pairs  # noqa: E402
+from tpnet_ref.sim import SceneParams, build_scene, spring_pairs
 
 PAIRS = spring_pairs()
 
@@ -153,14 +152,9 @@ def main() -> int:
     if "--first-step" in sys.argv[1:]:
         first_step()
         return 0
-    try:
-        from box2d_scene import simulate_box2d
-    except ImportError:
-        simulate_box2d = None
-    try:
-        from naive_pymunk import simulate_naive
-    except ImportError:
-        simulate_naive = None
+    from compare_box2d import simulate_naive          # the plain pymunk port
+    from tpnet_ref.sim import box2d                   # Box2D itself: the box2d extra
+    simulate_box2d = box2d.simulate_box2d if importlib.util.find_spec("Box2D") else None
     print("## stiff springs: F=1.6, 225 deg, start (30, 30), 600 steps, sleep off "
           "(E0: after the first step)")
     print("| f (Hz) | omega dt | finite | min centre | max centre | max abs(L-L0) | "

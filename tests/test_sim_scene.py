@@ -3,8 +3,6 @@ agreement with Box2D."""
 from __future__ import annotations
 
 import math
-import os
-import sys
 
 import numpy as np
 import pytest
@@ -234,8 +232,7 @@ def test_no_walls_allows_any_start():
 @pytest.mark.parametrize("impulse_point", ["ring_centre", "particle_centre"])
 def test_matches_box2d_on_test_cases(impulse_point):
     pytest.importorskip("Box2D")
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "bench"))
-    from box2d_scene import simulate_box2d
+    from tpnet_ref.sim.box2d import simulate_box2d
     cases = [(1.3, 195, 39.5, 29.5), (1.0, 205, 34.6, 42.0), (1.6, 270, 41.9, 31.7),
              (1.3, 225.0, 39.5, 29.5)]
     for f, a, x, y in cases:

@@ -2,7 +2,7 @@
 
 The body at rest is a ring of 30 particles of radius 2 world units (docs/spec.md §5); these
 functions give the reference scores that make E_s readable (a perfect ring at an unknown
-rotation phase, the ring collapsed to its centre) and the tools ``bench/shape_floor.py`` uses
+rotation phase, the ring collapsed to its centre) and the tools ``bench/probes/shape_floor.py`` uses
 to tell an outline's error from its spacing's.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ def ring_phase_floor(n: int = 30, radius: float = 2.0, samples: int = 720,
     one particle spacing (``samples`` evenly spaced phases, averaged). A prediction that has the
     exact shape but not the particles' rotation phase scores this on average: copying the last
     frame scores about this once the body has turned, so beating it on E_s needs the phase or
-    a nearly exact outline (``bench/shape_floor.py``)."""
+    a nearly exact outline (``bench/probes/shape_floor.py``)."""
     from ..metrics import shape_error
     turned = rest_ring((np.arange(samples) + 0.5) / samples * (2 * np.pi / n), n, radius)
     return float(np.mean(shape_error(np.broadcast_to(rest_ring(0.0, n, radius), turned.shape),
@@ -132,7 +132,7 @@ def radial_outline(sets: np.ndarray, modes: int = 0, phase: float | np.ndarray =
     """Each set replaced by its smooth outline (:func:`radial_fit` with ``modes``) sampled at
     ``N`` evenly spaced angles ``phase + 2πj/N`` (radians, scalar or ``(K,)``) about the same
     centroid: ``(K, N, 2)`` float64. ``modes = 0`` gives the circle of the set's mean radius,
-    the best phase-blind guess at a ring whose vibration is unknown (``bench/shape_floor.py``)."""
+    the best phase-blind guess at a ring whose vibration is unknown (``bench/probes/shape_floor.py``)."""
     x = np.asarray(sets, dtype=np.float64)
     coef, _ = radial_fit(x, modes)
     k, n = x.shape[:2]

@@ -5,6 +5,8 @@
 * :mod:`~tpnet_ref.sim.kernel` the Numba step kernel (springs, walls, clamps, time of impact).
 * :mod:`~tpnet_ref.sim.cases`  the training grid and the 60 held-out test cases.
 * :mod:`~tpnet_ref.sim.plot`   ``show``: a PNG of one trajectory.
+* :mod:`~tpnet_ref.sim.box2d`  ``simulate_box2d``: the same scene in Box2D 2.3 (``box2d`` extra),
+  for validation only; not imported here.
 
 pymunk and numba (the ``sim`` extra) and matplotlib (``plot``) are imported on first use.
 """

@@ -1,7 +1,7 @@
 """Can a specialised model skip the max-pooled features its scene never uses, exactly?
 
-    python bench/feature_bound_probe.py            # 36 training-grid trajectories to calibrate
-    python bench/feature_bound_probe.py --quick    # 12
+    PYTHONPATH=bench python bench/probes/feature_bound_probe.py            # 36 training-grid trajectories to calibrate
+    PYTHONPATH=bench python bench/probes/feature_bound_probe.py --quick    # 12
 
 On the scene's windows 260 of the 512 max-pooled features of the shipped m = 4 model are exactly
 zero (the last per-point layer's pre-activation is <= 0 at every point of every frame). The last
@@ -30,19 +30,15 @@ calibration windows (training grid, as ``bench/bench_specialize.py`` calibrates)
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-import tpnet_ref  # noqa: E402
-from tpnet_ref import data as D  # noqa: E402
-from tpnet_ref.protocol import FRAME_EVERY  # noqa: E402
-from tpnet_ref.sim.cases import TEST_CASES  # noqa: E402
-from tpnet_ref.sim.scene import simulate  # noqa: E402
-from bench_specialize import parse_quick, windows  # noqa: E402
+import tpnet_ref
+from tpnet_ref import data as D
+from tpnet_ref.protocol import FRAME_EVERY
+from tpnet_ref.sim.cases import TEST_CASES
+from tpnet_ref.sim.scene import simulate
+from bench_specialize import parse_quick, windows
 
 RANKS = (4, 8, 16, 32, 48, 64, 96)
 TOL = 1e-5
@@ -54,7 +50,7 @@ def last_layer_inputs(model, wins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     layer reads the weight rows up to its input's last non-zero column over the window)."""
     b, m, n, _ = wins.shape
     x = model.normalize(wins.reshape(b, m * n, 2))
-    layers = model._mlp1 + model._mlp2
+    layers = model.features.mlp1 + model.features.mlp2
     macs = np.zeros(b)
     for w, bias in layers[:-1]:
         k = x.shape[-1] if x.shape[-1] <= 2 else \
@@ -72,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     m = model.config.m
     cal = D.calibration_windows(tpnet_ref.load(), n_cal, seed=0, rollout=40)
     test = np.concatenate([windows(simulate(*c)[::FRAME_EVERY], m) for c in TEST_CASES])
-    w, b = model._mlp2[-1]
+    w, b = model.features.mlp2[-1]
     h_cal, _ = last_layer_inputs(model, cal)
     pre = h_cal @ w + b                                        # (B, m, N, 512)
     drop = ~(pre.max(axis=(0, 1, 2)) > 0)

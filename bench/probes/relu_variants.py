@@ -1,7 +1,7 @@
 """Why the NumPy engine's ReLU takes a row operand: ``np.maximum`` against a scalar 0 and
 against an array, on the sizes the feature extractor and the recurrence see.
 
-    python bench/relu_variants.py
+    python bench/probes/relu_variants.py
 
 Prints the time of ``relu(y + b)`` done as ``y += b; np.maximum(y, 0, out=y)`` (the
 scalar form) and as ``np.maximum(y, -b, out=y); y += b`` (the form ``layers.dense`` uses, the

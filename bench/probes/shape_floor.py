@@ -1,6 +1,6 @@
 """What the shape error E_s can reach without the particles' rotation phase (model card, issue 6).
 
-    PYTHONPATH=. python bench/shape_floor.py [--weights weights/tpnet-m5.h5] [--variant squared]
+    PYTHONPATH=. python bench/probes/shape_floor.py [--weights weights/tpnet-m5.h5] [--variant squared]
         [--impulse-point particle_centre]
 
 On the 60 held-out test cases (docs/spec.md §5 protocol, simulated in the default scene

@@ -1,7 +1,7 @@
 """Probe: does a long-horizon shape loss fine-tune the shipped model towards beating copy-last
 on E_s at 40/80 frames? (model card, issue 6; a negative result, kept so it can be rerun)
 
-    PYTHONPATH=. python bench/long_rollout_probe.py [--steps 200] [--data data/grid-m4.h5]
+    PYTHONPATH=. python bench/probes/long_rollout_probe.py [--steps 200] [--data data/grid-m4.h5]
 
 Starts from ``weights/tpnet-m4.h5`` and trains (PyTorch, ``train`` extra) on segments of the
 training grid's *training* trajectories (the same validation split as ``tpnet train run``):

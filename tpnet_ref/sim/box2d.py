@@ -1,7 +1,8 @@
 """The paper's soft-body scene in Box2D 2.3 (pybox2d), used only to validate ``tpnet_ref.sim``.
 
-Needs the ``box2d`` package (``pip install box2d==2.3.10``, the engine version of the paper); it is
-imported by the validation scripts in ``bench/`` and by skip-if-missing tests, never by the package.
+Needs pybox2d (the ``box2d`` extra, ``box2d==2.3.10``, the engine version of the paper), imported on
+first use; used by ``bench/compare_box2d.py``, ``bench/stability.py`` and skip-if-missing tests,
+never by the rest of the package.
 
 Built from docs/spec.md §5 and the Box2D 2.3 manual: static box walls (fixtures with friction and
 restitution), dynamic circle particles (density 1, friction 1, restitution 0), soft distance joints
@@ -18,6 +19,8 @@ import math
 
 import numpy as np
 
+from ..extras import require
+
 
 def simulate_box2d(force: float, angle_deg: float, x: float, y: float, steps: int = 600, *,
                    n_particles: int = 30, ring_radius: float = 2.0, particle_radius: float = 0.15,
@@ -31,7 +34,7 @@ def simulate_box2d(force: float, angle_deg: float, x: float, y: float, steps: in
                    impulse_point: str = "ring_centre", sleep: bool = False,
                    include_initial: bool = False) -> np.ndarray:
     """Positions ``(steps, n_particles, 2)`` in world units of the Box2D scene."""
-    import Box2D as B
+    B = require("Box2D", "box2d")
 
     world = B.b2World(gravity=gravity, doSleep=sleep)
     if walls:

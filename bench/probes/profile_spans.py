@@ -1,6 +1,6 @@
 """Why the NumPy engine orders units: reading a prefix of a kernel's rows against other ways.
 
-    python bench/profile_spans.py
+    python bench/probes/profile_spans.py
 
 For a 1024 x 2048 float32 kernel in blocks of 64 columns (BiLSTM 2's input projection, 4 rows
 of input, one BLAS thread), the median time with the weights in cache ("hot") and after a 48 MB
@@ -11,12 +11,10 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from tpnet_ref.blas import one_thread  # noqa: E402
+from tpnet_ref.blas import one_thread
 
 
 def timed(fn, flush: np.ndarray | None, n: int = 100) -> float:

@@ -1,8 +1,8 @@
 """Where one B = 1 prediction of the shipped model spends its time, stage by stage.
 
-    python bench/profile_stages.py [--reps 300] [--engine numpy|numba]
+    PYTHONPATH=bench python bench/probes/profile_stages.py [--reps 300] [--engine numpy|numba]
 
-Inputs: 64 windows of simulated test cases (``bench_inference.scene_windows``), normalised, one
+Inputs: 64 windows of simulated test cases (``_common.scene_windows``), normalised, one
 after another, a one-thread BLAS. Each stage's time is the median over predictions of the time
 spent inside it (the stages nest: ``sequence head`` holds the products and recurrences; the
 layer functions are timed separately).
@@ -19,24 +19,21 @@ import collections
 import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
 
-import tpnet_ref  # noqa: E402
-from tpnet_ref import layers as L  # noqa: E402
-from tpnet_ref import model as M  # noqa: E402
-from tpnet_ref.blas import one_thread  # noqa: E402
-from bench_inference import scene_windows  # noqa: E402
+import tpnet_ref
+from tpnet_ref import layers as L
+from tpnet_ref import model as M
+from tpnet_ref.blas import one_thread
+from _common import scene_windows
 
 STAGES = {  # label: (owner, attribute)
     "predict (whole call)": (M.TPNet, "predict"),
-    "input checks": (M.TPNet, "_check_window"),
-    "canonical order + normalise": (M.TPNet, "_canonical_points"),
+    "input checks and warnings": (M, "check_window"),
+    "  warnings (range, one body)": (M, "warn_about_input"),
+    "canonical order + normalise": (M.TPNet, "canonical_points"),
     "feature extractor": (M.TPNet, "frame_features"),
     "sequence head": (M.TPNet, "sequence_head"),
     "  BiLSTM 1 input projection": (M.TPNet, "project_frames"),
