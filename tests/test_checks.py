@@ -82,3 +82,26 @@ def test_in_range_input_does_not_warn(net):
         tpnet_ref.predict(_window(), model=net)
         tpnet_ref.predict_batch(np.stack([_window(), _window(cx=30.0)]), model=net)
         tpnet_ref.rollout(_window(), 2, model=net)
+
+
+def test_the_one_body_test_is_bounded_in_memory():
+    """Regression: a 10,000-point frame made the warning build 10,000 x 10,000 x 2 differences
+    (2.4 GB, the suite's memory guard tripped). Frames above BODY_MAX_POINTS are not judged;
+    body_outliers refuses them in one line."""
+    import tracemalloc
+
+    from tpnet_ref.checks import BODY_MAX_POINTS, body_outliers, window_body_problem
+    rng = np.random.default_rng(0)
+    big = rng.uniform(-1e6, 1e6, (4, 10_000, 2))
+    tracemalloc.start()
+    try:
+        assert window_body_problem(big) is None
+        assert window_body_problem(list(big)) is None
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 50 * 2**20, peak
+    with pytest.raises(ValueError, match=f"^points: 10000 points, .*at most {BODY_MAX_POINTS}"):
+        body_outliers(big[0])
+    # at the limit the test still runs (and finds the scattered points are no body)
+    assert body_outliers(big[0, :BODY_MAX_POINTS]).shape == (BODY_MAX_POINTS,)

@@ -234,6 +234,9 @@ BODY_SPUR_FACTOR = 2.0
 BODY_MIN_POINTS = 5
 #: the body's centre moves at most 2.08 world units per model frame in the training scenes
 BODY_MAX_STEP = 4.0
+#: the one-body test compares every pair of a frame's points (N x N distances: 32 MiB at this
+#: size); frames with more points are not judged by the warning, and body_outliers refuses them
+BODY_MAX_POINTS = 2048
 
 
 def _groups(adj: np.ndarray) -> np.ndarray:
@@ -267,7 +270,12 @@ def body_outliers(points: np.ndarray, link: float | None = None,
     out = np.zeros(n, dtype=bool)
     if n < BODY_MIN_POINTS:
         return out
-    d = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=2))
+    if n > BODY_MAX_POINTS:
+        raise ValueError(f"points: {n} points, the one-body test takes at most {BODY_MAX_POINTS} "
+                         "(it compares every pair); resample the outline to fewer points first")
+    dx, dy = p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1]
+    d = np.sqrt(dx * dx + dy * dy)
+    del dx, dy
     np.fill_diagonal(d, np.inf)
     if link is None:
         link = max(BODY_LINK_FACTOR * float(np.median(d.min(axis=1))), BODY_LINK_MIN)
@@ -323,6 +331,8 @@ def _all_one_body(frames: np.ndarray) -> bool:
     step = path - np.roll(path, 1, axis=1)
     if (step[..., 0] ** 2 + step[..., 1] ** 2).max() <= BODY_LINK_MIN ** 2:
         return True
+    if f * n * n > BODY_MAX_POINTS ** 2:            # all frames' pairs at once would not be small
+        return False                                # (the caller then judges frame by frame)
     dx = frames[:, :, None, 0] - frames[:, None, :, 0]
     dy = frames[:, :, None, 1] - frames[:, None, :, 1]
     d = np.sqrt(dx * dx + dy * dy)                  # the same numbers as body_outliers' d
@@ -343,7 +353,10 @@ def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
     like one body moving, or ``None``: stray points or a second blob in a frame
     (:func:`body_outliers`: at most as many as the body's points), or a frame whose body is far
     from the previous frame's. A frame without a body of the scene's size (points scattered, or
-    in other units) is left to :func:`training_range_problem`."""
+    in other units) is left to :func:`training_range_problem`, and so is a frame of more than
+    ``BODY_MAX_POINTS`` points (not judged: the test compares every pair)."""
+    if any(len(f) > BODY_MAX_POINTS for f in frames):
+        return None
     centres = []
     if isinstance(frames, np.ndarray) or len({len(f) for f in frames}) == 1:
         stacked = np.asarray(np.stack(frames) if isinstance(frames, list) else frames,
