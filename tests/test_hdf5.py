@@ -123,3 +123,32 @@ def test_open_h5_and_damaged_files_give_one_documented_error(tmp_path, h5):
     assert "\n" not in str(info.value)
     with pytest.raises(FileNotFoundError):                        # a missing file stays missing
         reader(tmp_path / "missing.h5")
+
+
+def test_compressed_datasets_gzip_and_shuffle_only_and_bounded(tmp_path):
+    """gzip and shuffle are decoded here chunk by chunk, each chunk inflated to at most its
+    declared size; any other filter is refused by name, and so is a chunk that inflates to more
+    than its shape holds (a "gzip bomb")."""
+    import zlib
+
+    data = np.arange(1000, dtype="<f4").reshape(10, 100)
+    p = tmp_path / "c.h5"
+    with h5py.File(p, "w") as f:
+        f.create_dataset("gz", data=data, chunks=(3, 40), compression="gzip", shuffle=True)
+        f.create_dataset("plain_chunks", data=data, chunks=(5, 50))
+        f.create_dataset("lzf", data=data, compression="lzf")
+        f.create_dataset("fletcher", data=data, fletcher32=True)
+        d = f.create_dataset("bomb", shape=(4,), dtype="<f8", chunks=(4,), compression="gzip")
+        d.id.write_direct_chunk((0,), zlib.compress(bytes(1 << 20)))     # 1 MiB in a 32-byte chunk
+    with hdf5.open_h5(p) as f:
+        np.testing.assert_array_equal(hdf5.read(f["gz"], "gz"), data)
+        np.testing.assert_array_equal(hdf5.read(f["plain_chunks"], "pc"), data)
+        assert [name for _, name in hdf5.filters(f["gz"])] == ["shuffle", "deflate"] or \
+            [code for code, _ in hdf5.filters(f["gz"])] == [2, 1]
+        with pytest.raises(ValueError, match="^lzf: stored with the HDF5 filter lzf"):
+            hdf5.read(f["lzf"], "lzf")
+        with pytest.raises(ValueError, match="only gzip and shuffle are accepted"):
+            hdf5.read(f["fletcher"], "fletcher")
+        with pytest.raises(ValueError, match="^bomb: a compressed chunk holds more than its "
+                                             "declared 32 bytes; refused"):
+            hdf5.read(f["bomb"], "bomb")

@@ -150,3 +150,65 @@ def test_describe_is_a_short_readable_summary(tmp_path):
                "2.00 h on d.h5" for line in lines)
     assert any(line.strip().startswith("2. runs/b: this file, total 250 steps") for line in lines)
     assert max(len(line) for line in lines) < 200                      # no KB-long JSON line
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_gzip_storage_is_lossless_and_smaller(tmp_path, dtype):
+    """storage="gzip" (the shipped paper-size file): the same bits as the plain file, read back
+    in the compute dtype, with shuffle + gzip on every parameter."""
+    params = {k: np.round(v, 2).astype(dtype) for k, v in _params(TINY, dtype=np.dtype(dtype)).items()}
+    native.write_native(tmp_path / "plain.h5", TINY, params, dtype)
+    native.write_native(tmp_path / "gz.h5", TINY, params, dtype, storage="gzip")
+    _, back, meta = native.read_native(tmp_path / "gz.h5")
+    for k, v in params.items():
+        assert back[k].dtype == np.dtype(dtype)
+        np.testing.assert_array_equal(back[k], v)
+    assert meta["storage"] == "gzip" and "storage_rounding" not in meta
+    with h5py.File(tmp_path / "gz.h5") as f:
+        assert f["params/head.w"].compression == "gzip" and f["params/head.w"].shuffle
+    assert "(shuffle + gzip, lossless)" in native.describe(tmp_path / "gz.h5")
+
+
+def test_float16_storage_rounds_once_and_reads_back_the_stored_values(tmp_path):
+    params = _params(TINY)
+    params["head.b"][:7] = [1e-9, 3e-6, 1.0, -2.5, 0.1, 7.0, 0.0]    # to 0, subnormal, exact
+    native.write_native(tmp_path / "h.h5", TINY, params, "float32", storage="float16")
+    _, back, meta = native.read_native(tmp_path / "h.h5")
+    for k, v in params.items():
+        assert back[k].dtype == np.float32                              # computed as float32
+        np.testing.assert_array_equal(back[k], v.astype(np.float32).astype(np.float16))
+    rounding = json.loads(meta["storage_rounding"])
+    assert rounding["nonzero_to_zero"] >= 1 and rounding["subnormal"] >= 1
+    assert 0 < rounding["max_rel_change_normal"] <= 2.0 ** -11                # half an ulp
+    assert "float16 (shuffle + gzip; lossy" in native.describe(tmp_path / "h.h5")
+    # converting keeps the config, provenance and the other groups
+    native.write_native(tmp_path / "p.h5", TINY, params, "float64", {"source": "unit"})
+    with h5py.File(tmp_path / "p.h5", "a") as f:
+        f.create_group("unit_order").create_dataset("lstm1", data=np.arange(5))
+    meta = native.convert_storage(tmp_path / "p.h5", tmp_path / "q.h5", "float16")
+    assert meta["source"] == "unit" and meta["storage"] == "float16"
+    assert (tmp_path / "q.h5").stat().st_mode & 0o777 == (tmp_path / "p.h5").stat().st_mode & 0o777
+    with h5py.File(tmp_path / "q.h5") as f:
+        assert f.attrs["dtype"] == "float64"
+        np.testing.assert_array_equal(f["unit_order/lstm1"][()], np.arange(5))
+
+
+def test_float16_storage_refuses_what_it_cannot_hold(tmp_path):
+    params = _params(TINY)
+    params["head.w"] = params["head.w"] * 1e5
+    with pytest.raises(ValueError, match="^parameter 'head.w': .* beyond float16's range"):
+        native.write_native(tmp_path / "h.h5", TINY, params, storage="float16")
+    with pytest.raises(ValueError, match="storage must be None .* 'gzip', 'float16', got 'int8'"):
+        native.write_native(tmp_path / "h.h5", TINY, _params(TINY), storage="int8")
+
+
+def test_a_file_whose_storage_attribute_lies_is_refused(tmp_path):
+    native.write_native(tmp_path / "a.h5", TINY, _params(TINY), "float32")
+    with h5py.File(tmp_path / "a.h5", "a") as f:
+        f.attrs["storage"] = "float16"                   # but the arrays are float32
+    with pytest.raises(ValueError, match="storage says float16 but '[^']+' is float32"):
+        native.read_native(tmp_path / "a.h5")
+    with h5py.File(tmp_path / "a.h5", "a") as f:
+        f.attrs["storage"] = "bfloat8"
+    with pytest.raises(ValueError, match="unknown storage 'bfloat8'"):
+        native.read_native(tmp_path / "a.h5")

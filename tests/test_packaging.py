@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from tpnet_ref.native import SHIPPED_SIZES
+
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONAL = ("numba", "llvmlite", "scipy", "pymunk", "torch", "matplotlib", "tqdm", "onnxruntime",
             "cv2")
@@ -35,12 +37,16 @@ def wheel(tmp_path_factory) -> Path:
     return whl
 
 
-def test_wheel_holds_the_default_weights_and_no_other(wheel):
+def test_wheel_holds_the_m4_weights_and_no_other(wheel):
+    """The default model and the reduced sizes (``load(size=...)``), as files, not links; the
+    m = 3 and 5 ablation models stay out."""
     names = zipfile.ZipFile(wheel).namelist()
-    assert "tpnet_ref/shipped/tpnet-m4.h5" in names
-    assert not [n for n in names if n.endswith(".h5") and n != "tpnet_ref/shipped/tpnet-m4.h5"]
-    info = zipfile.ZipFile(wheel).getinfo("tpnet_ref/shipped/tpnet-m4.h5")
-    assert info.file_size == (ROOT / "weights" / "tpnet-m4.h5").stat().st_size  # the file, not a link
+    shipped = ["tpnet-m4.h5"] + [f"tpnet-m4-{s}.h5" for s in SHIPPED_SIZES]
+    assert sorted(n for n in names if n.endswith(".h5")) == \
+        sorted(f"tpnet_ref/shipped/{n}" for n in shipped)
+    for n in shipped:
+        info = zipfile.ZipFile(wheel).getinfo(f"tpnet_ref/shipped/{n}")
+        assert info.file_size == (ROOT / "weights" / n).stat().st_size    # the file, not a link
     meta = zipfile.ZipFile(wheel).read(
         next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
     core = [ln.split(":", 1)[1].strip() for ln in meta.splitlines()
@@ -63,6 +69,7 @@ def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tm
             "w = tpnet_ref.example_window(); "
             "y = tpnet_ref.predict(w); "
             "assert w.shape == (4, 30, 2) and y.shape == (30, 2) and np.isfinite(y).all(), y; "
+            "assert np.abs(tpnet_ref.predict(w, tpnet_ref.load(size='half')) - y).max() < 1; "
             "print(tpnet_ref.load().meta['path']); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in "
             f"{OPTIONAL!r}))")

@@ -4,7 +4,10 @@ Every reader in :mod:`tpnet_ref.weights` goes through these: links (soft, extern
 storage and virtual datasets are refused, the declared size of an attribute or dataset is checked
 *before* its data is read (a file cannot make us allocate an absurd amount), NaN and Inf values
 are refused, and h5py's low-level errors on a damaged file become one ``ValueError`` naming it.
-Nothing here unpickles anything. h5py is imported at first use, so that ``import tpnet_ref``
+Compressed datasets are accepted with HDF5's standard gzip (deflate) and shuffle filters only, and
+are decoded here chunk by chunk, each chunk inflated to at most its declared size: a "gzip bomb"
+cannot make a reader allocate more than the dataset's declared (and checked) shape; any other
+filter is refused by name. Nothing here unpickles anything. h5py is imported at first use, so that ``import tpnet_ref``
 stays NumPy-only.
 
 The ``MAX_*`` limits are read at call time, so a test may lower them with ``monkeypatch``.
@@ -75,9 +78,79 @@ def attrs(obj: Any, where: str) -> dict[str, Any]:
     return {k: attr(obj, k, where) for k in names}
 
 
+#: HDF5 filters a dataset may use: the standard ones every h5py build has (id -> name)
+FILTERS = {1: "gzip", 2: "shuffle"}
+
+
+def filters(ds: Any) -> list[tuple[int, str]]:
+    """The filter pipeline of a dataset, in writing order: ``[(id, name), ...]``."""
+    plist = ds.id.get_create_plist()
+    out = []
+    for i in range(plist.get_nfilters()):
+        code, _flags, _values, name = plist.get_filter(i)
+        out.append((int(code), py_str(name)))
+    return out
+
+
+def _decode_chunks(ds: Any, pipeline: list[tuple[int, str]], what: str) -> np.ndarray:
+    """Read a chunked, filtered dataset chunk by chunk with the inverse of ``pipeline`` (gzip,
+    shuffle) done here: each chunk is inflated to at most its declared byte size, so a chunk
+    that claims more (a "gzip bomb") or less is refused before anything more is allocated."""
+    import zlib
+
+    shape, chunks, dt = tuple(ds.shape), tuple(ds.chunks), ds.dtype
+    if len(chunks) != len(shape) or any(c < 1 or c > max(n, 1) for c, n in zip(chunks, shape)):
+        raise ValueError(f"{what}: chunk shape {chunks} does not fit the dataset's {shape}")
+    chunk_bytes = int(np.prod(chunks)) * dt.itemsize
+    grid = tuple(-(-n // c) for n, c in zip(shape, chunks))
+    out = np.empty(shape, dt)
+    n_stored = ds.id.get_num_chunks()
+    if n_stored != int(np.prod(grid)):
+        raise ValueError(f"{what}: {n_stored} chunks stored, the shape needs {int(np.prod(grid))}")
+    for i in range(n_stored):
+        info = ds.id.get_chunk_info(i)
+        off = tuple(int(o) for o in info.chunk_offset)
+        if any(o % c or o >= max(n, 1) for o, c, n in zip(off, chunks, shape)):
+            raise ValueError(f"{what}: chunk at {off} is outside the dataset")
+        if info.size > 2 * chunk_bytes + 1024:
+            raise ValueError(f"{what}: a chunk stores {info.size:,} bytes for {chunk_bytes:,}")
+        mask, data = ds.id.read_direct_chunk(off)
+        for j in reversed(range(len(pipeline))):
+            if mask & (1 << j):                           # the writer skipped this filter here
+                continue
+            if pipeline[j][0] == 1:                       # gzip: inflate, at most chunk_bytes
+                z = zlib.decompressobj()
+                try:
+                    data = z.decompress(data, chunk_bytes)
+                except zlib.error as exc:
+                    raise ValueError(f"{what}: cannot be read, the file is damaged ({exc})") from None
+                if not z.eof or z.unconsumed_tail:
+                    raise ValueError(f"{what}: a compressed chunk holds more than its declared "
+                                     f"{chunk_bytes:,} bytes; refused")
+            else:                                         # shuffle: byte planes back to items
+                if len(data) != chunk_bytes:
+                    break                                 # reported below
+                data = np.frombuffer(data, np.uint8).reshape(dt.itemsize, -1).T.tobytes()
+        if len(data) != chunk_bytes:
+            raise ValueError(f"{what}: a chunk holds {len(data):,} bytes, expected {chunk_bytes:,}")
+        block = np.frombuffer(data, dt).reshape(chunks)
+        sl = tuple(slice(o, min(o + c, n)) for o, c, n in zip(off, chunks, shape))
+        out[sl] = block[tuple(slice(0, s.stop - s.start) for s in sl)]
+    return out
+
+
 def read(ds: Any, what: str) -> np.ndarray:
-    """The data of a checked dataset; a corrupted file gives ``ValueError`` naming it."""
+    """The data of a checked dataset (its shape already checked by the caller); a corrupted file
+    gives ``ValueError`` naming it. A dataset with filters is accepted with gzip and shuffle
+    only (:data:`FILTERS`) and decoded by :func:`_decode_chunks`, bounded by its shape."""
     try:
+        pipeline = filters(ds)
+        unknown = [f"{name or '?'} ({code})" for code, name in pipeline if code not in FILTERS]
+        if unknown:
+            raise ValueError(f"{what}: stored with the HDF5 filter {', '.join(unknown)}; only "
+                             "gzip and shuffle are accepted")
+        if pipeline:
+            return _decode_chunks(ds, pipeline, what)
         return ds[()]
     except (OSError, RuntimeError) as exc:
         raise ValueError(f"{what}: cannot be read, the file is damaged ({exc})") from None
@@ -197,7 +270,7 @@ def read_vectors(path: str | os.PathLike, group: str, fmt: str, what: str,
             d = safe_dataset(g, k, where)
             if d.ndim != 1 or d.size > 1 << 20 or d.dtype.kind not in kinds:
                 raise ValueError(f"{path}: {group}/{k} is not a {what}")
-            out[k] = np.asarray(d[()])
+            out[k] = np.asarray(read(d, f"{path}: {group}/{k}"))
         return out
 
 
@@ -225,4 +298,4 @@ def check_shape(arr: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarra
 __all__ = ["MAX_PARAMS", "MAX_TENSOR", "MAX_ATTR_ELEMENTS", "MAX_MEMBER_BYTES",
            "MAX_CONFIG_BYTES", "HDF5_MAGIC", "attr", "attrs", "read", "read_array",
            "safe_dataset", "safe_group", "safe_child", "open_h5", "damaged_file_is_value_error",
-           "py_value", "py_str", "check_shape"]
+           "FILTERS", "filters", "py_value", "py_str", "check_shape"]

@@ -2,12 +2,26 @@
 
 Format (``format = "tpnet_ref-weights"``, ``format_version = 1``):
 
-    /                 attrs: format, format_version, dtype, created (UTC ISO time), producer,
-                             plus any provenance given when writing (source, recipe, ...)
+    /                 attrs: format, format_version, dtype (the compute dtype), created (UTC
+                             ISO time), producer, plus any provenance given when writing
+                             (source, recipe, ...); with another storage also storage
+                             ("gzip" or "float16") and, for float16, storage_rounding
+                             (what the rounding changed, JSON)
     /config           attrs: every field of :class:`~tpnet_ref.config.TPNetConfig`
                              (including norm_lo / norm_hi, the world-unit normalisation)
     /params/<name>    one dataset per tensor, names and shapes from
                       :func:`~tpnet_ref.config.param_shapes`
+
+Storage. By default each parameter is stored in the compute ``dtype`` (float32 or float64),
+uncompressed, and reads back bit for bit. ``storage="gzip"`` stores the same values with HDF5's
+standard shuffle + gzip filters (lossless: bit for bit, ~11 % smaller; the shipped paper-size
+file). ``storage="float16"`` is an explicit, lossy choice
+for small files (the reduced network sizes): each parameter is rounded once to the nearest
+float16 and stored with HDF5's standard shuffle + gzip filters (lossless). Reading gives the
+compute dtype again, exactly the stored float16 values (every float16 is a float32). A parameter
+that float16 cannot hold (``|x| > 65504``) is refused; values that round to zero or to
+float16's subnormals are counted in the ``storage_rounding`` attribute, with the largest change.
+:func:`convert_storage` rewrites a file (its unit order and other groups kept) in another storage.
 
 :func:`write_native` / :func:`read_native` work on plain ``(config, {name: array}, meta)``;
 :class:`tpnet_ref.model.TPNet` is built on them (``TPNet.save``, ``tpnet_ref.load``). A file is
@@ -39,13 +53,21 @@ FORMAT = "tpnet_ref-weights"
 FORMAT_VERSION = 1
 #: root attributes that describe the file itself, not the model's provenance
 _FILE_ATTRS = ("format", "format_version", "dtype")
+#: root attributes that describe how this file stores the parameters: set by
+#: :func:`write_native` from its ``storage`` argument only (read back into ``meta``)
+_STORAGE_ATTRS = ("storage", "storage_rounding")
+#: the storages :func:`write_native` knows besides the plain compute dtype (``None``): ``gzip``
+#: (the compute dtype, shuffle + gzip: lossless) and ``float16`` (rounded, shuffle + gzip: lossy)
+STORAGES = ("gzip", "float16")
+_F16_MAX = float(np.finfo(np.float16).max)            # 65504
+_F16_TINY = float(np.finfo(np.float16).tiny)          # 2^-14, the smallest normal float16
 
 _PACKAGE_DIR = Path(__file__).resolve().parent              # tpnet_ref/
 SHIPPED_DIR = _PACKAGE_DIR / "shipped"                       # inside an installed wheel
 REPO_WEIGHTS_DIR = _PACKAGE_DIR.parent / "weights"           # in a repository checkout
 SHIPPED_M = (3, 4, 5)
 #: the network sizes shipped besides the paper's (``full``), m = 4 only: ``tpnet-m4-{size}.h5``
-SHIPPED_SIZES = ("quarter",)
+SHIPPED_SIZES = ("half", "quarter")
 #: the shipped files that git does not track, and the command that restores them
 UNTRACKED = {"tpnet-m3.h5", "tpnet-m5.h5"}
 RESTORE_COMMAND = "bash tools/restore_weights.sh"
@@ -103,30 +125,84 @@ def _attr_value(v: Any) -> Any:
     return str(v)
 
 
+def _to_float16(params: dict[str, np.ndarray], dt: np.dtype) -> tuple[dict[str, np.ndarray], str]:
+    """Each parameter (first in the compute dtype ``dt``) rounded to the nearest float16, and
+    a JSON report of what the rounding changed; a one-line ``ValueError`` when a value is
+    beyond float16's range."""
+    out, n, zeroed, subnormal, max_abs, max_rel = {}, 0, 0, 0, 0.0, 0.0
+    for name, a in params.items():
+        a = np.asarray(a, dtype=dt)
+        big = np.abs(a) > _F16_MAX
+        if big.any():
+            raise ValueError(f"parameter {name!r}: {int(big.sum())} value(s) beyond float16's "
+                             f"range (largest |x| {float(np.abs(a).max()):.6g} > 65504); "
+                             "store this file in its compute dtype (storage=None)")
+        h = a.astype(np.float16)
+        back = h.astype(dt)
+        if not np.isfinite(back).all():
+            raise ValueError(f"parameter {name!r}: not finite in float16")
+        diff = np.abs(back - a)
+        nz = a != 0
+        zeroed += int((nz & (h == 0)).sum())
+        subnormal += int((nz & (h != 0) & (np.abs(h) < _F16_TINY)).sum())
+        normal = np.abs(a) >= _F16_TINY
+        n += int(a.size)
+        if a.size:
+            max_abs = max(max_abs, float(diff.max()))
+        if normal.any():
+            max_rel = max(max_rel, float((diff[normal] / np.abs(a[normal])).max()))
+        out[name] = h
+    report = {"from": dt.name, "to": "float16", "values": n, "max_abs_change": max_abs,
+              "max_rel_change_normal": max_rel, "nonzero_to_zero": zeroed,
+              "subnormal": subnormal}
+    return out, json.dumps(report)
+
+
 def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str, np.ndarray],
-                 dtype: Any = "float32", meta: dict[str, Any] | None = None) -> None:
+                 dtype: Any = "float32", meta: dict[str, Any] | None = None,
+                 storage: str | None = None) -> None:
     """Write a native weights file: ``params`` (``{name: array}``, exactly the names and shapes
-    of ``param_shapes(config)``) stored in ``dtype`` (float32 or float64; bit-exact for arrays
-    already in it), ``meta`` as root attributes (strings, numbers; anything else as ``str``),
-    plus ``producer`` (default ``tpnet_ref``) and ``created``."""
+    of ``param_shapes(config)``) for the compute ``dtype`` (float32 or float64), ``meta`` as
+    root attributes (strings, numbers; anything else as ``str``), plus ``producer`` (default
+    ``tpnet_ref``) and ``created``.
+
+    ``storage=None`` (the default) stores each parameter in ``dtype``, uncompressed (bit-exact
+    for arrays already in it). ``storage="gzip"``: the same values, shuffle + gzip (lossless).
+    ``storage="float16"`` (lossy, explicit: for the reduced network
+    sizes) rounds each parameter, taken in ``dtype``, to the nearest float16 and stores it with
+    the shuffle + gzip filters; the file's ``dtype`` attribute still names the compute dtype,
+    ``storage`` says ``"float16"`` and ``storage_rounding`` what the rounding changed. A value
+    beyond float16's range is refused (one-line ``ValueError``)."""
     import h5py
 
     dt = np.dtype(dtype)
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    if storage is not None and storage not in STORAGES:
+        raise ValueError(f"storage must be None (the compute dtype) or one of "
+                         f"{', '.join(repr(s) for s in STORAGES)}, got {storage!r}")
     shapes = param_shapes(config)
     if set(params) != set(shapes):
         raise ValueError(f"params do not fit the config: missing {sorted(set(shapes) - set(params))}, "
                          f"unexpected {sorted(set(params) - set(shapes))}")
     for name, shape in shapes.items():
         hdf5.check_shape(np.asarray(params[name]), shape, f"parameter {name!r}")
-    info = {k: v for k, v in (meta or {}).items() if k not in _FILE_ATTRS and k != "path"}
+    stored = {name: np.asarray(params[name], dtype=dt) for name in shapes}
+    rounding = None
+    if storage == "float16":
+        stored, rounding = _to_float16(stored, dt)
+    info = {k: v for k, v in (meta or {}).items()
+            if k not in _FILE_ATTRS and k not in _STORAGE_ATTRS and k != "path"}
     info.setdefault("producer", "tpnet_ref")
     info["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     with h5py.File(path, "w") as f:
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
         f.attrs["dtype"] = dt.name
+        if storage is not None:
+            f.attrs["storage"] = storage
+        if rounding is not None:
+            f.attrs["storage_rounding"] = rounding
         for k, v in info.items():
             f.attrs[k] = _attr_value(v)
         g = f.create_group("config")
@@ -134,7 +210,11 @@ def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str,
             g.attrs[k] = np.asarray(v) if isinstance(v, tuple) else v
         pg = f.create_group("params")
         for name in shapes:                                   # forward order
-            pg.create_dataset(name, data=np.asarray(params[name], dtype=dt))
+            if storage is None:
+                pg.create_dataset(name, data=stored[name])
+            else:                    # one chunk per tensor: smallest file (one gzip stream)
+                pg.create_dataset(name, data=stored[name], chunks=stored[name].shape or None,
+                                  shuffle=True, compression="gzip", compression_opts=9)
 
 
 # ------------------------------------------------------------------------------- read
@@ -146,9 +226,12 @@ def is_native(path: str | os.PathLike) -> bool:
 
 @hdf5.damaged_file_is_value_error
 def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndarray], dict[str, Any]]:
-    """Read a native weights file -> ``(config, {name: array in the stored dtype}, meta)``.
+    """Read a native weights file -> ``(config, {name: array}, meta)``: each array in the
+    stored dtype, or for a file stored as float16 (``storage``) in its compute ``dtype``
+    (float32 or float64; exactly the stored values).
 
-    ``meta``: the root attributes (provenance) as plain Python values, plus ``path``. Raises
+    ``meta``: the root attributes (provenance, and ``storage`` / ``storage_rounding`` when the
+    file has them) as plain Python values, plus ``path``. Raises
     ``FileNotFoundError`` for a missing file and ``ValueError`` (or ``KeyError`` for a missing
     parameter) naming what is wrong for anything else.
     """
@@ -164,6 +247,11 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
                              f"(this reader knows {FORMAT_VERSION})")
         if "config" not in f or "params" not in f:
             raise ValueError(f"{where}: missing group 'config' or 'params'")
+        storage = hdf5.py_value(hdf5.attr(f, "storage", where, None))
+        compute = hdf5.py_value(hdf5.attr(f, "dtype", where, None))
+        if storage is not None and (storage not in STORAGES or compute not in ("float32", "float64")):
+            raise ValueError(f"{where}: unknown storage {storage!r} for dtype {compute!r} (this "
+                             f"reader knows {', '.join(STORAGES)} for float32 or float64)")
         cfg_group = hdf5.safe_group(f, "config", where)
         group = hdf5.safe_group(f, "params", where)
         try:
@@ -180,10 +268,82 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
         if extra:
             raise ValueError(f"{where}: unexpected parameter(s) {extra} for this config")
         params = {name: hdf5.read_array(group, name, shape, where) for name, shape in shapes.items()}
+        if storage is not None:
+            held = np.dtype(compute if storage == "gzip" else storage)
+            wrong = sorted(k for k, a in params.items() if a.dtype != held)
+            if wrong:
+                raise ValueError(f"{where}: storage says {storage} but {wrong[0]!r} is "
+                                 f"{params[wrong[0]].dtype}")
+            params = {k: a.astype(compute, copy=False) for k, a in params.items()}  # exact
         meta = {k: hdf5.py_value(v) for k, v in hdf5.attrs(f, where).items()
                 if k not in _FILE_ATTRS}
     meta["path"] = where
     return cfg, params, meta
+
+
+# ---------------------------------------------------------------------------- convert
+#: groups of a native file besides config and params that :func:`convert_storage` copies: flat
+#: groups of 1-D integer datasets (``unit_order``, ``specialization``), at most this many values
+_MAX_EXTRA_VALUES = 1 << 20
+
+
+def _extra_groups(path: str | os.PathLike) -> dict[str, tuple[dict[str, Any], dict[str, np.ndarray]]]:
+    """Every root group of a native file other than ``config`` and ``params``, read through the
+    guards: ``{group: (attrs, {dataset: 1-D integer array})}``. Anything else there (a dataset,
+    a link, a nested group, a non-integer or oversized dataset) is refused in one line."""
+    where = str(path)
+    out = {}
+    with hdf5.open_h5(path) as f:
+        for name in f:
+            if name in ("config", "params"):
+                continue
+            g = hdf5.safe_group(f, name, where)
+            arrays = {}
+            for k in g:
+                d = hdf5.safe_dataset(g, k, where)
+                if d.ndim != 1 or d.size > _MAX_EXTRA_VALUES or d.dtype.kind not in "iu":
+                    raise ValueError(f"{where}: {name}/{k} is not a 1-D integer dataset; "
+                                     "convert_storage copies only those")
+                arrays[k] = np.asarray(hdf5.read(d, f"{where}: {name}/{k}"))
+            out[name] = (hdf5.attrs(g, where), arrays)
+    return out
+
+
+def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
+                    storage: str | None = None) -> dict[str, Any]:
+    """Rewrite the native file ``src`` as ``dst`` (which may be ``src``) with the parameters in
+    ``storage`` (:func:`write_native`: ``None`` for the compute dtype, ``"gzip"``,
+    ``"float16"``), the same
+    config, provenance and compute dtype, and the same other groups (the unit order, a
+    specialisation's masks: exact whatever the weights, :mod:`tpnet_ref.specialize`).
+    Returns the new file's ``meta`` (:func:`read_native`)."""
+    import h5py
+    import tempfile
+
+    cfg, params, meta = read_native(src)
+    extra = _extra_groups(src)
+    with hdf5.open_h5(src) as f:
+        compute = hdf5.py_value(hdf5.attr(f, "dtype", str(src), "float32"))
+    dst = Path(dst)
+    fd, tmp = tempfile.mkstemp(suffix=".h5", dir=dst.parent)
+    os.close(fd)
+    try:
+        write_native(tmp, cfg, params, compute, meta, storage=storage)
+        with h5py.File(tmp, "a") as f:
+            for name, (attrs, arrays) in extra.items():
+                g = f.create_group(name)
+                for k, v in attrs.items():
+                    g.attrs[k] = v
+                for k, a in arrays.items():
+                    g.create_dataset(k, data=a)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)                # as open() would create it, not mkstemp's 0600
+        os.replace(tmp, dst)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return read_native(dst)[2]
 
 
 # --------------------------------------------------------------------------- describe
@@ -234,8 +394,10 @@ def describe(path: str | os.PathLike) -> str:
     dtypes = sorted({a.dtype.name for a in params.values()})
     n = sum(int(a.size) for a in params.values())
     tr = {True: "trained", False: "identity"}
-    out = [f"{meta['path']}: native tpnet_ref weights, {n:,} parameters stored as "
-           f"{'/'.join(dtypes)}",
+    stored = {"gzip": f"{'/'.join(dtypes)} (shuffle + gzip, lossless)",
+              "float16": f"float16 (shuffle + gzip; lossy, computed as {'/'.join(dtypes)})"
+              }.get(meta.get("storage"), "/".join(dtypes))
+    out = [f"{meta['path']}: native tpnet_ref weights, {n:,} parameters stored as {stored}",
            f"  network      m={cfg.m} frames in, N={cfg.n_out} points out, lstm {cfg.lstm_units} "
            f"({cfg.lstm_activation}), global features {cfg.global_features}, "
            f"layer_norm_eps {cfg.layer_norm_eps:g}",
@@ -248,6 +410,16 @@ def describe(path: str | os.PathLike) -> str:
         if meta.get(key) not in (None, ""):
             pre = "most used first on " if key == "units_sorted_on" else ""
             out.append(f"  {label:13s}{pre}{meta[key]}")
+    try:
+        rnd = json.loads(meta.get("storage_rounding", "{}") or "{}")
+    except (TypeError, ValueError):
+        rnd = {}
+    if isinstance(rnd, dict) and rnd:
+        out.append(f"  rounding     {rnd.get('from', '?')} -> {rnd.get('to', '?')}: largest change "
+                   f"{rnd.get('max_abs_change', float('nan')):.3g} (relative "
+                   f"{rnd.get('max_rel_change_normal', float('nan')):.3g}), "
+                   f"{rnd.get('nonzero_to_zero', '?')} non-zero values became 0, "
+                   f"{rnd.get('subnormal', '?')} subnormal")
     try:
         val = json.loads(meta.get("val", "{}") or "{}")
     except (TypeError, ValueError):
@@ -263,5 +435,6 @@ def describe(path: str | os.PathLike) -> str:
     return "\n".join(out)
 
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "write_native", "read_native", "is_native", "describe",
-           "weights_dir", "shipped_weights_path", "default_weights_path", "SHIPPED_M"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "STORAGES", "write_native", "read_native", "is_native",
+           "convert_storage", "describe", "weights_dir", "shipped_weights_path",
+           "default_weights_path", "SHIPPED_M", "SHIPPED_SIZES"]
