@@ -166,49 +166,59 @@ def test_gzip_storage_is_lossless_and_smaller(tmp_path, dtype):
     assert meta["storage"] == "gzip" and "storage_rounding" not in meta
     with h5py.File(tmp_path / "gz.h5") as f:
         assert f["params/head.w"].compression == "gzip" and f["params/head.w"].shuffle
-    assert "(shuffle + gzip, lossless)" in native.describe(tmp_path / "gz.h5")
+    assert f"stored as {dtype} (shuffle + gzip)\n" in native.describe(tmp_path / "gz.h5")
 
 
-def test_float16_storage_rounds_once_and_reads_back_the_stored_values(tmp_path):
-    params = _params(TINY)
-    params["head.b"][:7] = [1e-9, 3e-6, 1.0, -2.5, 0.1, 7.0, 0.0]    # to 0, subnormal, exact
-    native.write_native(tmp_path / "h.h5", TINY, params, "float32", storage="float16")
-    _, back, meta = native.read_native(tmp_path / "h.h5")
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_rounded_storage_changes_each_value_by_at_most_half_a_kept_ulp(tmp_path, dtype):
+    """mantissa_bits=k (the reduced sizes' files): plain arrays of the compute dtype whose
+    values have k significand bits (round half to even), relative change <= 2^-(k+1), and a
+    smaller file; zeros, signs, subnormals and ties behave."""
+    params = _params(TINY, dtype=np.dtype(dtype))
+    params["head.b"][:4] = [0.0, -0.0, np.finfo(dtype).tiny / 8, -3.0]
+    native.write_native(tmp_path / "gz.h5", TINY, params, dtype, storage="gzip")
+    native.write_native(tmp_path / "r.h5", TINY, params, dtype, storage="gzip", mantissa_bits=10)
+    _, back, meta = native.read_native(tmp_path / "r.h5")
     for k, v in params.items():
-        assert back[k].dtype == np.float32                              # computed as float32
-        np.testing.assert_array_equal(back[k], v.astype(np.float32).astype(np.float16))
-    rounding = json.loads(meta["storage_rounding"])
-    assert rounding["nonzero_to_zero"] >= 1 and rounding["subnormal"] >= 1
-    assert 0 < rounding["max_rel_change_normal"] <= 2.0 ** -11                # half an ulp
-    assert "float16 (shuffle + gzip; lossy" in native.describe(tmp_path / "h.h5")
-    # converting keeps the config, provenance and the other groups
+        assert back[k].dtype == np.dtype(dtype)
+        nz = v != 0
+        assert (np.abs(back[k] - v)[nz] <= 2.0 ** -11 * np.abs(v[nz])).all()
+        assert (np.signbit(back[k]) == np.signbit(v)).all() and (back[k][~nz] == 0).all()
+        np.testing.assert_array_equal(back[k], native.round_mantissa(v, 10))
+    note = json.loads(meta["storage_rounding"])
+    assert note["mantissa_bits"] == 10 and 0 < note["max_rel_change"] <= 2.0 ** -11
+    assert (tmp_path / "r.h5").stat().st_size < (tmp_path / "gz.h5").stat().st_size
+    assert "rounding     to 10 significand bits" in native.describe(tmp_path / "r.h5")
+    # ties go to even: 1 + 2^-11 (halfway between 1 and 1 + 2^-10) -> 1; 1 + 3 * 2^-11 -> 1 + 2^-9
+    x = np.array([1 + 2.0 ** -11, 1 + 3 * 2.0 ** -11, -(1 + 2.0 ** -11)], dtype=dtype)
+    np.testing.assert_array_equal(native.round_mantissa(x, 10), [1, 1 + 2.0 ** -9, -1])
+
+
+def test_rounded_storage_refusals(tmp_path):
+    params = _params(TINY, dtype=np.float32)
+    with pytest.raises(ValueError, match="^mantissa_bits: rounding only pays with storage='gzip'"):
+        native.write_native(tmp_path / "h.h5", TINY, params, mantissa_bits=12)
+    with pytest.raises(ValueError, match="^mantissa_bits: must be 1..22 for float32, got 23"):
+        native.write_native(tmp_path / "h.h5", TINY, params, storage="gzip", mantissa_bits=23)
+    with pytest.raises(ValueError, match="^mantissa_bits=1: a value rounds to infinity"):
+        native.round_mantissa(np.array([np.finfo(np.float32).max]), 1)
+    with pytest.raises(ValueError, match="storage must be None .* 'gzip', got 'int8'"):
+        native.write_native(tmp_path / "h.h5", TINY, params, storage="int8")
+
+
+def test_convert_storage_keeps_config_provenance_and_other_groups(tmp_path):
+    params = _params(TINY)
     native.write_native(tmp_path / "p.h5", TINY, params, "float64", {"source": "unit"})
     with h5py.File(tmp_path / "p.h5", "a") as f:
         f.create_group("unit_order").create_dataset("lstm1", data=np.arange(5))
-    meta = native.convert_storage(tmp_path / "p.h5", tmp_path / "q.h5", "float16")
-    assert meta["source"] == "unit" and meta["storage"] == "float16"
+    meta = native.convert_storage(tmp_path / "p.h5", tmp_path / "q.h5", "gzip", mantissa_bits=20)
+    assert meta["source"] == "unit" and meta["storage"] == "gzip"
     assert (tmp_path / "q.h5").stat().st_mode & 0o777 == (tmp_path / "p.h5").stat().st_mode & 0o777
+    cfg, back, _ = native.read_native(tmp_path / "q.h5")
+    assert cfg == TINY and back["head.w"].dtype == np.float64
     with h5py.File(tmp_path / "q.h5") as f:
-        assert f.attrs["dtype"] == "float64"
         np.testing.assert_array_equal(f["unit_order/lstm1"][()], np.arange(5))
-
-
-def test_float16_storage_refuses_what_it_cannot_hold(tmp_path):
-    params = _params(TINY)
-    params["head.w"] = params["head.w"] * 1e5
-    with pytest.raises(ValueError, match="^parameter 'head.w': .* beyond float16's range"):
-        native.write_native(tmp_path / "h.h5", TINY, params, storage="float16")
-    with pytest.raises(ValueError, match="storage must be None .* 'gzip', 'float16', got 'int8'"):
-        native.write_native(tmp_path / "h.h5", TINY, _params(TINY), storage="int8")
-
-
-def test_a_file_whose_storage_attribute_lies_is_refused(tmp_path):
-    native.write_native(tmp_path / "a.h5", TINY, _params(TINY), "float32")
-    with h5py.File(tmp_path / "a.h5", "a") as f:
-        f.attrs["storage"] = "float16"                   # but the arrays are float32
-    with pytest.raises(ValueError, match="storage says float16 but '[^']+' is float32"):
-        native.read_native(tmp_path / "a.h5")
-    with h5py.File(tmp_path / "a.h5", "a") as f:
-        f.attrs["storage"] = "bfloat8"
+    with h5py.File(tmp_path / "q.h5", "a") as f:
+        f.attrs["storage"] = "bfloat8"                   # a newer writer's encoding
     with pytest.raises(ValueError, match="unknown storage 'bfloat8'"):
-        native.read_native(tmp_path / "a.h5")
+        native.read_native(tmp_path / "q.h5")

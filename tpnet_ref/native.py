@@ -4,9 +4,8 @@ Format (``format = "tpnet_ref-weights"``, ``format_version = 1``):
 
     /                 attrs: format, format_version, dtype (the compute dtype), created (UTC
                              ISO time), producer, plus any provenance given when writing
-                             (source, recipe, ...); with another storage also storage
-                             ("gzip" or "float16") and, for float16, storage_rounding
-                             (what the rounding changed, JSON)
+                             (source, recipe, ...); compressed files also storage ("gzip")
+                             and, when rounded, storage_rounding (what the rounding did, JSON)
     /config           attrs: every field of :class:`~tpnet_ref.config.TPNetConfig`
                              (including norm_lo / norm_hi, the world-unit normalisation)
     /params/<name>    one dataset per tensor, names and shapes from
@@ -14,14 +13,13 @@ Format (``format = "tpnet_ref-weights"``, ``format_version = 1``):
 
 Storage. By default each parameter is stored in the compute ``dtype`` (float32 or float64),
 uncompressed, and reads back bit for bit. ``storage="gzip"`` stores the same values with HDF5's
-standard shuffle + gzip filters (lossless: bit for bit, ~11 % smaller; the shipped paper-size
-file). ``storage="float16"`` is an explicit, lossy choice
-for small files (the reduced network sizes): each parameter is rounded once to the nearest
-float16 and stored with HDF5's standard shuffle + gzip filters (lossless). Reading gives the
-compute dtype again, exactly the stored float16 values (every float16 is a float32). A parameter
-that float16 cannot hold (``|x| > 65504``) is refused; values that round to zero or to
-float16's subnormals are counted in the ``storage_rounding`` attribute, with the largest change.
-:func:`convert_storage` rewrites a file (its unit order and other groups kept) in another storage.
+standard shuffle + gzip filters (lossless, ~15 % smaller; the shipped paper-size file).
+``mantissa_bits=k`` (with gzip; an explicit, lossy choice for the small files of the reduced
+network sizes) first rounds every value to ``k`` significand bits (round half to even, relative
+change at most 2^-(k+1)): the dropped low bits are zeros, which gzip all but removes. The file
+still holds plain arrays of the compute dtype, so any HDF5 reader reads it; ``storage_rounding``
+records the bits and the largest change. :func:`convert_storage` rewrites a file (its unit
+order and other groups kept) in another storage.
 
 :func:`write_native` / :func:`read_native` work on plain ``(config, {name: array}, meta)``;
 :class:`tpnet_ref.model.TPNet` is built on them (``TPNet.save``, ``tpnet_ref.load``). A file is
@@ -54,13 +52,10 @@ FORMAT_VERSION = 1
 #: root attributes that describe the file itself, not the model's provenance
 _FILE_ATTRS = ("format", "format_version", "dtype")
 #: root attributes that describe how this file stores the parameters: set by
-#: :func:`write_native` from its ``storage`` argument only (read back into ``meta``)
+#: :func:`write_native` from its ``storage`` / ``mantissa_bits`` arguments only
 _STORAGE_ATTRS = ("storage", "storage_rounding")
-#: the storages :func:`write_native` knows besides the plain compute dtype (``None``): ``gzip``
-#: (the compute dtype, shuffle + gzip: lossless) and ``float16`` (rounded, shuffle + gzip: lossy)
-STORAGES = ("gzip", "float16")
-_F16_MAX = float(np.finfo(np.float16).max)            # 65504
-_F16_TINY = float(np.finfo(np.float16).tiny)          # 2^-14, the smallest normal float16
+#: the storages :func:`write_native` knows besides the plain compute dtype (``None``)
+STORAGES = ("gzip",)
 
 _PACKAGE_DIR = Path(__file__).resolve().parent              # tpnet_ref/
 SHIPPED_DIR = _PACKAGE_DIR / "shipped"                       # inside an installed wheel
@@ -125,62 +120,63 @@ def _attr_value(v: Any) -> Any:
     return str(v)
 
 
-def _to_float16(params: dict[str, np.ndarray], dt: np.dtype) -> tuple[dict[str, np.ndarray], str]:
-    """Each parameter (first in the compute dtype ``dt``) rounded to the nearest float16, and
-    a JSON report of what the rounding changed; a one-line ``ValueError`` when a value is
-    beyond float16's range."""
-    out, n, zeroed, subnormal, max_abs, max_rel = {}, 0, 0, 0, 0.0, 0.0
+def round_mantissa(a: np.ndarray, bits: int) -> np.ndarray:
+    """``a`` (float32 or float64) with every value rounded to ``bits`` significand bits (round
+    half to even on the bit pattern; zeros, signs and subnormals handled by the same integer
+    arithmetic). Relative change at most 2^-(bits+1); a value that would round to infinity
+    (beyond the dtype's largest number at that precision) is a one-line ``ValueError``."""
+    a = np.ascontiguousarray(a)
+    word, full = {4: (np.uint32, 23), 8: (np.uint64, 52)}[a.dtype.itemsize]
+    if not 1 <= bits < full:
+        raise ValueError(f"mantissa_bits: must be 1..{full - 1} for {a.dtype}, got {bits}")
+    drop = word(full - bits)
+    b = a.view(word)
+    odd = (b >> drop) & word(1)
+    r = ((b + (word(1) << (drop - word(1))) - word(1) + odd) >> drop) << drop
+    out = r.view(a.dtype)
+    if not np.isfinite(out).all():
+        raise ValueError(f"mantissa_bits={bits}: a value rounds to infinity")
+    return out
+
+
+def _rounded(params: dict[str, np.ndarray], bits: int) -> tuple[dict[str, np.ndarray], str]:
+    """Every parameter rounded by :func:`round_mantissa`, and a JSON note of what changed."""
+    out, max_abs, max_rel = {}, 0.0, 0.0
     for name, a in params.items():
-        a = np.asarray(a, dtype=dt)
-        big = np.abs(a) > _F16_MAX
-        if big.any():
-            raise ValueError(f"parameter {name!r}: {int(big.sum())} value(s) beyond float16's "
-                             f"range (largest |x| {float(np.abs(a).max()):.6g} > 65504); "
-                             "store this file in its compute dtype (storage=None)")
-        h = a.astype(np.float16)
-        back = h.astype(dt)
-        if not np.isfinite(back).all():
-            raise ValueError(f"parameter {name!r}: not finite in float16")
-        diff = np.abs(back - a)
-        nz = a != 0
-        zeroed += int((nz & (h == 0)).sum())
-        subnormal += int((nz & (h != 0) & (np.abs(h) < _F16_TINY)).sum())
-        normal = np.abs(a) >= _F16_TINY
-        n += int(a.size)
+        out[name] = r = round_mantissa(a, bits)
         if a.size:
+            diff = np.abs(r - a)
             max_abs = max(max_abs, float(diff.max()))
-        if normal.any():
-            max_rel = max(max_rel, float((diff[normal] / np.abs(a[normal])).max()))
-        out[name] = h
-    report = {"from": dt.name, "to": "float16", "values": n, "max_abs_change": max_abs,
-              "max_rel_change_normal": max_rel, "nonzero_to_zero": zeroed,
-              "subnormal": subnormal}
-    return out, json.dumps(report)
+            nz = a != 0
+            if nz.any():
+                max_rel = max(max_rel, float((diff[nz] / np.abs(a[nz])).max()))
+    note = {"mantissa_bits": bits, "values": sum(int(a.size) for a in params.values()),
+            "max_abs_change": max_abs, "max_rel_change": max_rel}
+    return out, json.dumps(note)
 
 
 def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str, np.ndarray],
                  dtype: Any = "float32", meta: dict[str, Any] | None = None,
-                 storage: str | None = None) -> None:
+                 storage: str | None = None, mantissa_bits: int | None = None) -> None:
     """Write a native weights file: ``params`` (``{name: array}``, exactly the names and shapes
-    of ``param_shapes(config)``) for the compute ``dtype`` (float32 or float64), ``meta`` as
+    of ``param_shapes(config)``) in the compute ``dtype`` (float32 or float64), ``meta`` as
     root attributes (strings, numbers; anything else as ``str``), plus ``producer`` (default
     ``tpnet_ref``) and ``created``.
 
-    ``storage=None`` (the default) stores each parameter in ``dtype``, uncompressed (bit-exact
-    for arrays already in it). ``storage="gzip"``: the same values, shuffle + gzip (lossless).
-    ``storage="float16"`` (lossy, explicit: for the reduced network
-    sizes) rounds each parameter, taken in ``dtype``, to the nearest float16 and stores it with
-    the shuffle + gzip filters; the file's ``dtype`` attribute still names the compute dtype,
-    ``storage`` says ``"float16"`` and ``storage_rounding`` what the rounding changed. A value
-    beyond float16's range is refused (one-line ``ValueError``)."""
+    ``storage=None`` (the default) stores each parameter uncompressed (bit-exact for arrays
+    already in ``dtype``); ``storage="gzip"``: the same values with shuffle + gzip (lossless).
+    ``mantissa_bits`` (gzip only; lossy, explicit): round every value to that many significand
+    bits first (:func:`round_mantissa`); ``storage_rounding`` records it."""
     import h5py
 
     dt = np.dtype(dtype)
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     if storage is not None and storage not in STORAGES:
-        raise ValueError(f"storage must be None (the compute dtype) or one of "
+        raise ValueError(f"storage must be None (uncompressed) or one of "
                          f"{', '.join(repr(s) for s in STORAGES)}, got {storage!r}")
+    if mantissa_bits is not None and storage != "gzip":
+        raise ValueError("mantissa_bits: rounding only pays with storage='gzip'")
     shapes = param_shapes(config)
     if set(params) != set(shapes):
         raise ValueError(f"params do not fit the config: missing {sorted(set(shapes) - set(params))}, "
@@ -189,8 +185,8 @@ def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str,
         hdf5.check_shape(np.asarray(params[name]), shape, f"parameter {name!r}")
     stored = {name: np.asarray(params[name], dtype=dt) for name in shapes}
     rounding = None
-    if storage == "float16":
-        stored, rounding = _to_float16(stored, dt)
+    if mantissa_bits is not None:
+        stored, rounding = _rounded(stored, int(mantissa_bits))
     info = {k: v for k, v in (meta or {}).items()
             if k not in _FILE_ATTRS and k not in _STORAGE_ATTRS and k != "path"}
     info.setdefault("producer", "tpnet_ref")
@@ -226,9 +222,8 @@ def is_native(path: str | os.PathLike) -> bool:
 
 @hdf5.damaged_file_is_value_error
 def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndarray], dict[str, Any]]:
-    """Read a native weights file -> ``(config, {name: array}, meta)``: each array in the
-    stored dtype, or for a file stored as float16 (``storage``) in its compute ``dtype``
-    (float32 or float64; exactly the stored values).
+    """Read a native weights file -> ``(config, {name: array in the stored dtype}, meta)``
+    (compressed or not: :mod:`tpnet_ref.hdf5` decodes gzip and shuffle).
 
     ``meta``: the root attributes (provenance, and ``storage`` / ``storage_rounding`` when the
     file has them) as plain Python values, plus ``path``. Raises
@@ -248,10 +243,9 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
         if "config" not in f or "params" not in f:
             raise ValueError(f"{where}: missing group 'config' or 'params'")
         storage = hdf5.py_value(hdf5.attr(f, "storage", where, None))
-        compute = hdf5.py_value(hdf5.attr(f, "dtype", where, None))
-        if storage is not None and (storage not in STORAGES or compute not in ("float32", "float64")):
-            raise ValueError(f"{where}: unknown storage {storage!r} for dtype {compute!r} (this "
-                             f"reader knows {', '.join(STORAGES)} for float32 or float64)")
+        if storage is not None and storage not in STORAGES:       # a newer writer's encoding
+            raise ValueError(f"{where}: unknown storage {storage!r} (this reader knows "
+                             f"{', '.join(STORAGES)})")
         cfg_group = hdf5.safe_group(f, "config", where)
         group = hdf5.safe_group(f, "params", where)
         try:
@@ -268,13 +262,6 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
         if extra:
             raise ValueError(f"{where}: unexpected parameter(s) {extra} for this config")
         params = {name: hdf5.read_array(group, name, shape, where) for name, shape in shapes.items()}
-        if storage is not None:
-            held = np.dtype(compute if storage == "gzip" else storage)
-            wrong = sorted(k for k, a in params.items() if a.dtype != held)
-            if wrong:
-                raise ValueError(f"{where}: storage says {storage} but {wrong[0]!r} is "
-                                 f"{params[wrong[0]].dtype}")
-            params = {k: a.astype(compute, copy=False) for k, a in params.items()}  # exact
         meta = {k: hdf5.py_value(v) for k, v in hdf5.attrs(f, where).items()
                 if k not in _FILE_ATTRS}
     meta["path"] = where
@@ -310,11 +297,9 @@ def _extra_groups(path: str | os.PathLike) -> dict[str, tuple[dict[str, Any], di
 
 
 def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
-                    storage: str | None = None) -> dict[str, Any]:
-    """Rewrite the native file ``src`` as ``dst`` (which may be ``src``) with the parameters in
-    ``storage`` (:func:`write_native`: ``None`` for the compute dtype, ``"gzip"``,
-    ``"float16"``), the same
-    config, provenance and compute dtype, and the same other groups (the unit order, a
+                    storage: str | None = None, mantissa_bits: int | None = None) -> dict[str, Any]:
+    """Rewrite the native file ``src`` as ``dst`` (which may be ``src``) in ``storage`` with
+    ``mantissa_bits`` (:func:`write_native`), the same config, provenance and compute dtype, and the same other groups (the unit order, a
     specialisation's masks: exact whatever the weights, :mod:`tpnet_ref.specialize`).
     Returns the new file's ``meta`` (:func:`read_native`)."""
     import h5py
@@ -328,7 +313,7 @@ def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
     fd, tmp = tempfile.mkstemp(suffix=".h5", dir=dst.parent)
     os.close(fd)
     try:
-        write_native(tmp, cfg, params, compute, meta, storage=storage)
+        write_native(tmp, cfg, params, compute, meta, storage, mantissa_bits)
         with h5py.File(tmp, "a") as f:
             for name, (attrs, arrays) in extra.items():
                 g = f.create_group(name)
@@ -394,9 +379,7 @@ def describe(path: str | os.PathLike) -> str:
     dtypes = sorted({a.dtype.name for a in params.values()})
     n = sum(int(a.size) for a in params.values())
     tr = {True: "trained", False: "identity"}
-    stored = {"gzip": f"{'/'.join(dtypes)} (shuffle + gzip, lossless)",
-              "float16": f"float16 (shuffle + gzip; lossy, computed as {'/'.join(dtypes)})"
-              }.get(meta.get("storage"), "/".join(dtypes))
+    stored = "/".join(dtypes) + (" (shuffle + gzip)" if meta.get("storage") == "gzip" else "")
     out = [f"{meta['path']}: native tpnet_ref weights, {n:,} parameters stored as {stored}",
            f"  network      m={cfg.m} frames in, N={cfg.n_out} points out, lstm {cfg.lstm_units} "
            f"({cfg.lstm_activation}), global features {cfg.global_features}, "
@@ -415,11 +398,9 @@ def describe(path: str | os.PathLike) -> str:
     except (TypeError, ValueError):
         rnd = {}
     if isinstance(rnd, dict) and rnd:
-        out.append(f"  rounding     {rnd.get('from', '?')} -> {rnd.get('to', '?')}: largest change "
-                   f"{rnd.get('max_abs_change', float('nan')):.3g} (relative "
-                   f"{rnd.get('max_rel_change_normal', float('nan')):.3g}), "
-                   f"{rnd.get('nonzero_to_zero', '?')} non-zero values became 0, "
-                   f"{rnd.get('subnormal', '?')} subnormal")
+        out.append(f"  rounding     to {rnd.get('mantissa_bits', '?')} significand bits before "
+                   f"compressing (lossy): largest change {rnd.get('max_abs_change', float('nan')):.3g}"
+                   f", relative {rnd.get('max_rel_change', float('nan')):.3g}")
     try:
         val = json.loads(meta.get("val", "{}") or "{}")
     except (TypeError, ValueError):
