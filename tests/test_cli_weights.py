@@ -90,3 +90,22 @@ def test_missing_source_and_usage_errors(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["import", "a", "b", "--lstm-activation", "gelu"])
     assert "invalid choice: 'gelu'" in capsys.readouterr().err
+
+
+def test_compress_is_lossless_or_rounds_as_asked(tmp_path, capsys):
+    """``tpnet compress``: the shipped files' storage (docs/weights.md) from the command line."""
+    model = init_random(TPNetConfig(mlp1=(8, 8), mlp2=(8, 16), global_features=16,
+                                    lstm_units=(8, 8, 8)), seed=1, dtype="float32")
+    model.save(tmp_path / "a.h5")
+    assert main(["compress", str(tmp_path / "a.h5"), str(tmp_path / "b.h5")]) == 0
+    assert "shuffle + gzip, lossless)" in capsys.readouterr().out
+    b = load(tmp_path / "b.h5")
+    assert all(np.array_equal(b.params[k], model.params[k]) for k in model.params)
+    assert main(["compress", str(tmp_path / "a.h5"), str(tmp_path / "c.h5"),
+                 "--mantissa-bits", "12"]) == 0
+    out = capsys.readouterr().out
+    assert "rounded to 12 significand bits, largest relative change 0.00012)" in out
+    assert main(["compress", str(tmp_path / "a.h5"), str(tmp_path / "d.h5"),
+                 "--mantissa-bits", "30"]) == 2
+    assert capsys.readouterr().err.strip() == ("tpnet compress: error: mantissa_bits: must be "
+                                               "1..22 for float32, got 30")

@@ -100,16 +100,19 @@ class NumpyFeatures:
         return out
 
     def _block(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
-        x = points
-        if self.input_tnet is not None:
-            x = L.apply_transform(x, L.transform_net(x, counts, *self.input_tnet), counts)
-        # every product after the first reads only the weight rows up to the last unit that
-        # is non-zero at some point of the block (L.used_columns; exact)
-        h = L.pointwise_mlp(x, self.mlp1, used=True)
-        if self.feature_tnet is not None:
-            h = L.apply_transform(h, L.transform_net(h, counts, *self.feature_tnet), counts)
-        g = L.mlp_max(h, self.mlp2, counts, used=True)
-        return L.dense(g, self.global_w, self.global_b, "relu", used=True)
+        # far-out input may overflow here (float32): the head checks what comes out and
+        # raises one NonFiniteResultError, so NumPy's RuntimeWarnings would only be noise
+        with np.errstate(over="ignore", invalid="ignore"):
+            x = points
+            if self.input_tnet is not None:
+                x = L.apply_transform(x, L.transform_net(x, counts, *self.input_tnet), counts)
+            # every product after the first reads only the weight rows up to the last unit
+            # that is non-zero at some point of the block (L.used_columns; exact)
+            h = L.pointwise_mlp(x, self.mlp1, used=True)
+            if self.feature_tnet is not None:
+                h = L.apply_transform(h, L.transform_net(h, counts, *self.feature_tnet), counts)
+            g = L.mlp_max(h, self.mlp2, counts, used=True)
+            return L.dense(g, self.global_w, self.global_b, "relu", used=True)
 
 
 class NumpyHead:

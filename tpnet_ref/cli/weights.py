@@ -1,4 +1,5 @@
-"""``tpnet import``: convert a Keras or PyTorch checkpoint to the native weights file."""
+"""``tpnet import``: convert a Keras or PyTorch checkpoint to the native weights file;
+``tpnet compress``: rewrite a native file with shuffle + gzip (optionally rounded first)."""
 from __future__ import annotations
 
 import argparse
@@ -20,6 +21,15 @@ def add_cli(sub: Any) -> None:
                    help="dtype of the written parameters (default float32, as trained)")
     p.set_defaults(func=_cli_import)
 
+    p = sub.add_parser("compress", help="rewrite a native weights file with shuffle + gzip "
+                                        "(lossless), or rounded to fewer significand bits first")
+    p.add_argument("src", help="native weights file to read")
+    p.add_argument("dst", help="native weights file to write (may be src)")
+    p.add_argument("--mantissa-bits", type=int, default=None, metavar="K",
+                   help="round every value to K significand bits first (lossy, relative change "
+                        "at most 2^-(K+1); float32 has 23): the reduced sizes ship with 15")
+    p.set_defaults(func=_cli_compress)
+
 
 def _cli_import(args: argparse.Namespace) -> int:
     from ..weights import import_checkpoint
@@ -38,3 +48,24 @@ def _cli_import(args: argparse.Namespace) -> int:
     model.save(args.dst, **meta)
     print(f"wrote {args.dst}")
     return 0
+
+
+def _cli_compress(args: argparse.Namespace) -> int:
+    import os
+
+    from ..native import convert_storage
+
+    before = os.path.getsize(args.src)
+    meta = convert_storage(args.src, args.dst, "gzip", args.mantissa_bits)
+    after = os.path.getsize(args.dst)
+    how = ("lossless" if args.mantissa_bits is None else
+           f"rounded to {args.mantissa_bits} significand bits, "
+           f"largest relative change {_json_field(meta, 'max_rel_change'):.3g}")
+    print(f"wrote {args.dst}: {after / 1e6:.2f} MB ({before / 1e6:.2f} MB before; shuffle + gzip, "
+          f"{how})")
+    return 0
+
+
+def _json_field(meta: dict[str, Any], key: str) -> float:
+    import json
+    return float(json.loads(meta["storage_rounding"])[key])
