@@ -213,6 +213,7 @@ def test_convert_storage_keeps_config_provenance_and_other_groups(tmp_path):
         f.create_group("unit_order").create_dataset("lstm1", data=np.arange(5))
     meta = native.convert_storage(tmp_path / "p.h5", tmp_path / "q.h5", "gzip", mantissa_bits=20)
     assert meta["source"] == "unit" and meta["storage"] == "gzip"
+    assert meta["created"] == native.read_native(tmp_path / "p.h5")[2]["created"]
     assert (tmp_path / "q.h5").stat().st_mode & 0o777 == (tmp_path / "p.h5").stat().st_mode & 0o777
     cfg, back, _ = native.read_native(tmp_path / "q.h5")
     assert cfg == TINY and back["head.w"].dtype == np.float64

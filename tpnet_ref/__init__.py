@@ -30,7 +30,8 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "numpy", *,
 
     Without ``path``, the shipped model for windows of ``m`` frames at network ``size``:
     ``full`` (the paper's widths; the default, m = 4) or a reduced size shipped for m = 4
-    (``"quarter"``: every width a quarter, faster, less accurate; ``weights/MODEL_CARD.md``),
+    (``"half"``, ``"quarter"``: every width halved or quartered, faster, less accurate;
+    ``weights/MODEL_CARD.md``),
     found by :func:`tpnet_ref.native.shipped_weights_path`. ``m`` and ``size`` are only
     for the shipped files: with a ``path`` they must stay at their defaults."""
     if path is None:

@@ -299,9 +299,10 @@ def _extra_groups(path: str | os.PathLike) -> dict[str, tuple[dict[str, Any], di
 def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
                     storage: str | None = None, mantissa_bits: int | None = None) -> dict[str, Any]:
     """Rewrite the native file ``src`` as ``dst`` (which may be ``src``) in ``storage`` with
-    ``mantissa_bits`` (:func:`write_native`), the same config, provenance and compute dtype, and the same other groups (the unit order, a
-    specialisation's masks: exact whatever the weights, :mod:`tpnet_ref.specialize`).
-    Returns the new file's ``meta`` (:func:`read_native`)."""
+    ``mantissa_bits`` (:func:`write_native`), the same config, provenance (``created``
+    included) and compute dtype, and the same other groups (the unit order, a specialisation's
+    masks: exact whatever the weights, :mod:`tpnet_ref.specialize`). Returns the new file's
+    ``meta`` (:func:`read_native`)."""
     import h5py
     import tempfile
 
@@ -315,6 +316,8 @@ def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
     try:
         write_native(tmp, cfg, params, compute, meta, storage, mantissa_bits)
         with h5py.File(tmp, "a") as f:
+            if meta.get("created"):                     # when the weights were written first
+                f.attrs["created"] = meta["created"]
             for name, (attrs, arrays) in extra.items():
                 g = f.create_group(name)
                 for k, v in attrs.items():
