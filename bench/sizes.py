@@ -107,10 +107,12 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
                    label="copy last frame (no network)")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        for axis in (ax.xaxis, ax.yaxis):          # plain numbers, no crowded 10^x minor labels
+        for axis, subs in ((ax.xaxis, (1, 2, 3, 5)), (ax.yaxis, (1, 2, 5))):   # plain numbers
+            axis.set_major_locator(matplotlib.ticker.LogLocator(subs=subs))
             axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
             axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        ax.set_xticks([0.2, 0.3, 0.5, 1, 2])
+        ms = [r[f"ms_{e}"] for r in rows for e in ("numpy", "numba")]
+        ax.set_xlim(min(ms) / 1.25, max(ms) * 1.6)     # room for the labels right of the points
         ax.set_xlabel("B = 1 latency of one prediction (ms, log)")
         ax.set_ylabel(f"E_p@{h}, squared reading, 60 test cases (log)")
         ax.set_title(f"error at {h} predictions against run time")
