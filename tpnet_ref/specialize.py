@@ -327,6 +327,43 @@ class SceneHead:
         return out, ok
 
 
+class _DirStep(NamedTuple):
+    """One direction's views for one step of :class:`_Run1`, into its layer's buffers."""
+
+    vrow: np.ndarray        # [one-hot | h] from the step's time on: times it gives the gates
+    h: np.ndarray           # the state before the step (the direction's computed units)
+    rows: np.ndarray        # the gates' matrix from the step's time on: [projections | recurrent]
+    z: np.ndarray           # this direction's pre-activations in the step's row
+    x0: np.ndarray          # the step's input projection (the first step copies it to z)
+    g: np.ndarray           # relu(g)                        (first step: c = g / i)
+    i: np.ndarray           # 1 + exp(-i)
+    dividend: np.ndarray    # [c | g]                        (later steps: [c | g] /= [f | i])
+    divisor: np.ndarray     # [f | i]
+    c_part: np.ndarray      # c / (1 + exp(-f)), the dividend's first half
+    g_part: np.ndarray      # relu(g) / (1 + exp(-i)), its second half
+    c: np.ndarray           # the new cell state (in the next step's row)
+    o: np.ndarray           # 1 + exp(-o)
+    h_next: np.ndarray      # the new state: c / (1 + exp(-o))
+    d: int                  # direction (0 forward, 1 backward)
+    base: int               # rows of ``rows`` before the recurrent ones: T - the step's time
+
+
+class _RunLayer(NamedTuple):
+    """One BiLSTM's buffers and views in :class:`_Run1`."""
+
+    ly: _Layer
+    proj: np.ndarray        # (T, Wp): the steps' input projections
+    v_all: np.ndarray       # (2, T + 1, T + nk): [one-hot | h] of each direction and step
+    xa: np.ndarray          # (T, aug + C): the input rows [1 | mean * rstd | inputs]
+    idx: np.ndarray         # where the inputs are in the previous layer's v_all (or features)
+    xb: np.ndarray          # the gathered inputs
+    steps: list             # per step: (sigmoid columns, relu-to-sigmoid columns, [_DirStep])
+    extra: tuple | None     # the folded LayerNorm's weights and buffers (BiLSTM 2, 3)
+    guards: list            # per direction with dropped units: (d, all steps' v, g rows, out)
+    guard: np.ndarray       # (2, T, nd): the dropped units' g at every step
+    copies: list            # (destination, source): projections into the gates' matrices
+
+
 class _Run1:
     """One thread's buffers and views for :class:`SceneHead` on one window (B = 1).
 
@@ -378,13 +415,14 @@ class _Run1:
                     t = s if d == 0 else T - 1 - s                 # the step's time
                     v_all[d, s, t] = 1
                     c, g, i, dvd, dvs, o = cell[d]
-                    per_d.append((
-                        v_all[d, s, t:], v_all[d, s, T:T + nk], gates[d][t:],
-                        z[at[d][0]:at[d][1]], gates[d][t],
-                        z[g:g + nk], z[i:i + nk],                           # step 0: c = g / i
-                        z[dvd:dvd + 2 * nk], z[dvs:dvs + 2 * nk],           # later: [c|g] /= [f|i]
-                        z[dvd:dvd + nk], z[dvd + nk:dvd + 2 * nk],          # c = the two halves
-                        znext[c:c + nk], z[o:o + nk], v_all[d, s + 1, T:T + nk], d, T - t))
+                    per_d.append(_DirStep(
+                        vrow=v_all[d, s, t:], h=v_all[d, s, T:T + nk], rows=gates[d][t:],
+                        z=z[at[d][0]:at[d][1]], x0=gates[d][t],
+                        g=z[g:g + nk], i=z[i:i + nk],
+                        dividend=z[dvd:dvd + 2 * nk], divisor=z[dvs:dvs + 2 * nk],
+                        c_part=z[dvd:dvd + nk], g_part=z[dvd + nk:dvd + 2 * nk],
+                        c=znext[c:c + nk], o=z[o:o + nk], h_next=v_all[d, s + 1, T:T + nk],
+                        d=d, base=T - t))
                 steps.append((z[2 * n0:b + 3 * n1], z[n0:b + 4 * n1], per_d))   # sigmoids; g..g
             guards = [(d, v_all[d, :T], drops[d], guard[d, :, :nd])
                       for d, nd in enumerate(ly.nd) if nd]
@@ -401,7 +439,8 @@ class _Run1:
                 extra = self._weights(ly.n_in, c_in, (T,))
             xa = np.zeros((T, aug + c_in), dt)
             xa[:, 0] = 1
-            self.layers.append((ly, proj, v_all, xa, idx, xb, steps, extra, guards, guard, copies))
+            self.layers.append(_RunLayer(ly, proj, v_all, xa, idx, xb, steps, extra, guards, guard,
+                                         copies))
             prev = v_all
         src_d, src_pos, n = head.head_src
         self.h_idx = np.concatenate([(src_d * prev.shape[1] + T) * prev.shape[2] + T + src_pos,
@@ -441,8 +480,9 @@ class _Run1:
         head, T, one, zero = self.head, self.T, self.one, self.zero
         exp, add, div, maximum, matmul, copyto = (np.exp, np.add, np.divide, np.maximum,
                                                   np.matmul, np.copyto)
-        prev_v = self.layers[0][2]      # the states of the layer before (BiLSTM 1: unused)
-        for li, (ly, proj, v_all, xa, idx, xb, steps, extra, guards, guard, copies) in enumerate(self.layers):
+        prev_v = self.layers[0].v_all   # the states of the layer before (BiLSTM 1: unused)
+        for li, run in enumerate(self.layers):
+            ly, proj, v_all, xa, idx, xb = run.ly, run.proj, run.v_all, run.xa, run.idx, run.xb
             aug = ly.aug
             if li == 0:
                 f.take(idx, mode="clip", out=xb)
@@ -453,46 +493,46 @@ class _Run1:
                 copyto(xa[:, 1:], x)
             else:
                 prev_v.take(idx, mode="clip", out=xb)
-                self._fold(xb, xa, extra)
+                self._fold(xb, xa, run.extra)
                 x = xb[:, :-1]
             nz = x.any(axis=0).nonzero()[0]
             if marks is not None:
                 marks.append((f"BiLSTM {li + 1} input" + (" (LayerNorm folded)" if li else ""),
                               time.perf_counter()))
             head._project(ly, xa, aug + 1 + nz[-1] if len(nz) else aug, proj)
-            for dst, src in copies:
+            for dst, src in run.copies:
                 copyto(dst, src)
             if marks is not None:
                 marks.append((f"BiLSTM {li + 1} input projection", time.perf_counter()))
             used = [0, 0]           # state units the guards read: up to the longest state
-            for s, (sig, gg, per_d) in enumerate(steps):
+            for s, (sig, gg, per_d) in enumerate(run.steps):
                 if s == 0:
-                    for _, _, _, zw, x0, *_ in per_d:      # the step's input projection
-                        copyto(zw, x0)
+                    for p in per_d:                 # the step's input projection
+                        copyto(p.z, p.x0)
                 else:
-                    for vrow, h, mr, zw, _, _, _, _, _, _, _, _, _, _, d, base in per_d:
-                        nz = h.nonzero()[0]
+                    for p in per_d:
+                        nz = p.h.nonzero()[0]
                         n = 1 + nz[-1] if len(nz) else 0     # units up to the last non-zero
-                        if n > used[d]:
-                            used[d] = n
-                        matmul(vrow[:base + n], mr[:base + n], out=zw)
+                        if n > used[p.d]:
+                            used[p.d] = n
+                        matmul(p.vrow[:p.base + n], p.rows[:p.base + n], out=p.z)
                 exp(sig, out=sig)           # 1 + exp(-x) of o, i, f of both directions
                 add(sig, one, out=sig)
                 maximum(gg, zero, out=gg)   # relu(g) (the sigmoids between are >= 1)
                 if s == 0:                  # c = relu(g) / (1 + exp(-i)), h = c / (1 + exp(-o))
-                    for _, _, _, _, _, g, i, _, _, _, _, c1, o, h1, _, _ in per_d:
-                        div(g, i, out=c1)
-                        div(c1, o, out=h1)
+                    for p in per_d:
+                        div(p.g, p.i, out=p.c)
+                        div(p.c, p.o, out=p.h_next)
                 else:                       # c = relu(g) / (..i) + c / (..f)
-                    for _, _, _, _, _, _, _, q, qd, qa, qb, c1, o, h1, _, _ in per_d:
-                        div(q, qd, out=q)
-                        add(qa, qb, out=c1)
-                        div(c1, o, out=h1)
+                    for p in per_d:
+                        div(p.dividend, p.divisor, out=p.dividend)
+                        add(p.c_part, p.g_part, out=p.c)
+                        div(p.c, p.o, out=p.h_next)
             if marks is not None:
                 marks.append((f"BiLSTM {li + 1} steps", time.perf_counter()))
-            for d, vg, drop, out in guards:     # the dropped units' g at every step
+            for d, vg, drop, out in run.guards:     # the dropped units' g at every step
                 matmul(vg[:, :T + used[d]], drop[:T + used[d]], out=out)
-            if guards and not guard.max() <= 0:
+            if run.guards and not run.guard.max() <= 0:
                 return self._flagged()       # a dropped unit would wake up (or NaN)
             if not v_all[:, 1:, T:].max() < head.limit:
                 return self._flagged()
