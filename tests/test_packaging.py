@@ -69,7 +69,8 @@ def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tm
             "w = tpnet_ref.example_window(); "
             "y = tpnet_ref.predict(w); "
             "assert w.shape == (4, 30, 2) and y.shape == (30, 2) and np.isfinite(y).all(), y; "
-            "assert np.abs(tpnet_ref.predict(w, tpnet_ref.load(size='half')) - y).max() < 1; "
+            "h = tpnet_ref.predict(w, tpnet_ref.load(size='half')); "     # point sets: compare
+            "assert np.abs(h.mean(0) - y.mean(0)).max() < 0.5, h; "          # the centroids
             "print(tpnet_ref.load().meta['path']); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in "
             f"{OPTIONAL!r}))")
