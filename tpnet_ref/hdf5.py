@@ -265,13 +265,20 @@ def read_vectors(path: str | os.PathLike, group: str, fmt: str, what: str,
         g = safe_group(f, group, where)
         if attr(g, "format", where) not in (fmt, fmt.encode()):
             raise ValueError(f"{path}: group {group!r} is not a {fmt} {what}")
-        out = {}
-        for k in g:
-            d = safe_dataset(g, k, where)
-            if d.ndim != 1 or d.size > 1 << 20 or d.dtype.kind not in kinds:
-                raise ValueError(f"{path}: {group}/{k} is not a {what}")
-            out[k] = np.asarray(read(d, f"{path}: {group}/{k}"))
-        return out
+        return group_vectors(g, group, where, what, kinds)
+
+
+def group_vectors(g: Any, group: str, where: str, what: str,
+                  kinds: str = "iu") -> dict[str, np.ndarray]:
+    """Every dataset of the open group ``g`` (named ``group`` in ``where``) as a 1-D array, each
+    checked to be a safe 1-D dataset of dtype kinds ``kinds`` with at most 2^20 values."""
+    out = {}
+    for k in g:
+        d = safe_dataset(g, k, where)
+        if d.ndim != 1 or d.size > 1 << 20 or d.dtype.kind not in kinds:
+            raise ValueError(f"{where}: {group}/{k} is not a {what}")
+        out[k] = np.asarray(read(d, f"{where}: {group}/{k}"))
+    return out
 
 
 def open_h5(path: str | os.PathLike) -> Any:
@@ -298,4 +305,4 @@ def check_shape(arr: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarra
 __all__ = ["MAX_PARAMS", "MAX_TENSOR", "MAX_ATTR_ELEMENTS", "MAX_MEMBER_BYTES",
            "MAX_CONFIG_BYTES", "HDF5_MAGIC", "attr", "attrs", "read", "read_array",
            "safe_dataset", "safe_group", "safe_child", "open_h5", "damaged_file_is_value_error",
-           "FILTERS", "filters", "py_value", "py_str", "check_shape"]
+           "FILTERS", "filters", "group_vectors", "py_value", "py_str", "check_shape"]

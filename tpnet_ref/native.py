@@ -269,30 +269,18 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
 
 
 # ---------------------------------------------------------------------------- convert
-#: groups of a native file besides config and params that :func:`convert_storage` copies: flat
-#: groups of 1-D integer datasets (``unit_order``, ``specialization``), at most this many values
-_MAX_EXTRA_VALUES = 1 << 20
-
-
 def _extra_groups(path: str | os.PathLike) -> dict[str, tuple[dict[str, Any], dict[str, np.ndarray]]]:
-    """Every root group of a native file other than ``config`` and ``params``, read through the
-    guards: ``{group: (attrs, {dataset: 1-D integer array})}``. Anything else there (a dataset,
-    a link, a nested group, a non-integer or oversized dataset) is refused in one line."""
-    where = str(path)
-    out = {}
+    """Every root group of a native file other than ``config`` and ``params`` (``unit_order``,
+    ``specialization``), read through the guards: ``{group: (attrs, {dataset: 1-D integer
+    array})}``. Anything else there (a dataset, a link, a nested group, a non-integer or
+    oversized dataset) is refused in one line."""
+    where, out = str(path), {}
     with hdf5.open_h5(path) as f:
         for name in f:
-            if name in ("config", "params"):
-                continue
-            g = hdf5.safe_group(f, name, where)
-            arrays = {}
-            for k in g:
-                d = hdf5.safe_dataset(g, k, where)
-                if d.ndim != 1 or d.size > _MAX_EXTRA_VALUES or d.dtype.kind not in "iu":
-                    raise ValueError(f"{where}: {name}/{k} is not a 1-D integer dataset; "
-                                     "convert_storage copies only those")
-                arrays[k] = np.asarray(hdf5.read(d, f"{where}: {name}/{k}"))
-            out[name] = (hdf5.attrs(g, where), arrays)
+            if name not in ("config", "params"):
+                g = hdf5.safe_group(f, name, where)
+                out[name] = (hdf5.attrs(g, where), hdf5.group_vectors(
+                    g, name, where, "1-D integer dataset (convert_storage copies only those)"))
     return out
 
 
@@ -308,8 +296,7 @@ def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
 
     cfg, params, meta = read_native(src)
     extra = _extra_groups(src)
-    with hdf5.open_h5(src) as f:
-        compute = hdf5.py_value(hdf5.attr(f, "dtype", str(src), "float32"))
+    compute = next(iter(params.values())).dtype              # what the file computes in
     dst = Path(dst)
     fd, tmp = tempfile.mkstemp(suffix=".h5", dir=dst.parent)
     os.close(fd)

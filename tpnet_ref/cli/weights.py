@@ -51,6 +51,7 @@ def _cli_import(args: argparse.Namespace) -> int:
 
 
 def _cli_compress(args: argparse.Namespace) -> int:
+    import json
     import os
 
     from ..native import convert_storage
@@ -59,13 +60,8 @@ def _cli_compress(args: argparse.Namespace) -> int:
     meta = convert_storage(args.src, args.dst, "gzip", args.mantissa_bits)
     after = os.path.getsize(args.dst)
     how = ("lossless" if args.mantissa_bits is None else
-           f"rounded to {args.mantissa_bits} significand bits, "
-           f"largest relative change {_json_field(meta, 'max_rel_change'):.3g}")
+           f"rounded to {args.mantissa_bits} significand bits, largest relative change "
+           f"{json.loads(meta['storage_rounding'])['max_rel_change']:.3g}")
     print(f"wrote {args.dst}: {after / 1e6:.2f} MB ({before / 1e6:.2f} MB before; shuffle + gzip, "
           f"{how})")
     return 0
-
-
-def _json_field(meta: dict[str, Any], key: str) -> float:
-    import json
-    return float(json.loads(meta["storage_rounding"])[key])
