@@ -76,13 +76,13 @@ def test_every_run_flag_reaches_the_settings(fake_data, tmp_path, runs):
                  "2.5", "--budget-minutes", "3", "--checkpoint-minutes", "1",
                  "--checkpoint-part-mib", "16", "--checkpoint-optimizer", "bf16",
                  "--allow-other-scene", "--log-every", "5", "--val-every", "6",
-                 "--export", "w.h5", "--quiet"]) == 0
+                 "--export", "w.h5", "--precision", "bf16", "--quiet"]) == 0
     kw = runs[0][3]
     want = dict(resume=False, epochs=None, device="cpu", threads=1, max_steps=7,
                 max_minutes=2.5, checkpoint_minutes=1.0, log_every=5, val_every=6,
                 progress=False, export_path="w.h5", budget_minutes=3.0,
                 checkpoint_part_mib=16.0, checkpoint_optimizer="bf16", allow_other_scene=True,
-                compile="eager")
+                compile="eager", precision="bf16")
     assert kw == want
     names = {f.name for f in dataclasses.fields(L.TrainSettings)}
     assert set(kw) <= names and names - set(kw) == {"limit_windows"}   # library-only setting
@@ -129,10 +129,12 @@ def test_resume_of_a_directory_without_a_run_is_one_line(tmp_path, capsys):
 
 def test_bench_runs_a_tiny_network(capsys):
     assert main(["train", "bench", "--size", "tiny", "--batch", "4", "--rollouts", "1", "2",
-                 "--iters", "1", "--threads", "1", "--device", "cpu"]) == 0
+                 "--iters", "1", "--threads", "1", "--device", "cpu", "--precisions",
+                 "float32"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[0].startswith("train step throughput, size tiny, batch 4, compile off")
-    assert [ln.split(":")[0].strip() for ln in lines[1:]] == ["1-step loss", "2-step loss"]
+    assert [ln.split(":")[0].strip() for ln in lines[1:]] == ["1-step loss, float32",
+                                                              "2-step loss, float32"]
     assert all(float(ln.split(":")[1].split()[0]) > 0 for ln in lines[1:])
 
 
@@ -141,6 +143,6 @@ def test_parser_defaults_are_the_recipes():
     d = R.Recipe()
     assert (a.recipe, a.batch, a.lr, a.rollout, a.val_fraction) == (
         d.recipe, d.batch, d.lr, d.rollout, d.val_fraction)
-    assert a.epochs is None and a.threads == 2 and a.compile == "off"
+    assert a.epochs is None and a.threads == 2 and a.compile == "off" and a.precision == "auto"
     assert (a.checkpoint_minutes, a.log_every) == (L.TrainSettings.checkpoint_minutes,
                                                    L.TrainSettings.log_every)

@@ -98,6 +98,18 @@ class BiLSTM(nn.Module):
         return torch.cat([hf[:, -1], hb[:, 0]], dim=-1)
 
 
+def full_precision(lin: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """``lin(x)`` in float32 even inside a bfloat16 autocast region (mixed-precision training):
+    the layers that read or write coordinates (the first per-point layer, the head) keep
+    float32, so a predicted point is not rounded to bfloat16's 8 significant bits (≈ 0.1 world
+    units near the box's far side) before the loss or the next frame's features see it."""
+    dev = x.device.type
+    if torch.is_autocast_enabled(dev):
+        with torch.autocast(dev, enabled=False):
+            return lin(x.float())
+    return lin(x)
+
+
 def _linear_stack(shapes: dict[str, tuple[int, ...]], prefix: str) -> nn.ModuleList:
     """``nn.Linear`` layers for the native stack ``prefix.0``, ``prefix.1``, ... of ``shapes``."""
     layers = nn.ModuleList()
@@ -173,8 +185,8 @@ class TorchTPNet(nn.Module):
         x = points
         if self.input_tnet is not None:
             x = torch.bmm(x, self.input_tnet(x))
-        for lin in self.mlp1:
-            x = torch.relu(lin(x))
+        for i, lin in enumerate(self.mlp1):
+            x = torch.relu(full_precision(lin, x) if i == 0 else lin(x))
         if self.feature_tnet is not None:
             x = torch.bmm(x, self.feature_tnet(x))
         for lin in self.mlp2:
@@ -186,7 +198,8 @@ class TorchTPNet(nn.Module):
         h = feats
         for i in range(1, len(self.config.lstm_units) + 1):
             h = getattr(self, f"ln{i}")(getattr(self, f"lstm{i}")(h))
-        return torch.sigmoid(self.head(h)).view(-1, self.config.n_out, self.config.dim)
+        return torch.sigmoid(full_precision(self.head, h)).view(-1, self.config.n_out,
+                                                                self.config.dim)
 
     def forward(self, windows: torch.Tensor) -> torch.Tensor:
         """``(B, m, N, dim)`` normalised windows -> next point sets ``(B, n_out, dim)``."""
@@ -218,6 +231,16 @@ class TorchTPNet(nn.Module):
         the sets centred on their own centroids, i.e. the released-code shape error E_s.
         ``match_weight`` μ > 0 adds ``μ·Σ_i w_i·EMD(P_i, Q_i)`` (:func:`matched_distance`)."""
         pred = self.rollout(windows, targets.shape[1])
+        dev = pred.device.type
+        if torch.is_autocast_enabled(dev):     # the loss in float32 (mixed-precision training)
+            with torch.autocast(dev, enabled=False):
+                return self._loss(pred.float(), targets.float(), first_weight, shape_weight,
+                                  match_weight)
+        return self._loss(pred, targets, first_weight, shape_weight, match_weight)
+
+    @staticmethod
+    def _loss(pred: torch.Tensor, targets: torch.Tensor, first_weight: float,
+              shape_weight: float, match_weight: float) -> torch.Tensor:
         w = torch.ones(targets.shape[1], dtype=pred.dtype, device=pred.device)
         w[0] = first_weight
         loss = (chamfer_released(pred, targets) * w).sum()

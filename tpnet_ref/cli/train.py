@@ -15,6 +15,11 @@ from ..training.recipe import N_STEPS_MAX, OPTIMIZER_MODES, SIZES, Recipe
 
 #: as tpnet_ref.training.loop.COMPILE_MODES (not imported from there: that module needs torch)
 COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
+#: as tpnet_ref.training.loop.PRECISIONS
+PRECISIONS = ("auto", "float32", "bf16")
+_PRECISION_HELP = ("the step's arithmetic: float32, bf16 (autocast to bfloat16; parameters, Adam "
+                   "state, coordinates and loss stay float32), auto (default: bf16 where a short "
+                   "timing at the start of the call finds it >= 1.15x faster, else float32)")
 _COMPILE_HELP = ("capture the step's loss with torch.compile: auto (reduce-overhead, i.e. CUDA "
                  "graphs, on a GPU; off on the CPU), reduce-overhead, default, eager (traced by "
                  "TorchDynamo, eager kernels: proves on the CPU that the step traces), off")
@@ -83,6 +88,7 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     q.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
+    q.add_argument("--precision", choices=PRECISIONS, default="auto", help=_PRECISION_HELP)
     q.add_argument("--max-steps", type=int, default=None, help="stop (with a checkpoint) at this step")
     q.add_argument("--max-minutes", type=float, default=None,
                    help="stop (with a checkpoint) after this many minutes")
@@ -127,6 +133,10 @@ def _add_bench(tsub: Any) -> None:
     b.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     b.add_argument("--threads", type=int, default=2)
     b.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
+    b.add_argument("--precisions", choices=PRECISIONS[1:], nargs="+",
+                   default=list(PRECISIONS[1:]),
+                   help="time each of these (default both); the line marked (default) is the "
+                        "one `tpnet train run --precision auto` takes on this machine")
     b.add_argument("--shape-weight", type=float, default=0.0, help="λ of the timed loss")
     b.add_argument("--match-weight", type=float, default=0.0, help="μ of the timed loss")
     b.set_defaults(func=_cli_bench)
@@ -193,7 +203,8 @@ def _cli_run(args: argparse.Namespace) -> int:
                export_path=args.export, budget_minutes=args.budget_minutes,
                checkpoint_part_mib=args.checkpoint_part_mib,
                checkpoint_optimizer=args.checkpoint_optimizer,
-               allow_other_scene=args.allow_other_scene, compile=args.compile)
+               allow_other_scene=args.allow_other_scene, compile=args.compile,
+               precision=args.precision)
     print(f"{args.run_dir}: step {st['step']}/{st['total_steps']} ({st['stopped']}), "
           f"{st['windows_seen']} windows seen, {st['wall_s']:.0f} s, last validation "
           + json.dumps(st.get("last_val", {})))
@@ -209,19 +220,31 @@ def _cli_export(args: argparse.Namespace) -> int:
 
 
 def _cli_bench(args: argparse.Namespace) -> int:
-    from ..training.loop import bench, hardware, resolve_compile, resolve_device
+    from ..training.loop import (bench, choose_precision, hardware, preferred_precision,
+                                 resolve_compile, resolve_device)
     from ..training.recipe import size_config
 
     cfg = size_config(args.size)
-    res = bench(cfg, batch=args.batch, rollouts=tuple(args.rollouts), iters=args.iters,
-                device=args.device, threads=args.threads, compile=args.compile,
-                shape_weight=args.shape_weight, match_weight=args.match_weight)
     dev = resolve_device(args.device)
+    res = {p: bench(cfg, batch=args.batch, rollouts=tuple(args.rollouts), iters=args.iters,
+                    device=args.device, threads=args.threads, compile=args.compile,
+                    shape_weight=args.shape_weight, match_weight=args.match_weight,
+                    precision=p)
+           for p in args.precisions}
+    longest = max(args.rollouts)
+    if dev == "cpu" and len(res) == 2:    # what auto would take, from these same timings
+        default = preferred_precision({p: r[longest] for p, r in res.items()})
+    else:
+        default = choose_precision("auto", dev, cfg, args.batch, longest, args.threads)[0]
     print(f"train step throughput, size {args.size}, batch {args.batch}, "
           f"compile {resolve_compile(args.compile, dev)}, λ {args.shape_weight:g}, "
           f"μ {args.match_weight:g}, {hardware(dev)}:")
-    for k, v in res.items():
-        print(f"  {k}-step loss: {v:8.1f} windows/s")
+    for k in args.rollouts:
+        for p, r in res.items():
+            mark = "  (default)" if p == default and k == longest else ""
+            ratio = (f"  {r[k] / res['float32'][k]:.2f}x float32"
+                     if p != "float32" and "float32" in res else "")
+            print(f"  {k}-step loss, {p:7s}: {r[k]:8.1f} windows/s{ratio}{mark}")
     return 0
 
 

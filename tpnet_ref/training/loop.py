@@ -18,6 +18,7 @@ exactly what the uninterrupted run computes (on the same device and thread count
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -93,22 +94,73 @@ def resolve_compile(mode: str, device: str) -> str:
     return mode
 
 
-def step_loss(net: Any, mode: str = "off") -> Any:
+#: the arithmetic of a training step: ``float32``, or ``bf16`` (mixed precision:
+#: ``torch.autocast`` to bfloat16 runs the matrix products, the LSTM gates and the max pool in
+#: bfloat16; the parameters, their gradients and Adam's state stay float32, and so do the layers
+#: that read or write coordinates and the loss, :func:`tpnet_ref.torch_model.full_precision`);
+#: ``auto`` chooses per machine (:func:`choose_precision`)
+PRECISIONS = ("auto", "float32", "bf16")
+#: ``auto`` takes bf16 where its timed step is at least this much faster than float32's
+BF16_MIN_GAIN = 1.15
+
+
+def autocast(precision: str, device: str) -> Any:
+    """The context a step's forward pass runs in at ``precision`` (a resolved one)."""
+    if precision == "bf16":
+        return torch.autocast(device, dtype=torch.bfloat16)
+    if precision != "float32":
+        raise ValueError(f"precision must be float32 or bf16 here, got {precision!r}")
+    return contextlib.nullcontext()
+
+
+def step_loss(net: Any, mode: str = "off", precision: str = "float32") -> Any:
     """``f(x, y, steps, first_weight, shape_weight, match_weight)``: the training step's loss
-    (:func:`loss_fn`), captured with ``torch.compile`` unless ``mode`` is ``off`` (a resolved
-    mode, :func:`resolve_compile`). Shapes are static (every step has the recipe's batch), so a
-    run compiles once per rollout length; the matched term's CPU pairing is a graph break, the
-    graphs on either side of it are still captured."""
+    (:func:`loss_fn`) at ``precision`` (:func:`autocast`), captured with ``torch.compile``
+    unless ``mode`` is ``off`` (a resolved mode, :func:`resolve_compile`). Shapes are static
+    (every step has the recipe's batch), so a run compiles once per rollout length; the matched
+    term's CPU pairing is a graph break, the graphs on either side of it are still captured."""
+    dev = next(net.parameters()).device.type
     if mode == "off":
-        return lambda x, y, k, fw, sw, mw: loss_fn(net, x, y, k, fw, sw, mw)
+        def eager(x: Any, y: Any, k: int, fw: float, sw: float, mw: float) -> Any:
+            with autocast(precision, dev):
+                return loss_fn(net, x, y, k, fw, sw, mw)
+        return eager
     kw: dict[str, Any] = {"backend": "eager"} if mode == "eager" else {"mode": mode}
     compiled = torch.compile(net.recursive_loss, dynamic=False, **kw)
 
     def f(x: Any, y: Any, k: int, fw: float, sw: float, mw: float) -> Any:
         if mode == "reduce-overhead":
             torch.compiler.cudagraph_mark_step_begin()
-        return compiled(x, y[:, :k], first_weight=fw, shape_weight=sw, match_weight=mw)
+        with autocast(precision, dev):
+            return compiled(x, y[:, :k], first_weight=fw, shape_weight=sw, match_weight=mw)
     return f
+
+
+def choose_precision(precision: str, device: str, config: TPNetConfig, batch: int,
+                     rollout: int, threads: int | None, shape_weight: float = 0.0,
+                     match_weight: float = 0.0, compile: str = "off") -> tuple[str, dict]:
+    """``(precision, timings)``: ``float32`` or ``bf16`` as asked, or for ``auto`` the faster
+    on this machine. On a GPU: bf16 where ``torch.cuda.is_bf16_supported()``. On the CPU: a
+    short timing of the recipe's longest step (``rollout`` predictions at ``batch``, with its
+    extra terms) in each precision; bf16 when it is at least :data:`BF16_MIN_GAIN` times
+    float32's rate (a CPU without fast bfloat16 units, AVX512_BF16 or AMX, emulates it and
+    keeps float32). ``timings`` maps each timed precision to its windows per second."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    if precision != "auto":
+        return precision, {}
+    if device == "cuda":
+        return ("bf16" if torch.cuda.is_bf16_supported() else "float32"), {}
+    timings = {p: bench(config, batch=batch, rollouts=(rollout,), iters=3, warmup=2,
+                        device=device, threads=threads, shape_weight=shape_weight,
+                        match_weight=match_weight, compile=compile, precision=p)[rollout]
+               for p in ("float32", "bf16")}
+    return preferred_precision(timings), timings
+
+
+def preferred_precision(timings: dict[str, float]) -> str:
+    """The precision ``auto`` takes given windows-per-second ``timings`` of both."""
+    return "bf16" if timings["bf16"] >= BF16_MIN_GAIN * timings["float32"] else "float32"
 
 
 def init_head_template(net: Any, data: "WindowData", weight_scale: float = 0.1) -> None:
@@ -214,6 +266,9 @@ class TrainSettings:
       simulator's default.
     - ``compile`` (:data:`COMPILE_MODES`) captures the step's loss with ``torch.compile``
       (:func:`step_loss`); recorded per call in ``compile`` of ``checkpoint.json``.
+    - ``precision`` (:data:`PRECISIONS`): the step's arithmetic (``tpnet train run`` defaults
+      to ``auto``, chosen per call by a short timing, :func:`choose_precision`); recorded per call in ``precision`` of
+      ``checkpoint.json`` with the timing, and in the exported file's provenance.
     """
     resume: bool = False
     epochs: float | None = None
@@ -232,6 +287,7 @@ class TrainSettings:
     checkpoint_optimizer: str | None = None
     allow_other_scene: bool = False
     compile: str = "off"
+    precision: str = "float32"
 
 
 def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Recipe | None = None,
@@ -366,6 +422,9 @@ class _Run:
         self.data = _load_data(data_path, r, s)
         self.net, self.opt = _build_network(r, self.dev, self.data, payload, state)
         self.ck = _checkpoint_settings(state, s)
+        self.precision, self.precision_timing = choose_precision(
+            s.precision, self.dev, r.tpnet_config, r.batch, r.rollout, s.threads,
+            r.shape_weight, r.match_weight, self.compile_mode)
         run_dir.mkdir(parents=True, exist_ok=True)
 
         self.n_train = len(self.data.train_win)
@@ -384,6 +443,9 @@ class _Run:
                       "val_every": self.val_every})
         state.setdefault("compile", []).append({"step": int(state["step"]),
                                                 "mode": self.compile_mode})
+        state.setdefault("precision", []).append({"step": int(state["step"]),
+                                                  "mode": self.precision,
+                                                  "timing_windows_per_s": self.precision_timing})
         self.val_win = _validation_windows(self.data, r)
         state["val_windows_used"] = len(self.val_win)
         if state["step"] == 0 and not s.resume:
@@ -404,7 +466,7 @@ class _Run:
         wps = bench(r.tpnet_config, batch=r.batch, rollouts=(r.rollout,), iters=5, warmup=2,
                     device=self.dev, threads=self.s.threads, seed=r.seed,
                     shape_weight=r.shape_weight, match_weight=r.match_weight,
-                    compile=self.compile_mode)[r.rollout]
+                    compile=self.compile_mode, precision=self.precision)[r.rollout]
         r.epochs = max(1.0 / self.spe, 0.9 * 60.0 * minutes * wps / (self.spe * r.batch))
         self.state["budget"] = {"minutes": float(minutes), "bench_windows_per_s": float(wps),
                                 "epochs": r.epochs}
@@ -426,7 +488,7 @@ class _Run:
         if self.s.progress:
             print(self.data.describe(), file=sys.stderr)
         self.net.train()
-        step_fn = step_loss(self.net, self.compile_mode)
+        step_fn = step_loss(self.net, self.compile_mode, self.precision)
         stop_signal: list[int] = []
         restore = _install_stop_handlers(stop_signal)
         self._perm_epoch, self._perm = -1, np.empty(0, dtype=np.int64)
@@ -592,6 +654,7 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
             "torch": str(state.get("torch", torch.__version__)),
             "data": str(state.get("data", "")),
             "val": json.dumps(state.get("last_val", {}), sort_keys=True),
+            "precision": json.dumps(state.get("precision", []), sort_keys=True),
             "export_max_abs_diff": diff}
     model.save(str(out), **prov)
     return model
@@ -601,10 +664,11 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
 def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[int, ...] = (1, 8),
           iters: int = 5, warmup: int = 1, device: str = "auto", threads: int | None = 2,
           seed: int = 0, shape_weight: float = 0.0, match_weight: float = 0.0,
-          compile: str = "off") -> dict[int, float]:
+          compile: str = "off", precision: str = "float32") -> dict[int, float]:
     """Training throughput, windows per second, of a full step (loss, backward, clip, Adam) for
-    each rollout length, on random windows; ``compile`` as in :func:`train` (the compile itself
-    falls in the ``warmup`` steps, which are not timed)."""
+    each rollout length, on random windows; ``compile`` and ``precision`` (``float32`` or
+    ``bf16``) as in :func:`train` (the compile itself falls in the ``warmup`` steps, which are
+    not timed)."""
     if threads:
         torch.set_num_threads(int(threads))
     dev = resolve_device(device)
@@ -612,7 +676,7 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
     torch.manual_seed(seed)
     net = TorchTPNet(cfg).to(dev)
     mode = resolve_compile(compile, dev)
-    step_fn = step_loss(net, mode)
+    step_fn = step_loss(net, mode, precision)
     if mode != "off":        # compiling, then (CUDA graphs) a warm-up run and the recording
         warmup = max(warmup, 3)
     opt = make_optimizer(net, Recipe(config=cfg.to_dict()))
@@ -640,5 +704,6 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
 
 
 __all__ = ["train", "TrainSettings", "export", "bench", "evaluate", "loss_fn", "step_loss",
+           "PRECISIONS", "BF16_MIN_GAIN", "autocast", "choose_precision", "preferred_precision",
            "resolve_compile", "COMPILE_MODES", "make_optimizer", "resolve_device",
            "hardware", "init_head_template", "LOG_NAME"]
