@@ -15,7 +15,9 @@ scene-specialised), every one tested against the reference.
 
 Permutation invariance is exact, not approximate: each frame's points are put in a canonical
 order (lexicographic by x, then y) before the feature extractor, so every permutation of a
-frame produces the very same matrix and hence bit-identical output. Every frame's global feature
+frame produces the very same matrix and hence bit-identical output. ``sort_points=False`` (or
+:meth:`TPNet.with_point_sort`) runs the points in the order given, to check that the network
+itself is invariant (a shared per-point MLP and a max; :mod:`tpnet_ref.testing`). Every frame's global feature
 depends on that frame alone, so a batch computes all frames' features in one pass and a rollout
 computes each frame's features exactly once. The bits do not depend on threads
 (docs/architecture.md, "Determinism"): every product runs on a one-thread BLAS, and a large
@@ -60,7 +62,8 @@ class TPNet:
         self.config = config
         if not isinstance(sort_points, (bool, np.bool_)):
             raise TypeError(f"sort_points must be True or False, got {sort_points!r}")
-        #: whether each frame is put in canonical order first (bit-exact permutation invariance)
+        #: whether each frame is put in canonical order first (bit-exact permutation invariance);
+        #: a plain attribute, like ``threads``: setting it changes nothing else
         self.sort_points = bool(sort_points)
         self.dtype = np.dtype(dtype)
         if self.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
