@@ -125,3 +125,22 @@ def test_the_docs_example_runs_as_written():
     finally:
         torch.set_num_threads(threads)
     assert "my_predict" in namespace
+
+
+@pytest.mark.parametrize("kw, error", [
+    ({"m": 0}, "windows: m must be at least 1, got 0"),
+    ({"n": (3, 1)}, r"windows: n must be an int, a \(lo, hi\) range or a list of choices"),
+    ({"scales": [1.0, -1.0]}, "windows: scales must be positive spreads"),
+])
+def test_bad_strategy_arguments_say_what_is_wrong(kw, error):
+    pytest.importorskip("hypothesis")
+    with pytest.raises((ValueError, TypeError), match=error):
+        testing.windows(**kw)
+
+
+def test_a_wrong_output_shape_is_named(impl):
+    model = impl.base["float64"]
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: output shapes differ, "
+                                              r"\(29, 2\) against \(30, 2\)$"):
+        testing.agrees_with_reference(lambda w: model.predict(w)[1:], model, tol=1.0,
+                                      max_examples=5)

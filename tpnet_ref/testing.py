@@ -87,8 +87,8 @@ def windows(m: int | tuple[int, int] | list[int] = 4, n: int | tuple[int, int] =
             step: tuple[float, float] = (0.0, 0.0), normalized: bool = False) -> Any:
     """A hypothesis strategy for windows: lists of ``m`` float64 arrays ``(N_t, 2)``.
 
-    ``m``, ``n``: a number, an inclusive range ``(lo, hi)`` or a list of choices; ``ragged``: frames of different sizes
-    (None: either); ``scales``: the spreads of the points around the frame's centre, drawn
+    ``m``, ``n``: a number, an inclusive range ``(lo, hi)`` or a list of choices (each at
+    least 1); ``ragged``: frames of different sizes (None: either); ``scales``: the spreads of the points around the frame's centre, drawn
     from a normal distribution (world units); ``centre``: the range of the window's centre;
     ``ties`` (None: either): in the first frame, the second half of the points repeats the
     first half and one coordinate takes only three values (exact ties and duplicate points);
@@ -96,12 +96,27 @@ def windows(m: int | tuple[int, int] | list[int] = 4, n: int | tuple[int, int] =
     moves in time); ``normalized``: the windows in model coordinates, ``(x - 1.1438) / 42.7124``.
     Shrinks towards fewer frames, fewer points, the first scale, seed 0."""
     st = _hypothesis().strategies
-    def ints(v: Any) -> Any:
-        if isinstance(v, (int, np.integer)):
-            return st.just(int(v))
-        return st.sampled_from(list(v)) if isinstance(v, list) else st.integers(*v)
 
-    ms, ns = ints(m), ints(n)
+    def ints(v: Any, name: str) -> Any:
+        if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+            choices = [int(v)]
+        elif isinstance(v, list):
+            choices = [int(x) for x in v]
+        elif isinstance(v, tuple) and len(v) == 2 and int(v[1]) >= int(v[0]):
+            choices = [int(v[0])]
+        else:
+            raise TypeError(f"windows: {name} must be an int, a (lo, hi) range or a list of "
+                            f"choices, got {v!r}")
+        if not choices or min(choices) < 1:
+            raise ValueError(f"windows: {name} must be at least 1, got {v!r}")
+        if isinstance(v, tuple):
+            return st.integers(*v)
+        return st.just(choices[0]) if len(choices) == 1 else st.sampled_from(choices)
+
+    if not len(scales) or min(scales) <= 0:
+        raise ValueError(f"windows: scales must be positive spreads, got {list(scales)!r}")
+
+    ms, ns = ints(m, "m"), ints(n, "n")
     rag = st.booleans() if ragged is None else st.just(bool(ragged))
     tie = st.booleans() if ties is None else st.just(bool(ties))
 
