@@ -90,7 +90,8 @@ def example_window() -> _np.ndarray:
 
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
 _LAZY = ("config", "checks", "layers", "model", "blas", "extras", "weights", "metrics", "sim",
-         "data", "protocol", "evaluation", "training", "onnx_peer", "specialize", "observe")
+         "data", "protocol", "evaluation", "training", "onnx_peer", "specialize", "observe",
+         "testing")
 
 
 def __getattr__(name: str) -> _Any:

@@ -15,7 +15,9 @@ scene-specialised), every one tested against the reference.
 
 Permutation invariance is exact, not approximate: each frame's points are put in a canonical
 order (lexicographic by x, then y) before the feature extractor, so every permutation of a
-frame produces the very same matrix and hence bit-identical output. Every frame's global feature
+frame produces the very same matrix and hence bit-identical output. ``sort_points=False`` (or
+:meth:`TPNet.with_point_sort`) runs the points in the order given, to check that the network
+itself is invariant (a shared per-point MLP and a max; :mod:`tpnet_ref.testing`). Every frame's global feature
 depends on that frame alone, so a batch computes all frames' features in one pass and a rollout
 computes each frame's features exactly once. The bits do not depend on threads
 (docs/architecture.md, "Determinism"): every product runs on a one-thread BLAS, and a large
@@ -48,14 +50,21 @@ class TPNet:
     :func:`tpnet_ref.load` or an importer in :mod:`tpnet_ref.weights`. ``engine``: "numpy",
     "numba" (the compiled head, extra ``metrics``) or "auto" (numba when installed);
     ``unit_order``: the layout of the fast paths (:mod:`tpnet_ref.unit_order`); ``used``: the
-    masks of a scene specialisation (:mod:`tpnet_ref.specialize`). Every choice gives the same
-    results up to rounding."""
+    masks of a scene specialisation (:mod:`tpnet_ref.specialize`); ``sort_points``: put each
+    frame in canonical order before the network (the default; False runs the points in the order
+    given, for checking the network's own invariance: :meth:`with_point_sort`). Every choice
+    gives the same results up to rounding."""
 
     def __init__(self, config: TPNetConfig, params: dict[str, np.ndarray],
                  dtype: Any = "float32", meta: dict[str, Any] | None = None,
                  engine: str = "numpy", unit_order: dict[str, Any] | None = None,
-                 used: dict[str, np.ndarray] | None = None) -> None:
+                 used: dict[str, np.ndarray] | None = None, sort_points: bool = True) -> None:
         self.config = config
+        if not isinstance(sort_points, (bool, np.bool_)):
+            raise TypeError(f"sort_points must be True or False, got {sort_points!r}")
+        #: whether each frame is put in canonical order first (bit-exact permutation invariance);
+        #: a plain attribute, like ``threads``: setting it changes nothing else
+        self.sort_points = bool(sort_points)
         self.dtype = np.dtype(dtype)
         if self.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
@@ -82,7 +91,8 @@ class TPNet:
     def _replace(self, **changes: Any) -> "TPNet":
         used = None if self.specialization is None else self.specialization.used
         kw = {"dtype": self.dtype, "meta": self.meta, "engine": self.engine,
-              "unit_order": self.unit_order, "used": used, **changes}
+              "unit_order": self.unit_order, "used": used, "sort_points": self.sort_points,
+              **changes}
         out = TPNet(self.config, self.params, **kw)
         out.threads = self.threads
         return out
@@ -99,6 +109,14 @@ class TPNet:
         """The same network with its units laid out in ``order`` (:mod:`tpnet_ref.unit_order`;
         None: the file's order). Exact either way; only speed and rounding depend on it."""
         return self._replace(unit_order=order)
+
+    def with_point_sort(self, enabled: bool) -> "TPNet":
+        """The same network with the canonical point sort on (the default) or off. Off, each
+        frame's points reach the network in the order given: the output is then invariant to
+        per-frame permutations only up to rounding -- by the network's own structure (a shared
+        per-point MLP and a max), which is what :mod:`tpnet_ref.testing` checks; on, bit for
+        bit."""
+        return self._replace(sort_points=enabled)
 
     def with_specialization(self, used: dict[str, np.ndarray] | None) -> "TPNet":
         """A copy of this network specialised to the units ``used`` marks (None: not at all)."""
@@ -125,6 +143,7 @@ class TPNet:
     def __repr__(self) -> str:
         c = self.config
         spec = "" if self.specialization is None else ", specialised"
+        spec += "" if self.sort_points else ", unsorted points"
         return (f"TPNet(m={c.m}, n_out={c.n_out}, lstm={c.lstm_units}, act={c.lstm_activation}, "
                 f"transforms={'trained' if c.input_transform_trained else 'identity'}/"
                 f"{'trained' if c.feature_transform_trained else 'identity'}, "
@@ -152,13 +171,16 @@ class TPNet:
     def canonical_points(self, frames: list[np.ndarray],
                          normalized: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Checked frames (each ``(N_i, dim)``) -> their points in model coordinates, each frame
-        in canonical order, ``(P, dim)``, and the points per frame ``(F,)``."""
+        in canonical order (in the given order when ``sort_points`` is off), ``(P, dim)``, and
+        the points per frame ``(F,)``."""
         counts = np.fromiter((f.shape[0] for f in frames), dtype=np.intp, count=len(frames))
         pts = np.concatenate(frames, axis=0).astype(self.dtype, copy=False)
         if not normalized:
             pts = self.normalize(pts)
         else:
             pts = pts + self.dtype.type(0.0)  # a copy, and -0.0 -> +0.0 for a canonical order
+        if not self.sort_points:
+            return pts, counts
         return pts[canonical_order(pts, counts)], counts
 
     def frame_features(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -268,7 +290,9 @@ class TPNet:
                                        None if proj is None else np.stack(proj[-m:]))
                 out[:, s] = y
                 flat = y.reshape(-1, c.dim)
-                feats[:, m + s] = self.frame_features(flat[canonical_order(flat, counts)], counts)
+                if self.sort_points:
+                    flat = flat[canonical_order(flat, counts)]
+                feats[:, m + s] = self.frame_features(flat, counts)
                 if proj is not None and s + 1 < steps:
                     proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s], batch)]
         return out if normalized else self.denormalize(out)

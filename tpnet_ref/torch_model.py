@@ -264,13 +264,13 @@ class TorchTPNet(nn.Module):
     @classmethod
     def from_numpy(cls, model: TPNet) -> "TorchTPNet":
         """A module with ``model``'s config and parameters (in ``model``'s dtype)."""
-        net = cls(model.config)
         dt = torch.float64 if model.dtype == np.float64 else torch.float32
+        net = cls(model.config).to(dt)     # before loading: float32 parameters would round
         sd = {k: torch.from_numpy(np.ascontiguousarray(v))
               for k, v in native_to_torch_state(model.params, model.config).items()}
         sd["_extra_state"] = net.get_extra_state()
         net.load_state_dict(sd)
-        return net.to(dt)
+        return net
 
 
 def chamfer_released(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,146 @@
+"""tpnet_ref.testing, the property checkers for any TP-Net, proven on the project's own
+implementations: the NumPy engines (canonical sort on and off), the PyTorch model and the ONNX
+export under onnxruntime; its one-line report of a shrunk window, its lazy import of hypothesis,
+and the example of docs/testing.md run as written."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from property_helpers import Implementations
+from tpnet_ref import testing
+from tpnet_ref.testing import TOLERANCE, PropertyFailure
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def impl():
+    made = Implementations()
+    yield made
+    made.clear()
+
+
+def test_import_does_not_load_hypothesis():
+    code = ("import sys, tpnet_ref.testing as t; assert 'hypothesis' not in sys.modules; "
+            "t.windows(); assert 'hypothesis' in sys.modules")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_a_failure_is_shrunk_and_reported_in_one_line():
+    def first_points(window):                  # order-dependent: each frame's first point
+        return np.stack([f[0] for f in window])
+
+    with pytest.raises(PropertyFailure) as exc:
+        testing.permutation_invariant(first_points, testing.windows(m=(1, 4)), max_examples=50)
+    report = str(exc.value)
+    assert "\n" not in report and not getattr(exc.value, "__notes__", None)
+    assert re.match(r"permutation_invariant: first_points changed by \S+ \(tolerance 0\) when "
+                    r"each frame's points were permuted; minimal window: m=1, N=\(2,\), ", report)
+    assert report.endswith("permutations [[1, 0]]")
+
+
+def test_agreement_failure_names_the_window(impl):
+    model = impl.base["float64"]
+
+    def off_by_a_little(window):
+        return model.predict(window) + 1e-3
+
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: off_by_a_little is "
+                                              r"0.001 from the float64 reference \(tolerance "
+                                              r"0.0001\); minimal window: m=4, N=\(1, 1, 1, 1\)"):
+        testing.agrees_with_reference(off_by_a_little, model, tol=1e-4, max_examples=10)
+
+
+def test_strategies_draw_what_they_say():
+    hyp = pytest.importorskip("hypothesis")
+
+    @hyp.settings(max_examples=40, deadline=None)
+    @hyp.given(w=testing.windows(m=[2, 3], n=(5, 9), ragged=False, ties=True, step=(1.0, 1.0)))
+    def check(w):
+        assert len(w) in (2, 3) and len({len(f) for f in w}) == 1 and 5 <= len(w[0]) <= 9
+        assert all(f.dtype == np.float64 and f.shape[1] == 2 for f in w)
+        first = w[0]
+        assert len(np.unique(first[:, 0])) <= 3                        # ties in x
+        assert len(np.unique(first, axis=0)) <= len(first) - len(first) // 2  # duplicates
+
+    check()
+
+
+# ------------------------------------------------------------------ three implementations
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+@pytest.mark.parametrize("sort", [True, False], ids=["sorted", "unsorted"])
+def test_numpy_engines(impl, engine, dtype, sort):
+    pytest.importorskip("numba")
+    fn = impl.engine(engine, dtype, sort=sort)
+    windows = testing.windows(m=4)
+    tol = TOLERANCE[dtype]
+    assert testing.permutation_invariant(fn, windows, tol=0.0 if sort else tol,
+                                         max_examples=15) <= tol
+    assert testing.agrees_with_reference(fn, impl.base[dtype], tol=tol, windows=windows,
+                                         max_examples=15) <= tol
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_pytorch_model(impl, dtype):
+    pytest.importorskip("torch")
+    fn, tol = impl.torch(dtype), TOLERANCE[dtype]
+    windows = testing.windows(m=4)
+    assert testing.permutation_invariant(fn, windows, tol=tol, max_examples=15) <= tol
+    assert testing.agrees_with_reference(fn, impl.base[dtype], tol=tol, windows=windows,
+                                         max_examples=15) <= tol
+
+
+def test_onnx_export(impl):
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    fn, tol = impl.onnx(30), TOLERANCE["float32"]
+    windows = testing.windows(m=4, n=30, ragged=False)          # N is fixed at export
+    assert testing.permutation_invariant(fn, windows, tol=tol, max_examples=15) <= tol
+    assert testing.agrees_with_reference(fn, impl.base["float32"], tol=tol, windows=windows,
+                                         max_examples=15) <= tol
+    assert testing.frame_order_matters(fn, testing.windows(m=4, n=30, ragged=False,
+                                                           step=(0.5, 2.0)),
+                                       tol=tol, max_examples=5) > tol
+
+
+def test_the_docs_example_runs_as_written():
+    torch = pytest.importorskip("torch")
+    text = (ROOT / "docs" / "testing.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert len(blocks) == 1
+    assert len(blocks[0].strip().splitlines()) <= 16
+    namespace: dict = {}
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)         # the suite's other tests share the cores; same results
+    try:
+        exec(compile(blocks[0], "docs/testing.md", "exec"), namespace)
+    finally:
+        torch.set_num_threads(threads)
+    assert "my_predict" in namespace
+
+
+@pytest.mark.parametrize("kw, error", [
+    ({"m": 0}, "windows: m must be at least 1, got 0"),
+    ({"n": (3, 1)}, r"windows: n must be an int, a \(lo, hi\) range or a list of choices"),
+    ({"scales": [1.0, -1.0]}, "windows: scales must be positive spreads"),
+])
+def test_bad_strategy_arguments_say_what_is_wrong(kw, error):
+    pytest.importorskip("hypothesis")
+    with pytest.raises((ValueError, TypeError), match=error):
+        testing.windows(**kw)
+
+
+def test_a_wrong_output_shape_is_named(impl):
+    model = impl.base["float64"]
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: output shapes differ, "
+                                              r"\(29, 2\) against \(30, 2\)$"):
+        testing.agrees_with_reference(lambda w: model.predict(w)[1:], model, tol=1.0,
+                                      max_examples=5)
