@@ -132,13 +132,15 @@ class TPNet:
 
     def save(self, path: str | os.PathLike, **provenance: Any) -> None:
         """Write the native HDF5 weights file (:mod:`tpnet_ref.native`) in the model's dtype
-        (bit-exact), with its ``meta`` and ``provenance`` as root attributes, its unit order and
-        its specialisation's masks."""
-        write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance})
+        (bit-exact), with its ``meta`` and ``provenance`` as root attributes, its unit order,
+        its specialisation's masks and the digest of all of it (:mod:`tpnet_ref.native`)."""
+        groups = {}
         if self.specialization is not None:
-            S.write(path, self.specialization.used)
+            groups[S.GROUP] = S.group(self.specialization.used)
         if self.unit_order is not None:
-            U.write(path, self.unit_order)
+            groups[U.GROUP] = U.group(self.unit_order)
+        write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance},
+                     groups=groups)
 
     # ---------------------------------------------------------------- forward
     def normalize(self, x: np.ndarray) -> np.ndarray:
@@ -280,10 +282,17 @@ def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
     (:func:`tpnet_ref.native.default_weights_path`; a one-line ``FileNotFoundError``
     when there is none). A file written by a specialised model loads specialised. ``engine``:
     see :class:`TPNet`."""
+    if np.dtype(dtype) not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    H.resolve_engine(engine)          # the arguments' errors first, the file's below name it
     path = default_weights_path() if path is None else path
-    config, params, meta = read_native(path)
-    return TPNet(config, params, dtype, meta, engine, unit_order=U.read(path),
-                 used=S.read(path))      # specialised if the file says so
+    config, params, meta = read_native(path)             # the digest checked: the file is whole
+    unit_order, used = U.read(path), S.read(path)
+    try:
+        return TPNet(config, params, dtype, meta, engine, unit_order=unit_order,
+                     used=used)       # specialised if the file says so
+    except ValueError as exc:         # what the file holds does not fit together
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:

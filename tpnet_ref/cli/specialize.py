@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ..provenance import portable_path
 from .files import load_npy, output_path
 
 
@@ -61,11 +62,11 @@ def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool,
         windows, normalized = calibration_windows(model, n), False
         what = f"{n} training-grid trajectories + rollouts"
     elif src.suffix == ".npy":
-        windows, normalized, what = load_npy(str(src), "source"), False, str(src)
+        windows, normalized, what = load_npy(str(src), "source"), False, portable_path(src)
     else:
         from ..data import load_windows
         windows, _ = load_windows(str(src), "train", normalized=True)
-        normalized, what = True, f"{src} (training windows)"
+        normalized, what = True, f"{portable_path(src)} (training windows)"
     return np.asarray(windows)[:args.max_windows], normalized, what
 
 
@@ -92,7 +93,7 @@ def _cli_specialize(args: Any) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         spec = model.specialize(windows, normalized=normalized)
-    spec.save(out, specialized_from=str(args.weights or "shipped m=4"),
+    spec.save(out, specialized_from=portable_path(args.weights) if args.weights else "shipped m=4",
            calibration_windows=len(windows))
     used = S.fraction_used(spec.specialization.used)
     print(f"wrote {out}: calibrated on {len(windows)} windows; units used: "
