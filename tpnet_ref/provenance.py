@@ -26,7 +26,7 @@ import numpy as np
 
 from . import native
 
-#: an absolute POSIX path of at least two components (``/work/runs/m4``), or a Windows one
+#: an absolute POSIX path of at least two components (``/x/y/runs/m4``), or a Windows one
 #: (``C:\\Users\\...``), standing on its own in a text (not the tail of a URL or relative path)
 ABSOLUTE_PATH = re.compile(r"(?<![\w.~/:-])/(?:[\w.+@-]+/)+[\w.+@-]*|\b[A-Za-z]:\\[^\s\"',;]+")
 
