@@ -106,13 +106,14 @@ class TPNet:
 
     def sort_units(self, windows: Any, normalized: bool = False) -> "TPNet":
         """The same network with each layer's units laid out most used first on ``windows``
-        ``(B, m, N, dim)`` (the scene's windows): exact on every input, faster on windows like
-        these (:mod:`tpnet_ref.unit_order`). The order is saved with the model."""
+        ``(B, m, N, dim)`` (the scene's windows): the same function on every input up to
+        rounding (docs/tolerances.md), faster on windows like these (:mod:`tpnet_ref.unit_order`). The order is saved with the model."""
         return self.with_unit_order(U.from_use(U.measure(self, windows, normalized)))
 
     def specialize(self, windows: Any, normalized: bool = False) -> "TPNet":
         """The same network computing only the units that ``windows`` ``(B, m, N, dim)`` (the
-        scene's calibration windows) use, exact on every input: a window that would wake a
+        scene's calibration windows) use, the same function on every input up to rounding
+        (docs/tolerances.md): a window that would wake a
         dropped unit is computed in full (:mod:`tpnet_ref.specialize`). Same ``predict`` /
         ``predict_batch`` / ``rollout`` API; ``counts`` says how many windows fell back."""
         return self.with_specialization(S.calibrate(self, windows, normalized))

@@ -1,4 +1,5 @@
-"""A scene-specialised prediction network: only the units a scene uses, exact on every input.
+"""A scene-specialised prediction network: only the units a scene uses, on every input the same
+function as the full network (up to rounding: the sums run over fewer terms, docs/tolerances.md).
 
 On the windows of one scene many units of a ReLU TP-Net are exactly zero on every window (shipped
 m = 4 model, training-grid windows and the model's own rollouts: 83 of 128 global features, 563 of

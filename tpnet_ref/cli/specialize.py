@@ -22,7 +22,7 @@ def _output_args(p: Any, what: str) -> None:
 
 def add_cli(sub: Any) -> None:
     p = sub.add_parser("specialize", help="write a model that computes only the units a scene "
-                                          "uses (exact on every input: other windows run in full)")
+                                          "uses (the same function on every input up to rounding: other windows run in full)")
     p.add_argument("source", help="calibration windows: a dataset file of `tpnet data` (its "
                                   "training windows, never the test cases) or a .npy (B, m, N, 2) "
                                   "array of windows in world units")
@@ -30,8 +30,8 @@ def add_cli(sub: Any) -> None:
     p.set_defaults(func=_cli_specialize)
 
     q = sub.add_parser("sort-units", help="write the same network with each layer's units laid "
-                                          "out most used first on a scene (exact on every "
-                                          "input, faster on the scene)")
+                                          "out most used first on a scene (the same function "
+                                          "up to rounding, faster on the scene)")
     q.add_argument("source", nargs="?", default=None,
                    help="windows to measure use on: a dataset file of `tpnet data` (its training "
                         "windows) or a .npy (B, m, N, 2) array in world units; default: windows "
