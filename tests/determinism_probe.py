@@ -55,11 +55,15 @@ def runnable_kernels() -> dict[str, str | None]:
             for k, need in KERNELS.items()}
 
 
-def run_child(kernel: str, threads: int, calls: int = 100, timeout: float = 300) -> dict:
+def run_child(kernel: str, threads: int, calls: int = 100, timeout: float = 300,
+              save: str | os.PathLike | None = None) -> dict:
     """This script in a fresh process under ``kernel`` with ``threads`` BLAS and numba threads,
-    ``calls`` repeated predict calls (and a fifth as many permutations)."""
+    ``calls`` repeated predict calls (and a fifth as many permutations); ``save``: a folder for
+    the outputs (each ``predict``, and the shipped model's 80-step ``rollout``) as ``.npy``."""
     env = dict(os.environ, OPENBLAS_CORETYPE=kernel, OPENBLAS_NUM_THREADS=str(threads),
                NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
+    if save is not None:
+        env["TPNET_PROBE_SAVE"] = str(save)
     env.pop("TPNET_THREADS", None)
     env.pop("TPNET_BLAS_THREADS", None)
     out = subprocess.run([sys.executable, __file__, "--calls", str(calls)], env=env, capture_output=True, text=True,
@@ -142,6 +146,9 @@ def _probe(calls: int) -> dict:
             digests[f"{key} rollout_batch 3x5"] = digest(rb)
             if _SAVE:
                 np.save(_SAVE / f"{key.replace(' ', '-')}.npy", y)
+                if net == "shipped":         # docs/tolerances.md: kernels over a rollout
+                    np.save(_SAVE / f"{key.replace(' ', '-')}-rollout80.npy",
+                            model.rollout(window, 80))
     info = [d for d in threadpool_info() if d.get("user_api") == "blas"]
     return {"kernel": info[0].get("architecture") if info else None,
             "blas_threads": info[0].get("num_threads") if info else None,
@@ -178,9 +185,11 @@ def _sweep() -> None:
         print("\nlargest difference between kernels' predict outputs (world units), per case:")
         first = next(iter(results))
         base = Path(tmp, f"{first[0]}-1")
-        for f in sorted(base.glob("*.npy")):
-            a = np.load(f)
-            diffs = {k: float(np.abs(np.load(Path(tmp, f"{k}-1", f.name)) - a).max())
+        for f in sorted(base.glob("*.npy")):            # (a rollout: its 80th prediction)
+            a = np.load(f)[..., -1, :, :] if "rollout" in f.stem else np.load(f)
+            diffs = {k: float(np.abs(np.load(Path(tmp, f"{k}-1", f.name))[..., -1, :, :] - a).max()
+                              if "rollout" in f.stem else
+                              np.abs(np.load(Path(tmp, f"{k}-1", f.name)) - a).max())
                      for k, t in results if t == 1}
             print(f"  {f.stem:28s} " + ", ".join(f"{k} {d:.1e}" for k, d in diffs.items())
                   + f"  (against {first[0]})")

@@ -57,7 +57,7 @@ def test_specialize_uses_at_most_max_windows_and_says_what_it_read(tmp_path, cap
     back = tpnet_ref.load(out)
     assert back.specialization is not None
     assert int(back.meta["calibration_windows"]) == 7
-    assert back.meta["specialized_from"] == str(small_weights)
+    assert back.meta["specialized_from"] == small_weights.name       # no machine's path
     w = _rings(np.random.default_rng(2), 5)                # exact on any input, seen or not
     np.testing.assert_allclose(back.predict_batch(w),
                                tpnet_ref.load(small_weights).predict_batch(w), atol=1e-4)

@@ -47,7 +47,8 @@ def test_demo_with_weights_prints_errors(weights_file, tmp_path, capsys):
 
 def test_demo_returns_numbers(weights_file, tmp_path):
     import io
-    r = E.demo(weights_file, steps=3, horizons=(1, 3), png=None, out=io.StringIO())
+    text = io.StringIO()
+    r = E.demo(weights_file, steps=3, horizons=(1, 3), png=None, out=text)
     assert r["m"] == 4 and r["steps"] == 3 and set(r["errors"]) == {1, 3}
     assert set(r["errors"][1]) == {"TP-Net", "copy last", "const. velocity"}
     assert r["errors"][1]["TP-Net"]["Ep_released"] > 0
@@ -58,3 +59,6 @@ def test_demo_returns_numbers(weights_file, tmp_path):
     want = E.errors(truth, E.copy_last(inputs, 3))["Ep_squared"][0, 2]
     assert r["errors"][3]["copy last"]["Ep_squared"] == pytest.approx(want, rel=1e-9)
     assert "threads" in r["blas"] or "threadpoolctl" in r["blas"]
+    # the threads the prediction ran on: one, and a one-thread BLAS (not the process's setting)
+    assert r["threads"] == 1 and "the prediction ran on 1 thread" in text.getvalue()
+    assert "threads 2" not in r["blas"]

@@ -73,3 +73,19 @@ def test_timing_table_scene_specialised_row(frames3):
     assert "scene-specialised" in E.timing_md(rows, 3)
     plain = E.timing_table(frames3, cases, [E.ModelSpec("net", model)], **kw)
     assert not [r for r in plain if "specialised" in r.name]
+
+
+def test_eval_names_the_rows_an_extra_would_add(monkeypatch):
+    """``tpnet eval`` says at its start which rows a missing extra leaves out."""
+    import importlib.util
+
+    from tpnet_ref.evaluation import timing
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name in ("torch", "onnxruntime") else real(name, *a))
+    lines = timing.missing_peers()
+    assert len(lines) == 2
+    assert lines[0].startswith("the PyTorch rows") and "tpnet-ref[crosscheck]" in lines[0]
+    assert "onnxruntime" in lines[1] and "left out of the figure" in lines[1]
+    monkeypatch.setattr(importlib.util, "find_spec", real)
+    assert timing.missing_peers() == [] or all("crosscheck" in ln for ln in timing.missing_peers())

@@ -211,6 +211,7 @@ def test_convert_storage_keeps_config_provenance_and_other_groups(tmp_path):
     native.write_native(tmp_path / "p.h5", TINY, params, "float64", {"source": "unit"})
     with h5py.File(tmp_path / "p.h5", "a") as f:
         f.create_group("unit_order").create_dataset("lstm1", data=np.arange(5))
+    native.seal(tmp_path / "p.h5")                        # a deliberate change: a new digest
     meta = native.convert_storage(tmp_path / "p.h5", tmp_path / "q.h5", "gzip", mantissa_bits=20)
     assert meta["source"] == "unit" and meta["storage"] == "gzip"
     assert meta["created"] == native.read_native(tmp_path / "p.h5")[2]["created"]

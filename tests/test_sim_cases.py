@@ -3,12 +3,15 @@ from __future__ import annotations
 
 import csv
 import os
+from pathlib import Path
 
 import pytest
 
 from tpnet_ref.sim.cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
 
-SHARED = "/work/shared/data"
+# the brief's data folder: $TPNET_SHARED_DATA, else shared/data beside the repository checkout
+SHARED = os.environ.get("TPNET_SHARED_DATA",
+                        str(Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 
 def test_sizes_and_ranges():

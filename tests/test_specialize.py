@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 import tpnet_ref
 from tpnet_ref import data as D
 from tpnet_ref import layers as L
+from tpnet_ref import native
 from tpnet_ref import specialize as S
 from tpnet_ref import unit_order as U
 from tpnet_ref.checks import NonFiniteResultError
@@ -136,12 +137,15 @@ def test_hostile_specialisation_groups_are_refused(tmp_path, scene):
     with h5py.File(path, "r+") as f:                    # a mask replaced by a link
         f.move(f"{S.GROUP}/{name}", "elsewhere")
         f[f"{S.GROUP}/{name}"] = h5py.SoftLink("/elsewhere")
-    with pytest.raises(ValueError, match="links are not accepted"):
+    with pytest.raises(ValueError, match=f"^{path}: .*links are not accepted"):
         tpnet_ref.load(path)
     with h5py.File(path, "r+") as f:                    # a mask of values other than 0/1
-        del f[f"{S.GROUP}/{name}"]
+        del f[f"{S.GROUP}/{name}"], f["elsewhere"]
         f[f"{S.GROUP}/{name}"] = np.full(8, 7, np.uint8)
-    with pytest.raises(ValueError, match="other than 0 and 1"):
+    with pytest.raises(ValueError, match=f"^{path}: .*does not match its content_sha256"):
+        tpnet_ref.load(path)                            # not what the writer wrote
+    native.seal(path)                                   # and with a digest that matches it
+    with pytest.raises(ValueError, match=f"^{path}: .*other than 0 and 1"):
         tpnet_ref.load(path)
 
 

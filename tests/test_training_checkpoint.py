@@ -16,6 +16,7 @@ from tpnet_ref.training import checkpoint as C  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
 from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.provenance import absolute_paths, file_sha256, portable_path  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
 
@@ -99,7 +100,10 @@ def test_init_from_fine_tunes_a_run_and_carries_its_provenance(dataset, tmp_path
     model = tpnet_ref.load(tmp_path / "w.h5")
     assert model.meta["windows_seen"] == pst["windows_seen"] + cst["windows_seen"]
     assert model.meta["training_steps"] == pst["step"] + cst["step"]
-    assert json.loads(model.meta["parent_runs"])[0]["run"] == str(parent)
+    assert json.loads(model.meta["parent_runs"])[0]["run"] == portable_path(parent) == parent.name
+    assert not [v for k, v in model.meta.items()       # "path": where it was read from now
+                if k != "path" and isinstance(v, str) and absolute_paths(v)]
+    assert model.meta["data_sha256"] == file_sha256(dataset)
     with pytest.raises(ValueError, match="differs"):
         L.train(dataset, tmp_path / "bad", tiny_recipe(init_from=str(parent),
                                                    config=R.size_config("small").to_dict()),
@@ -134,7 +138,7 @@ def test_init_from_a_native_weights_file_carries_its_provenance(dataset, tmp_pat
     assert meta["training_steps"] == pmeta["training_steps"] + cst["step"]
     assert meta["epochs"] == pytest.approx(pmeta["epochs"] + 1.0)
     chain = json.loads(meta["parent_runs"])
-    assert chain[0]["recipe"]["weights_file"] == str(tmp_path / "parent.h5")
+    assert chain[0]["recipe"]["weights_file"] == "parent.h5"        # by name: /tmp is no repo
     with pytest.raises(ValueError, match="differs"):
         L.train(dataset, tmp_path / "bad", tiny_recipe(init_from=str(tmp_path / "parent.h5"),
                                                    config=R.size_config("small").to_dict()),

@@ -72,6 +72,16 @@ def _controllers() -> list[Any]:
     return _STATE["controllers"]
 
 
+def _set_threads(ctl: Any, n: int) -> None:
+    """Set a BLAS library's thread count from whichever thread calls. threadpoolctl (3.x)
+    lets only the first Python thread that set OpenBLAS's count (while it lives) change it and
+    silently ignores the others, so a prediction called from a worker thread left the
+    split-batch pool's products on two threads: 27 of 96 calls from 8 threads differed from
+    the serial bits by up to 1e-5 (issue 37, tests/test_concurrency.py). OpenBLAS's own setter
+    is process-wide, and :func:`one_thread` serialises every change under its lock."""
+    getattr(ctl, "_real_set_num_threads", ctl.set_num_threads)(n)
+
+
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """A one-thread BLAS inside the block (process-wide; the previous thread counts come back
@@ -81,7 +91,7 @@ def one_thread() -> Iterator[None]:
         if _STATE["depth"] == 0:
             _STATE["saved"] = [c.get_num_threads() for c in ctls]
             for c in ctls:
-                c.set_num_threads(1)
+                _set_threads(c, 1)
         _STATE["depth"] += 1
     try:
         yield
@@ -90,7 +100,7 @@ def one_thread() -> Iterator[None]:
             _STATE["depth"] -= 1
             if _STATE["depth"] == 0:
                 for c, n in zip(ctls, _STATE["saved"]):
-                    c.set_num_threads(n)
+                    _set_threads(c, n)
 
 
 def in_one_thread() -> bool:

@@ -124,13 +124,14 @@ class TPNet:
 
     def sort_units(self, windows: Any, normalized: bool = False) -> "TPNet":
         """The same network with each layer's units laid out most used first on ``windows``
-        ``(B, m, N, dim)`` (the scene's windows): exact on every input, faster on windows like
-        these (:mod:`tpnet_ref.unit_order`). The order is saved with the model."""
+        ``(B, m, N, dim)`` (the scene's windows): the same function on every input up to
+        rounding (docs/tolerances.md), faster on windows like these (:mod:`tpnet_ref.unit_order`). The order is saved with the model."""
         return self.with_unit_order(U.from_use(U.measure(self, windows, normalized)))
 
     def specialize(self, windows: Any, normalized: bool = False) -> "TPNet":
         """The same network computing only the units that ``windows`` ``(B, m, N, dim)`` (the
-        scene's calibration windows) use, exact on every input: a window that would wake a
+        scene's calibration windows) use, the same function on every input up to rounding
+        (docs/tolerances.md): a window that would wake a
         dropped unit is computed in full (:mod:`tpnet_ref.specialize`). Same ``predict`` /
         ``predict_batch`` / ``rollout`` API; ``counts`` says how many windows fell back."""
         return self.with_specialization(S.calibrate(self, windows, normalized))
@@ -151,13 +152,15 @@ class TPNet:
 
     def save(self, path: str | os.PathLike, **provenance: Any) -> None:
         """Write the native HDF5 weights file (:mod:`tpnet_ref.native`) in the model's dtype
-        (bit-exact), with its ``meta`` and ``provenance`` as root attributes, its unit order and
-        its specialisation's masks."""
-        write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance})
+        (bit-exact), with its ``meta`` and ``provenance`` as root attributes, its unit order,
+        its specialisation's masks and the digest of all of it (:mod:`tpnet_ref.native`)."""
+        groups = {}
         if self.specialization is not None:
-            S.write(path, self.specialization.used)
+            groups[S.GROUP] = S.group(self.specialization.used)
         if self.unit_order is not None:
-            U.write(path, self.unit_order)
+            groups[U.GROUP] = U.group(self.unit_order)
+        write_native(path, self.config, self.params, self.dtype, {**self.meta, **provenance},
+                     groups=groups)
 
     # ---------------------------------------------------------------- forward
     def normalize(self, x: np.ndarray) -> np.ndarray:
@@ -304,10 +307,17 @@ def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
     (:func:`tpnet_ref.native.default_weights_path`; a one-line ``FileNotFoundError``
     when there is none). A file written by a specialised model loads specialised. ``engine``:
     see :class:`TPNet`."""
+    if np.dtype(dtype) not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    H.resolve_engine(engine)          # the arguments' errors first, the file's below name it
     path = default_weights_path() if path is None else path
-    config, params, meta = read_native(path)
-    return TPNet(config, params, dtype, meta, engine, unit_order=U.read(path),
-                 used=S.read(path))      # specialised if the file says so
+    config, params, meta = read_native(path)             # the digest checked: the file is whole
+    unit_order, used = U.read(path), S.read(path)
+    try:
+        return TPNet(config, params, dtype, meta, engine, unit_order=unit_order,
+                     used=used)       # specialised if the file says so
+    except ValueError as exc:         # what the file holds does not fit together
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:

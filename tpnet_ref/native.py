@@ -10,6 +10,18 @@ Format (``format = "tpnet_ref-weights"``, ``format_version = 1``):
                              (including norm_lo / norm_hi, the world-unit normalisation)
     /params/<name>    one dataset per tensor, names and shapes from
                       :func:`~tpnet_ref.config.param_shapes`
+    /unit_order, /specialization   optional groups of 1-D integer datasets
+                      (:mod:`tpnet_ref.unit_order`, :mod:`tpnet_ref.specialize`)
+
+Integrity. The root attribute ``content_sha256`` is a SHA-256 digest of everything else the file
+stores: every root attribute (the provenance), every group's attributes (the config) and every
+dataset's name, dtype, shape and values (the parameters as decoded, the unit order, the masks),
+in a canonical order (:func:`content_digest`). Every writer here puts it last
+(:func:`write_native`, :func:`seal`); :func:`read_native` (and so ``tpnet_ref.load`` and
+``tpnet info``) recomputes it and refuses a file whose content differs, naming the file. A file
+written before digests existed loads with a one-line :class:`UnverifiedFileWarning` naming it
+(nothing can tell whether it was damaged); ``tpnet scrub-provenance SRC DST`` adds one. The
+digest is not a signature: whoever can write the file can write a matching digest.
 
 Storage. By default each parameter is stored in the compute ``dtype`` (float32 or float64),
 uncompressed, and reads back bit for bit. ``storage="gzip"`` stores the same values with HDF5's
@@ -37,8 +49,10 @@ repository checkout's ``weights/``. ``tpnet-m3.h5`` and ``tpnet-m5.h5`` are not 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +63,10 @@ from . import hdf5
 
 FORMAT = "tpnet_ref-weights"
 FORMAT_VERSION = 1
+#: root attribute holding the SHA-256 digest of everything else in the file
+DIGEST_ATTR = "content_sha256"
 #: root attributes that describe the file itself, not the model's provenance
-_FILE_ATTRS = ("format", "format_version", "dtype")
+_FILE_ATTRS = ("format", "format_version", "dtype", DIGEST_ATTR)
 #: root attributes that describe how this file stores the parameters: set by
 #: :func:`write_native` from its ``storage`` / ``mantissa_bits`` arguments only
 _STORAGE_ATTRS = ("storage", "storage_rounding")
@@ -113,6 +129,110 @@ def default_weights_path() -> Path:
     return shipped_weights_path(4)
 
 
+# ----------------------------------------------------------------------------- digest
+class UnverifiedFileWarning(UserWarning):
+    """A native weights file without a content digest (written before digests existed) was
+    read: whether it is intact cannot be checked."""
+
+
+def _canon(v: Any) -> bytes:
+    """An attribute value as tagged bytes: the same value gives the same bytes whatever type
+    h5py returns it as (Python or NumPy scalar, variable or fixed-length string)."""
+    if isinstance(v, (bytes, np.bytes_)):
+        return b"B" + bytes(v)
+    if isinstance(v, str):
+        return b"s" + v.encode("utf-8", "surrogatepass")
+    if isinstance(v, (bool, np.bool_)):
+        return b"?" + (b"1" if v else b"0")
+    if isinstance(v, (int, np.integer)):
+        return b"i" + str(int(v)).encode()
+    if isinstance(v, (float, np.floating)):
+        return b"f" + float(v).hex().encode()
+    if isinstance(v, np.ndarray):
+        if v.dtype.kind in "OSU":
+            return b"l" + b"".join(_frame(_canon(x)) for x in v.ravel().tolist())
+        a = np.ascontiguousarray(v, dtype=v.dtype.newbyteorder("<"))
+        return b"a" + _frame(a.dtype.str.encode()) + _frame(repr(a.shape).encode()) + a.tobytes()
+    return b"r" + repr(v).encode()
+
+
+def _frame(b: bytes) -> bytes:
+    return len(b).to_bytes(8, "little") + b
+
+
+def content_digest(f: Any, where: str, params: dict[str, np.ndarray] | None = None) -> str:
+    """``sha256:<hex>`` of everything an open native file ``f`` stores except the digest
+    itself: the root attributes, then each root group by name (its attributes, then each of its
+    datasets: name, dtype, shape, values), all in sorted order. ``params``: the decoded
+    ``/params`` arrays when already read (else they are read here, sizes checked first).
+    Anything that is not a group at the root, or not a dataset in a group, is refused."""
+    h = hashlib.sha256(b"tpnet_ref-weights content digest 1\0")
+
+    def put(*parts: bytes) -> None:
+        for b in parts:
+            h.update(_frame(b))
+
+    def put_attrs(obj: Any) -> None:
+        for k in sorted(hdf5.attrs(obj, where)):
+            if obj.name == "/" and k == DIGEST_ATTR:
+                continue
+            put(b"attr", k.encode(), _canon(hdf5.attr(obj, k, where)))
+
+    import h5py
+
+    put_attrs(f)
+    names = sorted(f.keys())
+    loose = [n for n in names if isinstance(f.get(n, getlink=True), h5py.HardLink)
+             and not isinstance(f[n], h5py.Group)]
+    for name in [n for n in names if n not in loose] + loose:   # what is wrong inside first
+        g = hdf5.safe_group(f, name, where)
+        put(b"group", name.encode())
+        put_attrs(g)
+        for ds in sorted(g.keys()):
+            if name == "params" and params is not None and ds in params:
+                a = params[ds]
+            else:
+                d = hdf5.safe_dataset(g, ds, where)
+                if d.size > hdf5.MAX_TENSOR:
+                    raise ValueError(f"{where}: {name}/{ds} declares {d.size:,} values "
+                                     f"(limit {hdf5.MAX_TENSOR:,}); refused")
+                a = np.asarray(hdf5.read(d, f"{where}: {name}/{ds}"))
+            a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+            put(b"dataset", ds.encode(), a.dtype.str.encode(), repr(a.shape).encode())
+            h.update(a.nbytes.to_bytes(8, "little"))
+            h.update(a)                                  # C-contiguous: hashed in place
+    return "sha256:" + h.hexdigest()
+
+
+def seal(path: str | os.PathLike) -> str:
+    """Compute the content digest of the native file ``path`` and store it (replacing any);
+    returns it. Every writer in this package calls it after its last change to a file."""
+    import h5py
+
+    where = str(path)
+    with h5py.File(path, "r+") as f:
+        digest = content_digest(f, where)
+        f.attrs[DIGEST_ATTR] = digest
+    return digest
+
+
+def _verify(f: Any, where: str, params: dict[str, np.ndarray]) -> str | None:
+    """The file's digest after checking it against its content (None: the file has none, a
+    one-line :class:`UnverifiedFileWarning`)."""
+    stored = hdf5.py_value(hdf5.attr(f, DIGEST_ATTR, where, None))
+    if stored is None:
+        warnings.warn(UnverifiedFileWarning(
+            f"{where}: no content digest (written before tpnet_ref stored one), so damage to it "
+            "cannot be detected; `tpnet scrub-provenance SRC DST` writes a copy with one"),
+            stacklevel=4)
+        return None
+    computed = content_digest(f, where, params)
+    if stored != computed:
+        raise ValueError(f"{where}: the file's content does not match its {DIGEST_ATTR} digest "
+                         "(damaged, or changed after it was written); refused")
+    return stored
+
+
 # ------------------------------------------------------------------------------ write
 def _attr_value(v: Any) -> Any:
     if isinstance(v, (str, int, float, bool, np.generic)):
@@ -157,16 +277,21 @@ def _rounded(params: dict[str, np.ndarray], bits: int) -> tuple[dict[str, np.nda
 
 def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str, np.ndarray],
                  dtype: Any = "float32", meta: dict[str, Any] | None = None,
-                 storage: str | None = None, mantissa_bits: int | None = None) -> None:
+                 storage: str | None = None, mantissa_bits: int | None = None,
+                 groups: dict[str, tuple[dict[str, Any], dict[str, np.ndarray]]] | None = None,
+                 created: str | None = None, rounding_note: str | None = None) -> str:
     """Write a native weights file: ``params`` (``{name: array}``, exactly the names and shapes
     of ``param_shapes(config)``) in the compute ``dtype`` (float32 or float64), ``meta`` as
     root attributes (strings, numbers; anything else as ``str``), plus ``producer`` (default
-    ``tpnet_ref``) and ``created``.
+    ``tpnet_ref``) and ``created`` (now, or the ``created`` given), then ``groups``
+    (``{name: (attrs, {dataset: 1-D array})}``: the unit order, the masks) and last the content
+    digest (:func:`seal`), which it returns.
 
     ``storage=None`` (the default) stores each parameter uncompressed (bit-exact for arrays
     already in ``dtype``); ``storage="gzip"``: the same values with shuffle + gzip (lossless).
     ``mantissa_bits`` (gzip only; lossy, explicit): round every value to that many significand
-    bits first (:func:`round_mantissa`); ``storage_rounding`` records it."""
+    bits first (:func:`round_mantissa`); ``storage_rounding`` records it (``rounding_note``:
+    the note of an earlier rounding these values already had, kept when rewriting them)."""
     import h5py
 
     dt = np.dtype(dtype)
@@ -190,7 +315,9 @@ def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str,
     info = {k: v for k, v in (meta or {}).items()
             if k not in _FILE_ATTRS and k not in _STORAGE_ATTRS and k != "path"}
     info.setdefault("producer", "tpnet_ref")
-    info["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    info["created"] = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    if rounding is None and mantissa_bits is None and rounding_note and storage is not None:
+        rounding = rounding_note
     with h5py.File(path, "w") as f:
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
@@ -211,6 +338,17 @@ def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str,
             else:                    # one chunk per tensor: smallest file (one gzip stream)
                 pg.create_dataset(name, data=stored[name], chunks=stored[name].shape or None,
                                   shuffle=True, compression="gzip", compression_opts=9)
+        for gname, (gattrs, arrays) in (groups or {}).items():
+            if gname in ("config", "params"):
+                raise ValueError(f"groups: {gname!r} is written from the config and params")
+            eg = f.create_group(gname)
+            for k, v in gattrs.items():
+                eg.attrs[k] = v
+            for k, a in arrays.items():
+                eg.create_dataset(k, data=np.asarray(a))
+        digest = content_digest(f, str(path), stored)
+        f.attrs[DIGEST_ATTR] = digest
+    return digest
 
 
 # ------------------------------------------------------------------------------- read
@@ -226,7 +364,9 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
     (compressed or not: :mod:`tpnet_ref.hdf5` decodes gzip and shuffle).
 
     ``meta``: the root attributes (provenance, and ``storage`` / ``storage_rounding`` when the
-    file has them) as plain Python values, plus ``path``. Raises
+    file has them) as plain Python values, plus ``path`` and, when the file has one, its
+    ``content_sha256`` digest, checked against everything read (a file without one: a one-line
+    :class:`UnverifiedFileWarning`). Raises
     ``FileNotFoundError`` for a missing file and ``ValueError`` (or ``KeyError`` for a missing
     parameter) naming what is wrong for anything else.
     """
@@ -262,14 +402,17 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
         if extra:
             raise ValueError(f"{where}: unexpected parameter(s) {extra} for this config")
         params = {name: hdf5.read_array(group, name, shape, where) for name, shape in shapes.items()}
+        digest = _verify(f, where, params)
         meta = {k: hdf5.py_value(v) for k, v in hdf5.attrs(f, where).items()
                 if k not in _FILE_ATTRS}
     meta["path"] = where
+    if digest is not None:
+        meta[DIGEST_ATTR] = digest              # checked against the content just read
     return cfg, params, meta
 
 
 # ---------------------------------------------------------------------------- convert
-def _extra_groups(path: str | os.PathLike) -> dict[str, tuple[dict[str, Any], dict[str, np.ndarray]]]:
+def extra_groups(path: str | os.PathLike) -> dict[str, tuple[dict[str, Any], dict[str, np.ndarray]]]:
     """Every root group of a native file other than ``config`` and ``params`` (``unit_order``,
     ``specialization``), read through the guards: ``{group: (attrs, {dataset: 1-D integer
     array})}``. Anything else there (a dataset, a link, a nested group, a non-integer or
@@ -291,26 +434,27 @@ def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
     included) and compute dtype, and the same other groups (the unit order, a specialisation's
     masks: exact whatever the weights, :mod:`tpnet_ref.specialize`). Returns the new file's
     ``meta`` (:func:`read_native`)."""
-    import h5py
+    cfg, params, meta = read_native(src)
+    return write_replacing(dst, cfg, params, meta, extra_groups(src), storage, mantissa_bits)
+
+
+def write_replacing(dst: str | os.PathLike, cfg: TPNetConfig, params: dict[str, np.ndarray],
+                    meta: dict[str, Any],
+                    groups: dict[str, tuple[dict[str, Any], dict[str, np.ndarray]]],
+                    storage: str | None = None, mantissa_bits: int | None = None,
+                    rounding_note: str | None = None) -> dict[str, Any]:
+    """Write a native file (:func:`write_native`, in the dtype of ``params``, keeping
+    ``meta["created"]``) to a temporary file beside ``dst`` and move it over ``dst`` (which may
+    be the file the values were read from); returns the new file's ``meta``."""
     import tempfile
 
-    cfg, params, meta = read_native(src)
-    extra = _extra_groups(src)
     compute = next(iter(params.values())).dtype              # what the file computes in
     dst = Path(dst)
     fd, tmp = tempfile.mkstemp(suffix=".h5", dir=dst.parent)
     os.close(fd)
     try:
-        write_native(tmp, cfg, params, compute, meta, storage, mantissa_bits)
-        with h5py.File(tmp, "a") as f:
-            if meta.get("created"):                     # when the weights were written first
-                f.attrs["created"] = meta["created"]
-            for name, (attrs, arrays) in extra.items():
-                g = f.create_group(name)
-                for k, v in attrs.items():
-                    g.attrs[k] = v
-                for k, a in arrays.items():
-                    g.create_dataset(k, data=a)
+        write_native(tmp, cfg, params, compute, meta, storage, mantissa_bits, groups,
+                     created=meta.get("created") or None, rounding_note=rounding_note)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)                # as open() would create it, not mkstemp's 0600
@@ -383,6 +527,9 @@ def describe(path: str | os.PathLike) -> str:
         if meta.get(key) not in (None, ""):
             pre = "most used first on " if key == "units_sorted_on" else ""
             out.append(f"  {label:13s}{pre}{meta[key]}")
+    digest = meta.get(DIGEST_ATTR)
+    out.append(f"  integrity    {digest} (checked against the content)" if digest else
+               "  integrity    no content digest (an older file): damage cannot be detected")
     try:
         rnd = json.loads(meta.get("storage_rounding", "{}") or "{}")
     except (TypeError, ValueError):
@@ -407,5 +554,6 @@ def describe(path: str | os.PathLike) -> str:
 
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "STORAGES", "write_native", "read_native", "is_native",
-           "convert_storage", "describe", "weights_dir", "shipped_weights_path",
+           "convert_storage", "write_replacing", "extra_groups", "content_digest", "seal", "DIGEST_ATTR",
+           "UnverifiedFileWarning", "describe", "weights_dir", "shipped_weights_path",
            "default_weights_path", "SHIPPED_M", "SHIPPED_SIZES"]

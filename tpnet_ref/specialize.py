@@ -1,4 +1,5 @@
-"""A scene-specialised prediction network: only the units a scene uses, exact on every input.
+"""A scene-specialised prediction network: only the units a scene uses, on every input the same
+function as the full network (up to rounding: the sums run over fewer terms, docs/tolerances.md).
 
 On the windows of one scene many units of a ReLU TP-Net are exactly zero on every window (shipped
 m = 4 model, training-grid windows and the model's own rollouts: 83 of 128 global features, 563 of
@@ -42,6 +43,7 @@ from . import layers as L
 from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 from .unit_order import measure
 from .hdf5 import read_vectors, write_vectors
+from .native import seal
 
 #: name of the HDF5 group that holds a specialisation in the native weights file
 GROUP = "specialization"
@@ -596,10 +598,18 @@ def fraction_used(used: dict[str, np.ndarray]) -> dict[str, tuple[int, int]]:
 
 
 # ------------------------------------------------------------------ native file
+def group(used: dict[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The masks as the native file's ``specialization`` group: ``(attrs, {mask: uint8
+    array})`` (:func:`tpnet_ref.native.write_native`'s ``groups``)."""
+    return {"format": FORMAT}, {k: np.asarray(v, dtype=np.uint8) for k, v in used.items()}
+
+
 def write(path: str | os.PathLike, used: dict[str, np.ndarray], **attrs: Any) -> None:
     """Add the masks as group ``specialization`` (uint8 datasets, ``format`` attribute) to an
-    existing native weights file; any existing group of that name is replaced."""
+    existing native weights file, replacing any group of that name, and renew the file's
+    content digest."""
     write_vectors(path, GROUP, FORMAT, used, np.uint8, **attrs)
+    seal(path)
 
 
 def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
@@ -622,5 +632,6 @@ def attach(model: Any, path: str | os.PathLike) -> Any:
     return model if used is None else model.with_specialization(used)
 
 
-__all__ = ["calibrate", "SceneHead", "SpecialisedHead", "fraction_used", "write", "read", "attach",
+__all__ = ["calibrate", "SceneHead", "SpecialisedHead", "fraction_used", "group", "write", "read",
+           "attach",
            "GROUP", "FORMAT"]

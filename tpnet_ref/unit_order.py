@@ -29,6 +29,7 @@ from . import layers as L
 from .checks import check_window
 from .fast_numpy import file_order_lstms
 from .hdf5 import read_vectors, write_vectors
+from .native import seal
 
 #: name of the HDF5 group that holds a unit order in the native weights file
 GROUP = "unit_order"
@@ -123,10 +124,17 @@ def from_use(use: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 # ------------------------------------------------------------------ native file
+def group(order: dict[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """``order`` as the native file's ``unit_order`` group: ``(attrs, {layer: int32 array})``
+    (:func:`tpnet_ref.native.write_native`'s ``groups``)."""
+    return {"format": FORMAT}, {k: np.asarray(v, dtype=np.int32) for k, v in order.items()}
+
+
 def write(path: str | os.PathLike, order: dict[str, np.ndarray], **attrs: Any) -> None:
     """Add ``order`` as group ``unit_order`` (int32 datasets) to an existing native weights
-    file, replacing any group of that name."""
+    file, replacing any group of that name, and renew the file's content digest."""
     write_vectors(path, GROUP, FORMAT, order, np.int32, **attrs)
+    seal(path)
 
 
 def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
@@ -136,4 +144,4 @@ def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
     return read_vectors(path, GROUP, FORMAT, "unit order")
 
 
-__all__ = ["GROUP", "FORMAT", "sizes", "check", "measure", "from_use", "write", "read"]
+__all__ = ["GROUP", "FORMAT", "sizes", "check", "measure", "from_use", "group", "write", "read"]

@@ -33,14 +33,19 @@ def add_cli(sub: Any) -> None:
 def _cli_info(args: Any) -> int:
     import json
 
-    from ..native import default_weights_path, describe, read_native
+    from ..native import UnverifiedFileWarning, default_weights_path, describe, read_native
     path = args.weights or default_weights_path()
-    if args.json:
-        cfg, _, meta = read_native(path)
-        print(json.dumps({"config": cfg.to_dict(), "meta": meta}, indent=1, sort_keys=True,
-                         default=str))
-    else:
-        print(describe(path))
+    with warnings.catch_warnings(record=True) as caught:   # damage is an error (exit 2)
+        warnings.simplefilter("always", UnverifiedFileWarning)
+        if args.json:
+            cfg, _, meta = read_native(path)
+            text = json.dumps({"config": cfg.to_dict(), "meta": meta}, indent=1, sort_keys=True,
+                              default=str)
+        else:
+            text = describe(path)
+    for w in caught:
+        print(f"tpnet info: warning: {w.message}", file=sys.stderr)
+    print(text)
     return 0
 
 

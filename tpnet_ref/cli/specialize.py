@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ..provenance import portable_path
 from .files import load_npy, output_path
 
 
@@ -21,7 +22,7 @@ def _output_args(p: Any, what: str) -> None:
 
 def add_cli(sub: Any) -> None:
     p = sub.add_parser("specialize", help="write a model that computes only the units a scene "
-                                          "uses (exact on every input: other windows run in full)")
+                                          "uses (the same function on every input up to rounding: other windows run in full)")
     p.add_argument("source", help="calibration windows: a dataset file of `tpnet data` (its "
                                   "training windows, never the test cases) or a .npy (B, m, N, 2) "
                                   "array of windows in world units")
@@ -29,8 +30,8 @@ def add_cli(sub: Any) -> None:
     p.set_defaults(func=_cli_specialize)
 
     q = sub.add_parser("sort-units", help="write the same network with each layer's units laid "
-                                          "out most used first on a scene (exact on every "
-                                          "input, faster on the scene)")
+                                          "out most used first on a scene (the same function "
+                                          "up to rounding, faster on the scene)")
     q.add_argument("source", nargs="?", default=None,
                    help="windows to measure use on: a dataset file of `tpnet data` (its training "
                         "windows) or a .npy (B, m, N, 2) array in world units; default: windows "
@@ -61,11 +62,11 @@ def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool,
         windows, normalized = calibration_windows(model, n), False
         what = f"{n} training-grid trajectories + rollouts"
     elif src.suffix == ".npy":
-        windows, normalized, what = load_npy(str(src), "source"), False, str(src)
+        windows, normalized, what = load_npy(str(src), "source"), False, portable_path(src)
     else:
         from ..data import load_windows
         windows, _ = load_windows(str(src), "train", normalized=True)
-        normalized, what = True, f"{src} (training windows)"
+        normalized, what = True, f"{portable_path(src)} (training windows)"
     return np.asarray(windows)[:args.max_windows], normalized, what
 
 
@@ -92,7 +93,7 @@ def _cli_specialize(args: Any) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         spec = model.specialize(windows, normalized=normalized)
-    spec.save(out, specialized_from=str(args.weights or "shipped m=4"),
+    spec.save(out, specialized_from=portable_path(args.weights) if args.weights else "shipped m=4",
            calibration_windows=len(windows))
     used = S.fraction_used(spec.specialization.used)
     print(f"wrote {out}: calibrated on {len(windows)} windows; units used: "

@@ -1,5 +1,7 @@
 """``tpnet import``: convert a Keras or PyTorch checkpoint to the native weights file;
-``tpnet compress``: rewrite a native file with shuffle + gzip (optionally rounded first)."""
+``tpnet compress``: rewrite a native file with shuffle + gzip (optionally rounded first);
+``tpnet scrub-provenance``: rewrite a native file's provenance without machine paths, with a
+content digest, the parameters bit-identical."""
 from __future__ import annotations
 
 import argparse
@@ -29,6 +31,20 @@ def add_cli(sub: Any) -> None:
                    help="round every value to K significand bits first (lossy, relative change "
                         "at most 2^-(K+1); float32 has 23): the reduced sizes ship with 15")
     p.set_defaults(func=_cli_compress)
+
+    p = sub.add_parser("scrub-provenance",
+                       help="rewrite a native weights file with every absolute path in its "
+                            "provenance made relative (or a file name) and a content digest; "
+                            "parameters, unit order and masks bit-identical (checked)")
+    p.add_argument("src", help="native weights file to read")
+    p.add_argument("dst", help="native weights file to write (may be src)")
+    p.add_argument("--data", default=None, metavar="FILE",
+                   help="the training data file: record its SHA-256 as data_sha256")
+    p.add_argument("--root", action="append", default=None, metavar="DIR",
+                   help="a path inside DIR is recorded relative to it (repeat: the first that "
+                        "holds it; default: this repository checkout); a path in none of them "
+                        "from its first folder named data, runs or weights, else by file name")
+    p.set_defaults(func=_cli_scrub)
 
 
 def _cli_import(args: argparse.Namespace) -> int:
@@ -64,4 +80,20 @@ def _cli_compress(args: argparse.Namespace) -> int:
            f"{json.loads(meta['storage_rounding'])['max_rel_change']:.3g}")
     print(f"wrote {args.dst}: {after / 1e6:.2f} MB ({before / 1e6:.2f} MB before; shuffle + gzip, "
           f"{how})")
+    return 0
+
+
+def _cli_scrub(args: argparse.Namespace) -> int:
+    from ..provenance import absolute_paths, scrub
+
+    rep = scrub(args.src, args.dst, args.data, args.root)
+    for key, (before, after) in rep["changed"].items():
+        b, a = (str(x) if x is not None else "-" for x in (before, after))
+        if len(b) > 100 or len(a) > 100:
+            paths = absolute_paths(b)
+            b = f"{len(b):,} characters, {len(paths)} absolute path(s)"
+            a = f"{len(a):,} characters, {len(absolute_paths(a))} absolute path(s)"
+        print(f"  {key}: {b} -> {a}")
+    print(f"wrote {args.dst}: {rep['arrays']} arrays ({rep['values']:,} parameters) "
+          f"bit-identical to {args.src} (checked), {rep['digest']}")
     return 0

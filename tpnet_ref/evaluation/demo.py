@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..blas import describe as blas_describe
+from ..blas import one_thread
 from ..config import normalize
 from ..model import load
 from ..protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
@@ -38,8 +39,8 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
          seed: int = 0, dtype: str = "float32", out: Any = None) -> dict[str, Any]:
     """Simulate ``case``, give the model its first m frames with the points of each frame
     shuffled, roll out, print its errors beside copy-last and constant velocity at ``horizons``
-    in the ``squared`` and ``released`` readings (docs/spec.md §3), the timings with the BLAS
-    thread setting, and write a PNG (``png``; the ``plot`` extra).
+    in the ``squared`` and ``released`` readings (docs/spec.md §3), the timings with the threads
+    the prediction ran on (and the BLAS inside it), and write a PNG (``png``; the ``plot`` extra).
 
     Raises ``FileNotFoundError`` (from :func:`tpnet_ref.load`) when there are no weights.
     Returns the numbers printed: ``errors[h][method]`` -> the error dict of
@@ -75,9 +76,15 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
         f"simulated {SIM_ROWS} steps in {t_sim * 1e3:.0f} ms")
     say(f"input: frames 0..{m - 1}, the 30 points of each frame shuffled independently "
         f"(constant velocity gets them in the simulator's order: it needs matched points)")
+    with one_thread():                  # what every product of a prediction runs on
+        blas_inside = blas_describe()
+    plan = model.preferred_threads("rollout step", 1, model.config.n_out)
+    ran = ("2 threads (the Numba engine's two LSTM directions)" if plan == 0 else "1 thread")
     say(f"rollout: {H} recursive predictions in {t_roll * 1e3:.0f} ms "
         f"({t_roll * 1e3 / H:.2f} ms/frame, {model.dtype.name}); model loaded in "
-        f"{t_load * 1e3:.0f} ms; BLAS: {blas_describe()}")
+        f"{t_load * 1e3:.0f} ms")
+    say(f"threads: the prediction ran on {ran}; every BLAS product inside it on a one-thread "
+        f"BLAS: {blas_inside}")
     shown = [h for h in horizons if 1 <= h <= H]
     names = list(methods)
     short = ("TP-Net", "copy last", "const vel")
@@ -120,7 +127,7 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
     rows = {h: {n: {k: float(v[0, h - 1]) for k, v in err[n].items()} for n in names}
             for h in shown}
     return {"errors": rows, "t_sim": t_sim, "t_rollout": t_roll, "t_load": t_load,
-            "blas": blas_describe(), "png": wrote, "m": m, "steps": H, "total": total}
+            "blas": blas_inside, "threads": 2 if plan == 0 else 1, "png": wrote, "m": m, "steps": H, "total": total}
 
 
 __all__ = ["demo", "DEMO_CASE", "DEMO_HORIZONS"]

@@ -21,7 +21,7 @@ from ..model import load
 from ..protocol import FRAME_EVERY, SIM_ROWS, split_protocol
 from .report import Report, write_results
 from .run import TEST_CASES, Curve, ModelSpec, evaluate, generalisation_cases, simulate_cases
-from .timing import CALIBRATION_TRAJECTORIES, timing_table
+from .timing import CALIBRATION_TRAJECTORIES, missing_peers, timing_table
 
 
 def default_out_dir() -> str:
@@ -73,6 +73,9 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
     n_cal = CALIBRATION_TRAJECTORIES if n_cal is None else n_cal
     if n_cal < 1:
         raise ValueError(f"--calibration-trajectories: must be >= 1, got {n_cal}")
+    if not getattr(args, "no_timing", False) and not getattr(args, "no_peers", False):
+        for line in missing_peers():                      # said before any work is done
+            print(f"tpnet eval: {line}", file=log)
     out_dir = args.out or default_out_dir()
     names = [Path(w).name for w in args.weights]
     models = [ModelSpec(f"TP-Net {n if names.count(n) == 1 else w}", load(w, dtype="float32"))

@@ -192,6 +192,24 @@ def _time_specialised(t: _Timer, name: str, model: Any, calibration_trajectories
     t.rows[-1].note = note
 
 
+#: the peers of the error-against-run-time table: (modules they need, rows, extra)
+PEERS = ((("torch",), "PyTorch", "crosscheck"),
+         (("onnx", "onnxruntime"), "onnxruntime", "crosscheck"))
+
+
+def missing_peers() -> list[str]:
+    """One line per peer whose rows this environment cannot time, naming the extra to install
+    (``tpnet eval`` says so before it starts)."""
+    out = []
+    for modules, rows, extra in PEERS:
+        lacking = [m for m in modules if importlib.util.find_spec(m) is None]
+        if lacking:
+            out.append(f"the {rows} rows of the error-against-run-time table need "
+                       f"{' and '.join(lacking)} (pip install 'tpnet-ref[{extra}]'): without it "
+                       "they are written as not installed and left out of the figure")
+    return out
+
+
 def _time_torch(t: _Timer, name: str, model: Any) -> None:
     if importlib.util.find_spec("torch") is None:
         t.skip(name, "PyTorch not installed")
@@ -266,4 +284,4 @@ def _time_simulator(t: _Timer, cases: np.ndarray, m: int, dt_factors: Sequence[i
 
 
 __all__ = ["TimingRow", "sim_coarse", "timing_table", "CALIBRATION_TRAJECTORIES",
-           "CALIBRATION_ROLLOUT"]
+           "CALIBRATION_ROLLOUT", "PEERS", "missing_peers"]

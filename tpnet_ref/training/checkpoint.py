@@ -27,6 +27,7 @@ from typing import Any
 from .. import load
 from ..config import TPNetConfig
 from ..extras import require
+from ..provenance import portable_path, scrub_text
 from .recipe import OPTIMIZER_MODES, Recipe
 from ..torch_model import TorchTPNet
 
@@ -129,11 +130,13 @@ def inherited(source: str | os.PathLike, pstate: dict) -> dict:
     (summed over the whole chain of runs, each listed)."""
     prev = pstate.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
                                     "epochs": 0.0})
-    me = {"run": str(source), "data": pstate.get("data", ""), "steps": int(pstate.get("step", 0)),
+    me = {"run": portable_path(source), "data": portable_path(pstate.get("data", "")),
+          "data_sha256": pstate.get("data_sha256", ""), "steps": int(pstate.get("step", 0)),
           "epochs": float(pstate["epochs"]) if "epochs" in pstate else
           float(pstate.get("step", 0)) / (pstate.get("steps_per_epoch", 0) or 1),
           "windows_seen": int(pstate.get("windows_seen", 0)),
-          "wall_s": float(pstate.get("wall_s", 0.0)), "recipe": pstate.get("recipe", {})}
+          "wall_s": float(pstate.get("wall_s", 0.0)),
+          "recipe": json.loads(scrub_text(json.dumps(pstate.get("recipe", {}))))}
     return {"runs": prev["runs"] + [me],
             "windows_seen": prev["windows_seen"] + me["windows_seen"],
             "wall_s": prev["wall_s"] + me["wall_s"], "steps": prev["steps"] + me["steps"],
@@ -150,11 +153,13 @@ def load_parent(source: str | os.PathLike) -> tuple[dict, dict, TPNetConfig]:
         meta = model.meta
         cfg = model.config
         # the file's counters already total the chain that made it: one inherited entry
-        state = {"data": str(meta.get("data", "")), "step": int(meta.get("training_steps", 0)),
+        state = {"data": str(meta.get("data", "")), "data_sha256": str(meta.get("data_sha256", "")),
+                 "step": int(meta.get("training_steps", 0)),
                  "epochs": float(meta.get("epochs", 0.0)),
                  "windows_seen": int(meta.get("windows_seen", 0)),
                  "wall_s": float(meta.get("wall_time_s", 0.0)),
-                 "recipe": {"weights_file": str(p), "source": str(meta.get("source", "")),
+                 "recipe": {"weights_file": portable_path(p),
+                            "source": portable_path(str(meta.get("source", ""))),
                             "recipe": json.loads(meta.get("recipe", "{}") or "{}"),
                             "parent_runs": json.loads(meta.get("parent_runs", "[]") or "[]")}}
         net = TorchTPNet.from_numpy(model)

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..config import TPNetConfig
 from ..extras import require
+from ..provenance import file_sha256, portable_path, scrub_text
 from ..weights.torch import import_torch
 from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, inherited, load_checkpoint, load_parent,
                          save_checkpoint)
@@ -436,7 +437,8 @@ class _Run:
             if max_minutes is None:
                 max_minutes = float(s.budget_minutes)
         self.total = max(1, int(round(r.epochs * spe)))
-        state.update({"recipe": asdict(r), "data": str(data_path), "steps_per_epoch": spe,
+        state.update({"recipe": asdict(r), "data": str(data_path),
+                      "data_sha256": file_sha256(data_path), "steps_per_epoch": spe,
                       "total_steps": self.total, "train_windows": self.n_train,
                       "val_windows": len(self.data.val_win), "device": self.dev,
                       "hardware": hardware(self.dev), "torch": torch.__version__,
@@ -643,16 +645,19 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
     spe = state.get("steps_per_epoch", 0) or 1
     inh = state.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
                                   "epochs": 0.0})
-    prov = {"source": str(source), "producer": "tpnet_ref.training",
-            "recipe": json.dumps(state.get("recipe", {}), sort_keys=True),
+    # every file named as the repository names it (or by file name), never by this machine's
+    # absolute path (tpnet_ref.provenance); the data also by its SHA-256
+    prov = {"source": portable_path(source), "producer": "tpnet_ref.training",
+            "recipe": scrub_text(json.dumps(state.get("recipe", {}), sort_keys=True)),
             "training_steps": int(state.get("step", 0)) + int(inh["steps"]),
             "epochs": float(state.get("step", 0)) / spe + float(inh["epochs"]),
             "windows_seen": int(state.get("windows_seen", 0)) + int(inh["windows_seen"]),
             "wall_time_s": float(state.get("wall_s", 0.0)) + float(inh["wall_s"]),
-            "parent_runs": json.dumps(inh["runs"], sort_keys=True),
+            "parent_runs": scrub_text(json.dumps(inh["runs"], sort_keys=True)),
             "hardware": str(state.get("hardware", "unknown")),
             "torch": str(state.get("torch", torch.__version__)),
-            "data": str(state.get("data", "")),
+            "data": portable_path(str(state.get("data", ""))),
+            "data_sha256": str(state.get("data_sha256", "")),
             "val": json.dumps(state.get("last_val", {}), sort_keys=True),
             "precision": json.dumps(state.get("precision", []), sort_keys=True),
             "export_max_abs_diff": diff}

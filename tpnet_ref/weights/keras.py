@@ -17,6 +17,7 @@ import numpy as np
 
 from ..config import TPNetConfig, param_shapes
 from ..model import TPNet
+from ..provenance import portable_path
 from .. import hdf5
 from ..hdf5 import (attr, check_shape, damaged_file_is_value_error, open_h5, py_str, read,
                    safe_child)
@@ -336,7 +337,8 @@ def import_keras_h5(path: str | os.PathLike, m: int | None = None,
         model, report = _keras_to_native(layers, ordered, facts,
                                          m, layer_norm_eps, lstm_activation, where, dtype)
     report = f"{layout}; " + report
-    model.meta.update({"source": where, "source_format": layout, "import_report": report})
+    model.meta.update({"source": portable_path(where), "source_format": layout,
+                       "import_report": report})
     return model
 
 

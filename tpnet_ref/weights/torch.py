@@ -28,6 +28,7 @@ import numpy as np
 from ..config import TPNetConfig, param_shapes
 from ..extras import require
 from ..model import TPNet
+from ..provenance import portable_path
 from .. import hdf5
 from ..hdf5 import check_shape
 
@@ -236,7 +237,8 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
     for k, v in params.items():
         if not np.isfinite(v).all():
             raise ValueError(f"{where}: parameter {k!r} contains NaN or infinite values")
-    meta = {"source": where, "source_format": "torch state dict", "import_note": how}
+    meta = {"source": portable_path(where) if where != "state dict" else where,
+            "source_format": "torch state dict", "import_note": how}
     return TPNet(cfg, params, dtype, meta)
 
 
