@@ -275,11 +275,11 @@ class TPNet:
 
 
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
-         engine: str = "numpy") -> TPNet:
+         engine: str = "auto") -> TPNet:
     """A :class:`TPNet` from a native weights file; ``path=None`` loads the shipped m = 4 model
     (:func:`tpnet_ref.native.default_weights_path`; a one-line ``FileNotFoundError``
     when there is none). A file written by a specialised model loads specialised. ``engine``:
-    see :class:`TPNet`."""
+    see :class:`TPNet`; "auto" (the default) is the Numba head where numba is installed."""
     path = default_weights_path() if path is None else path
     config, params, meta = read_native(path)
     return TPNet(config, params, dtype, meta, engine, unit_order=U.read(path),
