@@ -95,3 +95,18 @@ def test_export_errors_are_one_line(tmp_path, monkeypatch, argv, msg, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("tpnet export: error:") and msg in err[0]
     assert not (tmp_path / "OUT.onnx").exists()
+
+
+def test_export_without_onnx_names_the_extra(tmp_path, monkeypatch, capsys):
+    import tpnet_ref.extras as X
+    real = X.importlib.import_module
+
+    def fake(name, *a, **k):
+        if name.split(".")[0] == "onnx":
+            raise ImportError("No module named 'onnx'")
+        return real(name, *a, **k)
+    monkeypatch.setattr(X.importlib, "import_module", fake)
+    assert main(["export", "onnx", "-o", str(tmp_path / "m.onnx")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'tpnet-ref[onnx]'" in err[0]
+    assert not (tmp_path / "m.onnx").exists()
