@@ -2,7 +2,7 @@
 replace: a GPU, a phone, a C++ service) and onnxruntime as a peer in benchmarks and cross-checks.
 
 Built directly from a :class:`tpnet_ref.model.TPNet` (float32) with ``onnx.helper``: point-wise
-layers are MatMul/Add/Relu on ``(B, m, N, C)``, max-pooling is ReduceMax over the points, the
+layers are MatMul/Add/Relu on ``(B*m*N, C)``, max-pooling is ReduceMax over the points, the
 LSTMs are ONNX's fused ``LSTM`` op (bidirectional, activations Sigmoid/Relu/Relu as Keras'
 ``activation='relu'``, gate order converted from Keras i,f,c,o to ONNX i,o,f,c),
 LayerNormalization (opset 17). Input ``window`` ``(B, m, N, 2)``, output ``prediction``
@@ -59,26 +59,39 @@ def build_onnx(model, n_points: int | None = 30, opset: int = 17, world_units: b
                        const(f32[f"{prefix}.b"], prefix + "_b")])
         return op(act, [y]) if act else y
 
-    def reshape(x: str, shape: list[int]) -> str:   # 0: keep that axis (batch, m)
-        return op("Reshape", [x, const(np.array(shape, dtype=np.int64), "shape")])
+    def reshape(x: str, shape: list[int] | str) -> str:   # a list, or a shape tensor's name
+        return op("Reshape", [x, shape if isinstance(shape, str) else
+                              const(np.array(shape, dtype=np.int64), "shape")])
 
-    def maxpool(x: str) -> str:  # (B, m, N, C) -> (B, m, C)
-        return op("ReduceMax", [x], axes=[2], keepdims=0)
+    n_dyn = None
+    if n_points is None:     # N from the input's shape: (F, N, C) reshapes take it at run time
+        n_dyn = op("Slice", [op("Shape", ["window"]), const(np.array([2], np.int64), "start"),
+                             const(np.array([3], np.int64), "end")])
 
-    def tnet(x: str, prefix: str, k: int, mlp, fc) -> str:  # (B, m, N, k) -> (B, m, N, k)
+    def frames(channels: int) -> list[int] | str:   # the shape (F, N, channels)
+        if n_dyn is None:
+            return [-1, int(n_points), channels]
+        return op("Concat", [const(np.array([-1], np.int64), "minus_one"), n_dyn,
+                             const(np.array([channels], np.int64), "channels")], axis=0)
+
+    def maxpool(x: str, channels: int) -> str:  # (F*N, C) -> (F, C)
+        return op("ReduceMax", [reshape(x, frames(channels))], axes=[1], keepdims=0)
+
+    def tnet(x: str, prefix: str, k: int, mlp, fc) -> str:  # (F*N, k) -> (F*N, k)
         h = x
         for i in range(len(mlp)):
             h = dense(h, f"{prefix}.mlp.{i}")
-        g = maxpool(h)
+        g = maxpool(h, mlp[-1])
         for i in range(len(fc)):
             g = dense(g, f"{prefix}.fc.{i}")
-        t = reshape(dense(g, f"{prefix}.out", act=None), [0, 0, k, k])
-        return op("MatMul", [x, t])
+        t = reshape(dense(g, f"{prefix}.out", act=None), [-1, k, k])
+        return reshape(op("MatMul", [reshape(x, frames(k)), t]), [-1, k])
 
     x = "window"
     lo, scale = np.float32(cfg.norm_lo), np.float32(cfg.norm_hi - cfg.norm_lo)
     if world_units:      # (x - lo) / scale, as TPNet.normalize computes it
         x = op("Div", [op("Sub", [x, const(lo, "norm_lo")]), const(scale, "norm_scale")])
+    x = reshape(x, [-1, cfg.dim])
     if cfg.input_transform_trained:
         x = tnet(x, "input_tnet", cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
     for i in range(len(cfg.mlp1)):
@@ -87,8 +100,8 @@ def build_onnx(model, n_points: int | None = 30, opset: int = 17, world_units: b
         x = tnet(x, "feature_tnet", cfg.mlp1[-1], cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
     for i in range(len(cfg.mlp2)):
         x = dense(x, f"mlp2.{i}")
-    g = dense(maxpool(x), "global")                          # (B, m, k)
-    seq = op("Transpose", [g], perm=[1, 0, 2])               # (m, B, k)
+    g = dense(maxpool(x, cfg.mlp2[-1]), "global")
+    seq = op("Transpose", [reshape(g, [-1, cfg.m, cfg.global_features])], perm=[1, 0, 2])
     act = "Relu" if cfg.lstm_activation == "relu" else "Tanh"
     n_layers = len(cfg.lstm_units)
     for li, u in enumerate(cfg.lstm_units, start=1):
@@ -102,13 +115,13 @@ def build_onnx(model, n_points: int | None = 30, opset: int = 17, world_units: b
             hidden_size=u, direction="bidirectional",
             activations=["Sigmoid", act, act, "Sigmoid", act, act]))
         if li < n_layers:  # (m, 2, B, u) -> (m, B, 2u)
-            h = reshape(op("Transpose", [y], perm=[0, 2, 1, 3]), [0, 0, 2 * u])
+            h = reshape(op("Transpose", [y], perm=[0, 2, 1, 3]), [cfg.m, -1, 2 * u])
         else:  # Y_h (2, B, u): forward after the last step, backward after the whole sequence
-            h = reshape(op("Transpose", [y_h], perm=[1, 0, 2]), [0, 2 * u])
+            h = reshape(op("Transpose", [y_h], perm=[1, 0, 2]), [-1, 2 * u])
         seq = op("LayerNormalization", [h, const(f32[f"ln{li}.gamma"], "gamma"),
                                         const(f32[f"ln{li}.beta"], "beta")],
                  axis=-1, epsilon=float(cfg.layer_norm_eps))
-    out = reshape(dense(seq, "head", act="Sigmoid"), [0, cfg.n_out, cfg.dim])
+    out = reshape(dense(seq, "head", act="Sigmoid"), [-1, cfg.n_out, cfg.dim])
     if world_units:      # y * scale + lo, as TPNet.denormalize
         out = op("Add", [op("Mul", [out, const(scale, "norm_scale")]), const(lo, "norm_lo")])
     nodes.append(helper.make_node("Identity", [out], ["prediction"]))
