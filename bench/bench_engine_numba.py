@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     print(load_average())
     warnings.simplefilter("ignore")
-    npy = tpnet_ref.load()
+    npy = tpnet_ref.load(engine="numpy")
     nb = npy.with_engine("numba")
     from tpnet_ref.engine_numba import NumbaHead
     class AskTwo(NumbaHead):                    # always asks for the two-thread kernels

@@ -138,11 +138,13 @@ print(t1 - t0, rss1, rss2, ",".join(bad))
 """
 
 
-def cold_start(weights: Path, runs: int = 3, engine: str = "numpy") -> tuple[float, float, float, str]:
+def cold_start(weights: Path, runs: int = 3, engine: str = "numpy",
+               env: dict | None = None) -> tuple[float, float, float, str]:
     res = []
     for _ in range(runs):
         out = subprocess.run([sys.executable, "-c", COLD, str(weights), engine], check=True,
-                             capture_output=True, text=True).stdout.split()
+                             capture_output=True, text=True,
+                             env=None if env is None else {**os.environ, **env}).stdout.split()
         res.append(out)
     t = float(np.median([float(r[0]) for r in res]))
     return t, float(res[-1][1]), float(res[-1][2]), (res[-1][3] if len(res[-1]) > 3 else "")
@@ -166,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"machine: {machine()}; threads per peer: {THREADS or 'library default'}")
     cfg = TPNetConfig()
-    m32 = tpnet_ref.load()                # the shipped m = 4 model (with its unit order)
+    default_engine = tpnet_ref.load().engine    # "numba" where numba is installed
+    m32 = tpnet_ref.load(engine="numpy")  # the shipped m = 4 model (with its unit order)
     m32.threads = THREADS                 # None: a large batch is split across every core
     m_rand = init_random(cfg, seed=0, dtype="float32")
     m_rand.threads = THREADS
@@ -317,14 +320,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  cold start {cold:.3f} s; peak RSS {rss1:.0f} MB after first predict, "
               f"{rss2:.0f} MB after a B=256 batch; frameworks imported: {bad or 'none'}")
         nb_cold = None
+        nb_first = None
         if nb32 is not None:
             nb_cold, nrss1, nrss2, nbad = cold_start(path, engine="numba")
             print(f"  engine=numba (compiled code from numba's cache): cold start {nb_cold:.3f} s; "
                   f"peak RSS {nrss1:.0f} / {nrss2:.0f} MB; imported: {nbad or 'none'}")
+            with tempfile.TemporaryDirectory() as cache:   # an empty cache: the first process
+                nb_first = cold_start(path, 1, "numba", {"NUMBA_CACHE_DIR": cache})[0]
+            print(f"  engine=numba, the first process after installing (compiles into numba's "
+                  f"cache): cold start {nb_first:.3f} s")
 
     r = rows
     ours = r["tpnet_ref float32"]
-    print(f"\nratios and targets, default settings (engine={m32.engine}):")
+    print(f"\nratios and targets, engine=numpy (the default where numba is not installed; "
+          f"here the default is engine={default_engine}):")
     checks = []
     if alt is not None:
         lat_ratio = paired(alt["b1"], "numpy", "onnxruntime")
@@ -356,20 +365,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {label:58s} {val:8.3f}{mark}")
     if nb32 is not None and alt is not None:
         nb = r["tpnet_ref float32, engine=numba"]
-        nchecks = [("B=1 latency / onnxruntime (target <= 1.0)",
+        nchecks = [("B=1 latency / onnxruntime (target <= 0.75)",
                     paired(alt["b1"], "numba", "onnxruntime")),
-                   ("B=256 throughput / onnxruntime (target >= 1.25)",
+                   ("B=256 throughput / onnxruntime (target >= 1.5)",
                     paired(alt["b256"], "onnxruntime", "numba"))]
         if nb_roll is not None:
-            nchecks.append(("rollout time per frame / onnxruntime loop (target <= 1.0)",
+            nchecks.append(("rollout time per frame / onnxruntime loop (target <= 0.5)",
                             nb_roll / ort_roll))
         if nb_busy is not None:
             nchecks.append(("B=1 latency, one core busy / idle (target <= 1.5)", nb_busy))
-        nchecks += [("cold start seconds (target <= 1)", nb_cold),
+        nchecks += [("cold start seconds, numba's cache filled", nb_cold),
+                    ("cold start seconds, first process after installing", nb_first),
                     ("float64 / float32 time, B=1 (target <= 2.5)",
                      r["tpnet_ref float64, engine=numba"]["b1_ms"] / nb["b1_ms"]),
                     ("B=1 latency / engine=numpy B=1 latency", paired(alt["b1"], "numba", "numpy"))]
-        print(f"\nratios and targets, engine=numba (batches above {ENGINE_MAX_BATCH} windows take the NumPy path):")
+        print(f"\nratios and targets, engine=numba (the default where numba is installed; "
+              f"batches above {ENGINE_MAX_BATCH} windows take the NumPy path):")
         for label, val in nchecks:
             lim = label.split("target ")[1].rstrip(")") if "target" in label else None
             ok = None if lim is None else (val <= float(lim[2:]) if lim.startswith("<=")

@@ -47,7 +47,7 @@ def parse_quick(doc: str, argv: list[str] | None) -> bool:
 def main(argv: list[str] | None = None) -> int:
     quick = parse_quick(__doc__, argv)
     n_cal = 12 if quick else 36
-    full = tpnet_ref.load()
+    full = tpnet_ref.load(engine="numpy")
     m = full.config.m
     t0 = time.perf_counter()
     cal = D.calibration_windows(full, n_cal, seed=0, rollout=40)

@@ -121,3 +121,21 @@ def test_a_single_window_gives_the_same_bits_whatever_the_threads(engine, dtype,
     for plan, n in (("2", 2), ("1", 2), ("2", 1)):
         for a, b in zip(first, outputs(plan, n)):
             assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_feature_blocks_on_two_threads_give_the_same_bits(engine, monkeypatch):
+    """A batch of more than one feature block (fast_numpy.BLOCK_POINTS points) that split_batch
+    does not cut: its blocks run on one thread or two, the same bits, ragged frames included."""
+    model = init_random(seed=5, dtype="float32").with_engine(engine)
+    rng = np.random.default_rng(6)
+    windows = rng.uniform(5, 40, (40, 4, 30, 2))                    # 4800 points: 3 blocks
+    ragged = [rng.uniform(5, 40, (n, 2)) for n in rng.integers(200, 900, 4)]
+    runs = {}
+    for plan in ("1", "2", "1"):
+        monkeypatch.setenv("TPNET_THREADS", plan)
+        runs.setdefault(plan, []).append((model.predict_batch(windows), model.predict(ragged),
+                                          model.rollout_batch(windows[:20], 2)))
+    (a,), (b, c) = runs["2"], runs["1"]
+    for x, y, z in zip(a, b, c):
+        assert np.array_equal(x, y) and np.array_equal(y, z)

@@ -72,3 +72,22 @@ def test_info_is_a_readable_summary_and_json_on_request(weights, capsys):
     assert main(["info", weights, "--json"]) == 0
     full = json.loads(capsys.readouterr().out)
     assert full["config"]["m"] == 4 and full["meta"]["note"] == "a test network"
+
+
+@pytest.mark.parametrize("argv, engine", [
+    ([], "numpy"),                                   # one window: loading numba costs more
+    (["--steps", "1000"], "auto"),                   # a long rollout: the compiled engine
+    (["--steps", "2", "--engine", "numba"], "numba"),
+])
+def test_predict_picks_the_engine_faster_for_its_work(monkeypatch, tmp_path, weights, window,
+                                                     argv, engine):
+    import tpnet_ref
+    asked = []
+    real = tpnet_ref.load
+
+    def load(*a, **k):
+        asked.append(k.get("engine"))
+        return real(*a, **k)
+    monkeypatch.setattr(tpnet_ref, "load", load)
+    assert main(["predict", window, "--weights", weights, "-o", str(tmp_path / "p.npy")] + argv) == 0
+    assert asked == [engine]

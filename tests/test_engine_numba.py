@@ -181,11 +181,16 @@ def test_auto_engine_is_numba_when_installed(released64):
     assert released64.with_engine("auto").engine == "numba"
 
 
+def test_load_runs_the_numba_engine_by_default_where_numba_is_installed():
+    assert tpnet_ref.load().engine == "numba"
+    assert tpnet_ref.load(engine="numpy").engine == "numpy"
+
+
 def test_numpy_engine_imports_no_numba(tmp_path):
     path = tmp_path / "w.h5"
     init_random(seed=0).save(path)
     code = ("import sys, numpy as np, tpnet_ref\n"
-            f"m = tpnet_ref.load({str(path)!r})\n"
+            f"m = tpnet_ref.load({str(path)!r}, engine='numpy')\n"
             "m.predict(np.random.default_rng(0).uniform(5, 40, (4, 30, 2)))\n"
             "print('numba' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -200,7 +205,7 @@ from tpnet_ref import engine_numba as EN  # noqa: E402
 
 @pytest.fixture(scope="module")
 def shipped():
-    return tpnet_ref.load()
+    return tpnet_ref.load(engine="numpy")
 
 
 @pytest.fixture(scope="module")

@@ -71,6 +71,7 @@ def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tm
             "assert w.shape == (4, 30, 2) and y.shape == (30, 2) and np.isfinite(y).all(), y; "
             "h = tpnet_ref.predict(w, tpnet_ref.load(size='half')); "     # point sets: compare
             "assert np.abs(h.mean(0) - y.mean(0)).max() < 0.5, h; "          # the centroids
+            "assert tpnet_ref.load().engine == 'numpy'; "      # no numba: the NumPy engine
             "print(tpnet_ref.load().meta['path']); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in "
             f"{OPTIONAL!r}))")
@@ -101,5 +102,7 @@ def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tm
     assert r.returncode == 2
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "tpnet-ref[eval]" in r.stderr, r.stderr      # the one extra that covers the demo
+    r = _run([tpnet, "export", "onnx", "-o", str(tmp_path / "m.onnx")], cwd=tmp_path)
+    assert r.returncode == 2 and "pip install 'tpnet-ref[onnx]'" in r.stderr, r.stderr
     r = _run([tpnet, "--help"], cwd=tmp_path)
     assert r.returncode == 0 and "demo" in r.stdout

@@ -98,7 +98,7 @@ def test_unit_order_round_trips_through_the_native_file(tmp_path):
     perm = model.with_unit_order(order)
     path = tmp_path / "w.h5"
     perm.save(path)
-    back = tpnet_ref.load(path)
+    back = tpnet_ref.load(path, engine=perm.engine)
     assert set(back.unit_order) == set(order)
     for k in order:
         np.testing.assert_array_equal(back.unit_order[k], order[k])

@@ -24,7 +24,7 @@ __version__ = "0.2.0"
 _default_model: TPNet | None = None
 
 
-def load(path: _Any = None, dtype: _Any = "float32", engine: str = "numpy", *,
+def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
          m: int = 4, size: str = "full") -> TPNet:
     """A :class:`TPNet` from a native weights file (:func:`tpnet_ref.model.load`).
 
@@ -33,7 +33,11 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "numpy", *,
     (``"half"``, ``"quarter"``: every width halved or quartered, faster, less accurate;
     ``weights/MODEL_CARD.md``),
     found by :func:`tpnet_ref.native.shipped_weights_path`. ``m`` and ``size`` are only
-    for the shipped files: with a ``path`` they must stay at their defaults."""
+    for the shipped files: with a ``path`` they must stay at their defaults.
+
+    ``engine``: "auto" (the default: the compiled Numba head where numba is installed, else the
+    NumPy one; a process's first call then loads numba and its cached code, and the very first
+    one after installing compiles it: docs/deployment.md), "numpy" or "numba"."""
     if path is None:
         if m == 4 and size == "full":
             return _load_file(None, dtype, engine)

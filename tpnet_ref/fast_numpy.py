@@ -22,10 +22,27 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import layers as L
+from .blas import two_threads
 from .checks import overflow_error
 
 #: points per block of the feature extractor (activations of a block stay in cache)
 BLOCK_POINTS = 2048
+_POOL: list[Any] = []
+
+
+def _pair(fn: Any, parts: list[tuple]) -> list:
+    """``[fn(*p) for p in parts]``, the second half of ``parts`` on a second thread when the
+    calling block may take one (:func:`tpnet_ref.blas.two_threads`); the same results either way
+    (each part is computed by the same code, whichever thread runs it)."""
+    if len(parts) < 2 or not two_threads():
+        return [fn(*p) for p in parts]
+    if not _POOL:                        # one worker for the whole process, made on first use
+        from concurrent.futures import ThreadPoolExecutor
+        _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="tpnet-features"))
+    half = len(parts) // 2
+    other = _POOL[0].submit(lambda: [fn(*p) for p in parts[half:]])
+    mine = [fn(*p) for p in parts[:half]]
+    return mine + other.result()
 
 
 class _Layer(NamedTuple):
@@ -86,18 +103,19 @@ class NumpyFeatures:
         """Global feature ``G`` of every frame. ``points (P, dim)``: the frames' points one frame
         after another, each frame in canonical order; ``counts (F,)`` -> ``(F, k)``. Large inputs
         go through in blocks of whole frames (about ``BLOCK_POINTS`` points each) so that the
-        per-point activations stay in cache; each frame's feature depends on its own points."""
+        per-point activations stay in cache; the blocks run on two threads where the calling
+        block may take a second one (the same blocks either way). Each frame's feature depends
+        on its own points and the input's shapes alone."""
         counts = np.asarray(counts)
         if points.shape[0] <= BLOCK_POINTS:
             return self._block(points, counts)
         ends = np.cumsum(counts)
-        out = np.empty((len(counts), self.k), dtype=points.dtype)
-        f0, p0 = 0, 0
+        parts, f0, p0 = [], 0, 0
         while f0 < len(counts):
             f1 = max(f0 + 1, int(np.searchsorted(ends, p0 + BLOCK_POINTS, side="right")))
-            out[f0:f1] = self._block(points[p0:ends[f1 - 1]], counts[f0:f1])
+            parts.append((points[p0:ends[f1 - 1]], counts[f0:f1]))
             f0, p0 = f1, int(ends[f1 - 1])
-        return out
+        return np.concatenate(_pair(self._block, parts))
 
     def _block(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
         # far-out input may overflow here (float32): the head checks what comes out and

@@ -36,7 +36,7 @@ from . import unit_order as U
 from .blas import SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, one_thread, split_batch  # noqa: F401
 from .checks import check_params, check_window, check_windows, warn_about_input
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
-from .fast_numpy import NumpyFeatures
+from .fast_numpy import BLOCK_POINTS, NumpyFeatures
 from .heads import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
 from .native import default_weights_path, read_native, write_native
 
@@ -211,18 +211,20 @@ class TPNet:
         return self.head_for(len(features))(features, proj1)
 
     def _threads(self, what: str, batch: int, points: int) -> Any:
-        """The block a call's work runs in: always a one-thread BLAS; for a head that may take
-        a second thread (numba), also :data:`tpnet_ref.blas.adaptive`, which lets it while that
-        measures faster (the same bits either way)."""
-        if not self.head_for(batch).threaded:
+        """The block a call's work runs in: always a one-thread BLAS, and
+        :data:`tpnet_ref.blas.adaptive`, which lets the parts that may take a second thread (the
+        feature extractor's blocks of :data:`~tpnet_ref.fast_numpy.BLOCK_POINTS` points, the
+        numba head's two directions) take it while that measures faster (the same bits either
+        way). A call with nothing to share runs on one thread."""
+        if not self.head_for(batch).threaded and points <= BLOCK_POINTS:
             return one_thread()
         return adaptive((id(self), what, batch, points))
 
     def preferred_threads(self, what: str = "predict", batch: int = 1, points: int = 0) -> int | None:
         """The plan :data:`tpnet_ref.blas.adaptive` measured faster for this model's calls of
         ``what`` ("predict", "features", "rollout step") on ``batch`` windows of ``points``
-        points in all: 1 (one thread), 0 (two threads) or None (not measured: the NumPy head
-        runs on one thread)."""
+        points in all: 1 (one thread), 0 (two threads) or None (not measured yet, or nothing
+        to share: one feature block on the NumPy head)."""
         return adaptive.preferred((id(self), what, batch, points))
 
     def _split(self, fn: Any, windows: Any, one: bool, normalized: bool, *args: Any) -> np.ndarray:
@@ -302,11 +304,11 @@ class TPNet:
 
 
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
-         engine: str = "numpy") -> TPNet:
+         engine: str = "auto") -> TPNet:
     """A :class:`TPNet` from a native weights file; ``path=None`` loads the shipped m = 4 model
     (:func:`tpnet_ref.native.default_weights_path`; a one-line ``FileNotFoundError``
     when there is none). A file written by a specialised model loads specialised. ``engine``:
-    see :class:`TPNet`."""
+    see :class:`TPNet`; "auto" (the default) is the Numba head where numba is installed."""
     if np.dtype(dtype) not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     H.resolve_engine(engine)          # the arguments' errors first, the file's below name it

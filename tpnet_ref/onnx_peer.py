@@ -1,12 +1,21 @@
-"""The same TP-Net as an ONNX graph, for onnxruntime as a peer in benchmarks and cross-checks.
+"""The same TP-Net as an ONNX graph: ``tpnet export onnx`` (for runtimes this package does not
+replace: a GPU, a phone, a C++ service) and onnxruntime as a peer in benchmarks and cross-checks.
 
 Built directly from a :class:`tpnet_ref.model.TPNet` (float32) with ``onnx.helper``: point-wise
-layers are MatMul/Add/Relu on ``(B*m*N, C)``, max-pooling is ReduceMax, the LSTMs are ONNX
-``LSTM`` ops (bidirectional, activations Sigmoid/Relu/Relu as Keras' ``activation='relu'``, gate
-order converted from Keras i,f,c,o to ONNX i,o,f,c), LayerNormalization (opset 17).
-Input ``window`` ``(B, m, N, 2)`` normalised, output ``(B, n_out, 2)``; N is fixed at export.
+layers are MatMul/Add/Relu on ``(B*m*N, C)``, max-pooling is ReduceMax over the points, the
+LSTMs are ONNX's fused ``LSTM`` op (bidirectional, activations Sigmoid/Relu/Relu as Keras'
+``activation='relu'``, gate order converted from Keras i,f,c,o to ONNX i,o,f,c),
+LayerNormalization (opset 17). Input ``window`` ``(B, m, N, 2)``, output ``prediction``
+``(B, n_out, 2)``, both normalised or, with ``world_units``, both in world units (the
+normalisation and its inverse are in the graph). The batch is dynamic, and N too unless fixed.
+
+The graph computes what :meth:`TPNet.predict_batch` computes, without its input checks and
+without the canonical point order (max-pooling is invariant: the results differ by rounding
+only, ``tests/test_onnx_export.py``).
 """
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -19,9 +28,11 @@ def _ifco_to_iofc(a: np.ndarray) -> np.ndarray:
     return np.concatenate([i, o, f, c], axis=0)
 
 
-def build_onnx(model, n_points: int = 30, opset: int = 17):
-    """ONNX ``ModelProto`` computing ``model``'s forward pass in float32 (batch is dynamic)."""
-    onnx = require("onnx", "crosscheck")
+def build_onnx(model, n_points: int | None = 30, opset: int = 17, world_units: bool = False):
+    """ONNX ``ModelProto`` computing ``model``'s forward pass in float32. The batch is dynamic;
+    ``n_points`` fixes N in the declared input shape (None: dynamic, named "N");
+    ``world_units``: input and output in world units (else model coordinates)."""
+    onnx = require("onnx", "onnx")
     from onnx import TensorProto, helper, numpy_helper
 
     cfg, p = model.config, model.params
@@ -48,11 +59,23 @@ def build_onnx(model, n_points: int = 30, opset: int = 17):
                        const(f32[f"{prefix}.b"], prefix + "_b")])
         return op(act, [y]) if act else y
 
-    def reshape(x: str, shape: list[int]) -> str:
-        return op("Reshape", [x, const(np.array(shape, dtype=np.int64), "shape")])
+    def reshape(x: str, shape: list[int] | str) -> str:   # a list, or a shape tensor's name
+        return op("Reshape", [x, shape if isinstance(shape, str) else
+                              const(np.array(shape, dtype=np.int64), "shape")])
+
+    n_dyn = None
+    if n_points is None:     # N from the input's shape: (F, N, C) reshapes take it at run time
+        n_dyn = op("Slice", [op("Shape", ["window"]), const(np.array([2], np.int64), "start"),
+                             const(np.array([3], np.int64), "end")])
+
+    def frames(channels: int) -> list[int] | str:   # the shape (F, N, channels)
+        if n_dyn is None:
+            return [-1, int(n_points), channels]
+        return op("Concat", [const(np.array([-1], np.int64), "minus_one"), n_dyn,
+                             const(np.array([channels], np.int64), "channels")], axis=0)
 
     def maxpool(x: str, channels: int) -> str:  # (F*N, C) -> (F, C)
-        return op("ReduceMax", [reshape(x, [-1, n_points, channels])], axes=[1], keepdims=0)
+        return op("ReduceMax", [reshape(x, frames(channels))], axes=[1], keepdims=0)
 
     def tnet(x: str, prefix: str, k: int, mlp, fc) -> str:  # (F*N, k) -> (F*N, k)
         h = x
@@ -62,9 +85,13 @@ def build_onnx(model, n_points: int = 30, opset: int = 17):
         for i in range(len(fc)):
             g = dense(g, f"{prefix}.fc.{i}")
         t = reshape(dense(g, f"{prefix}.out", act=None), [-1, k, k])
-        return reshape(op("MatMul", [reshape(x, [-1, n_points, k]), t]), [-1, k])
+        return reshape(op("MatMul", [reshape(x, frames(k)), t]), [-1, k])
 
-    x = reshape("window", [-1, cfg.dim])
+    x = "window"
+    lo, scale = np.float32(cfg.norm_lo), np.float32(cfg.norm_hi - cfg.norm_lo)
+    if world_units:      # (x - lo) / scale, as TPNet.normalize computes it
+        x = op("Div", [op("Sub", [x, const(lo, "norm_lo")]), const(scale, "norm_scale")])
+    x = reshape(x, [-1, cfg.dim])
     if cfg.input_transform_trained:
         x = tnet(x, "input_tnet", cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
     for i in range(len(cfg.mlp1)):
@@ -95,11 +122,15 @@ def build_onnx(model, n_points: int = 30, opset: int = 17):
                                         const(f32[f"ln{li}.beta"], "beta")],
                  axis=-1, epsilon=float(cfg.layer_norm_eps))
     out = reshape(dense(seq, "head", act="Sigmoid"), [-1, cfg.n_out, cfg.dim])
+    if world_units:      # y * scale + lo, as TPNet.denormalize
+        out = op("Add", [op("Mul", [out, const(scale, "norm_scale")]), const(lo, "norm_lo")])
     nodes.append(helper.make_node("Identity", [out], ["prediction"]))
+    n_in = "N" if n_points is None else int(n_points)
     graph = helper.make_graph(
         nodes, "tpnet",
-        [helper.make_tensor_value_info("window", TensorProto.FLOAT, ["B", cfg.m, n_points, cfg.dim])],
-        [helper.make_tensor_value_info("prediction", TensorProto.FLOAT, ["B", cfg.n_out, cfg.dim])],
+        [helper.make_tensor_value_info("window", TensorProto.FLOAT, ["batch", cfg.m, n_in, cfg.dim])],
+        [helper.make_tensor_value_info("prediction", TensorProto.FLOAT,
+                                       ["batch", cfg.n_out, cfg.dim])],
         inits)
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
     proto.ir_version = min(proto.ir_version, 9)
@@ -107,16 +138,39 @@ def build_onnx(model, n_points: int = 30, opset: int = 17):
     return proto
 
 
-def onnx_session(model, n_points: int = 30, threads: int | None = None):
+def export_onnx(model, path: str | os.PathLike, opset: int = 17) -> dict[str, str]:
+    """Write ``model`` as an ONNX file for other runtimes (``tpnet export onnx``): input
+    ``window`` float32 ``(batch, m, N, 2)`` in world units, output ``prediction``
+    ``(batch, n_out, 2)`` in world units, batch and N dynamic, LSTMs as ONNX ``LSTM`` ops.
+    Returns the metadata written with it (also readable as the file's ``metadata_props``)."""
+    from onnx import helper
+
+    proto = build_onnx(model, n_points=None, opset=opset, world_units=True)
+    c = model.config
+    meta = {"producer": "tpnet_ref.onnx_peer.export_onnx", "m": str(c.m), "n_out": str(c.n_out),
+            "units": "world", "norm_lo": repr(c.norm_lo), "norm_hi": repr(c.norm_hi),
+            **{f"weights_{k}": str(model.meta[k]) for k in ("source", "created")
+               if k in model.meta}}
+    helper.set_model_props(proto, meta)
+    proto.doc_string = (f"TP-Net (m={c.m}, lstm={c.lstm_units}): window (batch, {c.m}, N, "
+                        f"{c.dim}) -> prediction (batch, {c.n_out}, {c.dim}), world units")
+    with open(path, "wb") as f:
+        f.write(proto.SerializeToString())
+    return meta
+
+
+def onnx_session(model, n_points: int | None = 30, threads: int | None = None,
+                 world_units: bool = False):
     """An onnxruntime ``InferenceSession`` (CPU) for ``model``; ``run(window)`` -> prediction."""
     ort = require("onnxruntime", "crosscheck")
     opts = ort.SessionOptions()
     if threads:
         opts.intra_op_num_threads = threads
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    sess = ort.InferenceSession(build_onnx(model, n_points).SerializeToString(), opts,
-                                providers=["CPUExecutionProvider"])
+    sess = ort.InferenceSession(
+        build_onnx(model, n_points, world_units=world_units).SerializeToString(), opts,
+        providers=["CPUExecutionProvider"])
     return sess
 
 
-__all__ = ["build_onnx", "onnx_session"]
+__all__ = ["build_onnx", "export_onnx", "onnx_session"]

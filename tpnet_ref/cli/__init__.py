@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.cli.train",        # train run|export|bench|baselines|score
     "tpnet_ref.cli.specialize",   # specialize
     "tpnet_ref.cli.observe",      # observe
+    "tpnet_ref.cli.export",       # export onnx
 )
 
 

@@ -9,6 +9,11 @@ import numpy as np
 
 from ..checks import OutsideTrainingRangeWarning
 
+#: ``tpnet predict`` runs the Numba engine (where installed) from this many steps on: below, a
+#: fresh process's cost of loading numba and its cached code (about 1 s, docs/deployment.md)
+#: is more than the ~1 ms a step it saves
+NUMBA_MIN_STEPS = 1000
+
 
 def add_cli(sub: Any) -> None:
     p = sub.add_parser("info", help="describe a weights file: network, parameters, stored dtype, "
@@ -26,6 +31,10 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--steps", type=int, default=1, help="frames to roll out (default 1)")
     p.add_argument("--normalized", action="store_true", help="window is in model coordinates")
     p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
+    p.add_argument("--engine", default=None, choices=("numpy", "numba", "auto"),
+                   help="inference engine (default: the faster for this call from a fresh "
+                        f"process: numba, where installed, from {NUMBA_MIN_STEPS} steps on; "
+                        "numpy below, where loading numba costs more than it saves)")
     p.add_argument("-o", "--output", default=None, help="file for the (steps, n_out, 2) result, .npy format, written to exactly this path")
     p.set_defaults(func=_cli_predict)
 
@@ -55,7 +64,8 @@ def _cli_predict(args: Any) -> int:
     from .files import load_npy, output_path, save_npy
     if args.output:
         output_path(args.output)                # a bad directory fails before any work
-    model = tpnet_ref.load(args.weights, dtype=args.dtype)
+    engine = args.engine or ("auto" if args.steps >= NUMBA_MIN_STEPS else "numpy")
+    model = tpnet_ref.load(args.weights, dtype=args.dtype, engine=engine)
     window = load_npy(args.window)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutsideTrainingRangeWarning)

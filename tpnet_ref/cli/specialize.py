@@ -50,7 +50,8 @@ def _prepare(args: Any) -> tuple[Path | None, Path, Any]:
     src = None if args.source is None else Path(args.source)
     if src is not None and not src.is_file():
         raise FileNotFoundError(f"source not found: {src}")
-    return src, output_path(args.output, "-o"), load(args.weights)
+    # batches of many windows: the NumPy head runs them either way (no numba to load)
+    return src, output_path(args.output, "-o"), load(args.weights, engine="numpy")
 
 
 def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool, str]:

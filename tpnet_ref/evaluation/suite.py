@@ -78,7 +78,9 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
             print(f"tpnet eval: {line}", file=log)
     out_dir = args.out or default_out_dir()
     names = [Path(w).name for w in args.weights]
-    models = [ModelSpec(f"TP-Net {n if names.count(n) == 1 else w}", load(w, dtype="float32"))
+    # batched rollouts (the NumPy head either way); the timing rows are the NumPy engine's
+    models = [ModelSpec(f"TP-Net {n if names.count(n) == 1 else w}",
+                        load(w, dtype="float32", engine="numpy"))
               for n, w in zip(names, args.weights)]
     ms = args.m or ([s.model.config.m for s in models] or [4])
     if args.data:

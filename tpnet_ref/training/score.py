@@ -51,7 +51,7 @@ def score_rollouts(data: WindowData, weights: list[str | os.PathLike], horizon: 
     preds = {"copy last": copy_last(windows, horizon),
              "constant velocity": constant_velocity(windows, horizon)}
     for w in weights:
-        model = load(w)
+        model = load(w, engine="numpy")      # batches: the NumPy head runs them either way
         if model.config.m != data.m:
             raise ValueError(f"{w}: m={model.config.m}, the dataset has m={data.m}")
         preds[str(w)] = batched_rollout(model, windows, horizon)
@@ -70,7 +70,7 @@ def spacing_report(data: WindowData, weights: list[str | os.PathLike],
     x, y = data.gather(data.val_win[::every])
     out = {"truth": spacing_stats(y[:, 0])}
     for w in weights:
-        out[str(w)] = spacing_stats(load(w).predict_batch(x.astype(np.float64), normalized=True))
+        out[str(w)] = spacing_stats(load(w, engine="numpy").predict_batch(x.astype(np.float64), normalized=True))
     return out
 
 
