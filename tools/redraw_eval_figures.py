@@ -44,7 +44,9 @@ def read_curves(path: str | Path, group: str = "test") -> list[Curve]:
 
 
 def _number(cell: str) -> float | None:
-    cell = cell.strip()
+    """A table cell's number: the cell itself, or the mean that leads an error cell
+    (``mean [lo, hi] med median``)."""
+    cell = cell.strip().split(" ")[0] if cell.strip() else ""
     return None if cell in ("", "–", "-") else float(cell)
 
 

@@ -77,6 +77,70 @@ def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     return Path(path)
 
 
+def plot_spread(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
+    """The per-case distribution of the position error after 40 and 80 predictions (one panel
+    each; reading ``squared``, ordering ``given``, log axis): for every m the model(s) and the two
+    baselines as a box (quartiles, whiskers 5-95 %) over every case's dot, the mean as a white
+    diamond with its 95 % bootstrap interval, the paper's TP-Net mean as a red star."""
+    from .run import PAPER_TABLE
+    from .spread import spread
+    plt = _plt()
+    key = f"Ep_{HEADLINE}"
+    given = [c for c in curves if c.ordering == "given"]
+    if not given:
+        raise ValueError("plot_spread: no curve of input ordering 'given'")
+    hs = table_horizons(min(c.err[key].shape[1] for c in given))
+    ms = sorted({c.m for c in given})
+    order = {"copy last": 1, "constant velocity": 2}
+    colours = {"copy last": "0.55", "constant velocity": "tab:orange"}
+    fig, axes = plt.subplots(1, len(hs), figsize=(5.6 * len(hs), 4.8), squeeze=False,
+                             sharey=True)
+    rng = np.random.default_rng(0)                  # the dots' horizontal jitter only
+    for j, h in enumerate(hs):
+        ax = axes[0, j]
+        x, ticks, labels = 0.0, [], []
+        for m in ms:
+            for c in sorted((c for c in given if c.m == m), key=lambda c: order.get(c.name, 0)):
+                v = np.maximum(c.err[key][:, h - 1], 1e-6)      # log axis: an exact 0 at 1e-6
+                col = colours.get(c.name, "tab:blue")
+                ax.boxplot(v, positions=[x], widths=0.6, whis=(5, 95), showfliers=False,
+                           medianprops=dict(color="k", lw=1.5),
+                           boxprops=dict(color=col), whiskerprops=dict(color=col),
+                           capprops=dict(color=col))
+                ax.scatter(x + rng.uniform(-0.18, 0.18, v.size), v, s=7, color=col, alpha=0.6,
+                           lw=0, zorder=3)
+                s = spread(c.err[key][:, h - 1])
+                ax.errorbar([x], [s.mean], yerr=[[s.mean - s.lo], [s.hi - s.mean]], fmt="D",
+                            ms=6, mfc="white", mec="k", ecolor="k", capsize=3, zorder=5)
+                if c.name not in order and m in PAPER_TABLE and h in HORIZONS:
+                    ax.scatter([x], [PAPER_TABLE[m][2 * HORIZONS.index(h)]], marker="*",
+                               s=140, color="tab:red", zorder=6)
+                ticks.append(x)
+                labels.append(("TP-Net" if c.name not in order else c.name.replace(" ", "\n"))
+                              + f"\nm={m}")
+                x += 1.0
+            x += 0.6
+        ax.set_xticks(ticks)
+        ax.set_xticklabels(labels, fontsize=7)
+        ax.set_yscale("log")
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+        ax.set_title(f"after {h} predictions", fontsize=10)
+    axes[0, 0].set_ylabel(f"position error E_p ({HEADLINE}), one dot per case")
+    from matplotlib.lines import Line2D
+    handles = [Line2D([], [], ls="none", marker="D", mfc="white", mec="k", color="k",
+                      label="mean with 95 % bootstrap interval"),
+               Line2D([], [], color="k", lw=1.5, label="median; box: quartiles; "
+                                                     "whiskers: 5-95 %"),
+               Line2D([], [], ls="none", marker="*", ms=11, color="tab:red",
+                      label="TP-Net, paper (mean)")]
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.suptitle("Per-case position error on the held-out cases", fontsize=11)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
 def plot_groups(groups: dict[str, Sequence[Curve]], path: str | os.PathLike) -> Path:
     """Generalisation: E_p vs prediction step, one panel per group of scenes (ordering given).
 
@@ -205,10 +269,13 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
                               + "y (world units)", fontsize=7)
             if i == C - 1:
                 ax.set_xlabel("x (world units)", fontsize=7)
-    axes[0, -1].legend(fontsize=6, loc="upper right")
+    # one legend below the panels, where it covers no ring
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8,
+               frameon=False, markerscale=1.5)
     fig.suptitle("Simulated (dots) and predicted (crosses) rings on held-out cases; each panel "
                  "zoomed on its own, equal aspect, walls in grey", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.35 / (2.6 * C), 1, 1))
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return Path(path)
@@ -298,4 +365,4 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     return Path(path)
 
 
-__all__ = ["plot_models", "plot_groups", "plot_timing", "plot_gallery", "plot_demo"]
+__all__ = ["plot_models", "plot_spread", "plot_groups", "plot_timing", "plot_gallery", "plot_demo"]
