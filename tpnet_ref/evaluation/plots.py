@@ -302,9 +302,9 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     frames m..m+H-1; ``titles[h]``: the errors printed above the panel of horizon ``h``."""
     plt = _plt()
     hs = [h for h in horizons if 1 <= h <= pred.shape[0]][:4]
-    fig = plt.figure(figsize=(17, 8.5))
-    gs = fig.add_gridspec(2, 4, width_ratios=(1, 1, 0.78, 0.78), wspace=0.28, hspace=0.42)
-    box = fig.add_subplot(gs[:, 0:2])
+    fig = plt.figure(figsize=(14, 8.2))
+    gs = fig.add_gridspec(2, 3, width_ratios=(2.25, 1, 1), wspace=0.32, hspace=0.5)
+    box = fig.add_subplot(gs[:, 0])
     c_true, c_pred = "black", "tab:red"
     last = m - 1 + pred.shape[0]
     tc = truth[: last + 1].mean(axis=1)
@@ -316,31 +316,47 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     for j in range(m):
         box.scatter(truth[j, :, 0], truth[j, :, 1], s=9, color="tab:blue",
                     label=f"input frames 0..{m - 1}" if j == 0 else None, zorder=3)
-    for k, h in enumerate(hs):
+    # the box shows the rings of a horizon only where they overlap no ring drawn before (the
+    # zoomed panels show every horizon)
+    drawn: list[np.ndarray] = [truth[j] for j in range(m)]
+    in_box: list[int] = []
+    for h in hs:
+        pair = np.vstack([truth[m - 1 + h], pred[h - 1]])
+        if all(np.linalg.norm(pair[:, None] - d[None], axis=-1).min() > 1.0 for d in drawn):
+            in_box.append(h)
+            drawn.append(pair)
+    obstacles = np.vstack(drawn + [tc, pc])
+    for k, h in enumerate(in_box):
         t, q = truth[m - 1 + h], pred[h - 1]
         box.scatter(t[:, 0], t[:, 1], s=9, color=c_true, zorder=3,
                     label="simulator: particles at h" if k == 0 else None)
         box.scatter(q[:, 0], q[:, 1], s=14, marker="x", color=c_pred, zorder=4,
                     label=f"{label}: predicted points" if k == 0 else None)
-        tcen, qcen = t.mean(0), q.mean(0)
-        box.plot([tcen[0], qcen[0]], [tcen[1], qcen[1]], color="0.5", lw=0.8, ls=":", zorder=2)
-        top = max(t[:, 1].max(), q[:, 1].max())       # one label, above both rings
-        box.annotate(f"h={h}", ((tcen[0] + qcen[0]) / 2, top), xytext=(0, 9),
-                     textcoords="offset points", ha="center", va="bottom", fontsize=9,
-                     weight="bold", bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none",
-                                              alpha=0.8))
+        # the label where the box is emptiest near the pair, with a leader line to the pair
+        centre = 0.5 * (t.mean(0) + q.mean(0))
+        cands = [centre + r * np.array([np.cos(a), np.sin(a)])
+                 for r in (5.5, 7.5) for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
+        cands = [c for c in cands if (c > BOX[0] + 3).all() and (c < BOX[1] - 3).all()]
+        spot = max(cands, key=lambda c: np.linalg.norm(obstacles - c, axis=1).min())
+        obstacles = np.vstack([obstacles, spot[None]])
+        box.annotate(f"h = {h}", centre, xytext=spot, ha="center", va="center", fontsize=9,
+                     weight="bold", zorder=6,
+                     arrowprops=dict(arrowstyle="-", color="0.35", lw=0.8, shrinkB=9),
+                     bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="0.6", alpha=0.9))
     box.set_xlim(*BOX)
     box.set_ylim(*BOX)
     box.set_aspect("equal")
     box.set_xlabel("x (world units)")
     box.set_ylabel("y (world units)")
-    box.set_title(f"The whole box: inputs (frames 0..{m - 1}), centroid paths to frame {last}, "
-                  f"rings at predictions h = {', '.join(map(str, hs))}", fontsize=10)
+    box.set_title(f"The whole box: inputs (frames 0..{m - 1}), centroid paths to frame {last},\n"
+                  f"rings at predictions h = {', '.join(map(str, in_box))}"
+                  + (" (the others overlap them: see the panels)" if len(in_box) < len(hs)
+                     else ""), fontsize=10)
     # one scale for every zoomed panel: the widest extent any of them needs, at least 7 units
     need = [np.ptp(np.vstack([truth[m - 1 + h], pred[h - 1]]), axis=0).max() for h in hs]
     half = 0.5 * max([7.0] + [n + 1.5 for n in need])
     for k, h in enumerate(hs):
-        ax = fig.add_subplot(gs[k // 2, 2 + k % 2])
+        ax = fig.add_subplot(gs[k // 2, 1 + k % 2])
         t, q = truth[m - 1 + h], pred[h - 1]
         _walls(ax)
         ax.plot(*np.vstack([t, t[:1]]).T, color=c_true, lw=1.0)
@@ -358,8 +374,8 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=10,
                frameon=False)
     if suptitle:
-        fig.suptitle(suptitle, fontsize=12)
-    fig.subplots_adjust(left=0.05, right=0.98, top=0.86, bottom=0.1)
+        fig.suptitle(_fit(suptitle, 13.5, 12), fontsize=12)
+    fig.subplots_adjust(left=0.05, right=0.98, top=0.87, bottom=0.1)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
