@@ -113,8 +113,8 @@ def plot_spread(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
                 ax.errorbar([x], [s.mean], yerr=[[s.mean - s.lo], [s.hi - s.mean]], fmt="D",
                             ms=6, mfc="white", mec="k", ecolor="k", capsize=3, zorder=5)
                 if c.name not in order and m in PAPER_TABLE and h in HORIZONS:
-                    ax.scatter([x], [PAPER_TABLE[m][2 * HORIZONS.index(h)]], marker="*",
-                               s=140, color="tab:red", zorder=6)
+                    ax.scatter([x + 0.42], [PAPER_TABLE[m][2 * HORIZONS.index(h)]],
+                               marker="*", s=140, color="tab:red", zorder=6)   # beside the box
                 ticks.append(x)
                 labels.append(("TP-Net" if c.name not in order else c.name.replace(" ", "\n"))
                               + f"\nm={m}")
