@@ -375,7 +375,7 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
                frameon=False)
     if suptitle:
         fig.suptitle(_fit(suptitle, 13.5, 12), fontsize=12)
-    fig.subplots_adjust(left=0.05, right=0.98, top=0.87, bottom=0.1)
+    fig.subplots_adjust(left=0.05, right=0.98, top=0.84, bottom=0.1)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
