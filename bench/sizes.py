@@ -101,6 +101,8 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
             ys = [r[f"Ep@{h}"] for r in rows]
             ax.plot(xs, ys, mk + "-", color=col, label=f"{eng} engine", alpha=0.85)
             for r, xv, yv in zip(rows, xs, ys):
+                if eng != "numpy":          # one label per size, beside its NumPy point
+                    continue
                 on = r["label"] in front
                 ax.annotate(r["label"] + (" *" if on else ""), (xv, yv), textcoords="offset points",
                             xytext=(5, 4), fontsize=8)
