@@ -32,6 +32,7 @@ import numpy as np
 import tpnet_ref
 from _common import alternate, scene_windows
 from tpnet_ref import evaluation as E
+from tpnet_ref.evaluation.report import cell
 from tpnet_ref.sim.cases import TEST_CASES
 
 HORIZONS = (40, 80)
@@ -64,7 +65,7 @@ def errors_on(frames_n: np.ndarray, models: dict[str, object], m: int = 4) -> di
                   for k, mo in models.items()})
     for k, fn in preds.items():
         err = E.errors(truth, fn())
-        out[k] = {f"{q}@{h}": float(err[f"{q}_squared"][:, h - 1].mean())
+        out[k] = {f"{q}@{h}": err[f"{q}_squared"][:, h - 1].copy()     # per case
                   for h in HORIZONS for q in ("Ep", "Es")}
     return out
 
@@ -100,6 +101,8 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
             ys = [r[f"Ep@{h}"] for r in rows]
             ax.plot(xs, ys, mk + "-", color=col, label=f"{eng} engine", alpha=0.85)
             for r, xv, yv in zip(rows, xs, ys):
+                if eng != "numpy":          # one label per size, beside its NumPy point
+                    continue
                 on = r["label"] in front
                 ax.annotate(r["label"] + (" *" if on else ""), (xv, yv), textcoords="offset points",
                             xytext=(5, 4), fontsize=8)
@@ -160,6 +163,10 @@ def main(argv: list[str] | None = None) -> int:
         data = WindowData(args.data, d.val_fraction, d.split_seed)
         val = errors_on(data.frames[data.val_traj].astype(np.float64),
                         {k: v["numpy"] for k, v in models.items()})
+    per_case = test
+    test = {k: {q: float(a.mean()) for q, a in v.items()} for k, v in per_case.items()}
+    if val is not None:
+        val = {k: {q: float(a.mean()) for q, a in v.items()} for k, v in val.items()}
     rows = []
     for w, (k, v) in zip(args.weights, models.items()):
         rows.append({"label": k, "params": n_params(v["numpy"]), "bytes": os.path.getsize(w),
@@ -172,7 +179,9 @@ def main(argv: list[str] | None = None) -> int:
                         COPY_LAST: (0.0, 0.0)},
                        {k: (val[k]["Ep@40"], val[k]["Ep@80"]) for k in val})
         front = [k for k in front if k != COPY_LAST]
-    emit("60 held-out test cases, squared reading; B = 1 latency, float32, median ms:")
+    emit("60 held-out test cases, squared reading, each error `mean [95 % bootstrap interval] med "
+         "median` over the cases (docs/glossary.md, \"spread\"); validation columns: means; "
+         "B = 1 latency, float32, median ms:")
     emit("")
     head = ["weights", "trained parameters", "file (MB)", "E_p@40", "E_s@40", "E_p@80", "E_s@80",
             "B=1 numpy (ms)", "B=1 numba (ms)"]
@@ -182,15 +191,16 @@ def main(argv: list[str] | None = None) -> int:
     emit("|" + "---|" * len(head))
     for r in rows:
         cells = [f"`{r['label']}`", f"{r['params']:,}", f"{r['bytes'] / 1e6:.1f}",
-                 f"{r['Ep@40']:.3g}", f"{r['Es@40']:.2g}", f"{r['Ep@80']:.3g}",
-                 f"{r['Es@80']:.2g}", f"{r['ms_numpy']:.3g}", f"{r['ms_numba']:.3g}"]
+                 *(cell(per_case[r["label"]][q]) for q in ("Ep@40", "Es@40", "Ep@80", "Es@80")),
+                 f"{r['ms_numpy']:.3g}", f"{r['ms_numba']:.3g}"]
         if val is not None:
             v = val[r["label"]]
             cells += [f"{v['Ep@40']:.3g}", f"{v['Ep@80']:.3g}",
                       "yes" if r["label"] in front else "no"]
         emit("| " + " | ".join(cells) + " |")
-    cells = [COPY_LAST, "0", "–", f"{test[COPY_LAST]['Ep@40']:.3g}", f"{test[COPY_LAST]['Es@40']:.2g}",
-             f"{test[COPY_LAST]['Ep@80']:.3g}", f"{test[COPY_LAST]['Es@80']:.2g}", "–", "–"]
+    cells = [COPY_LAST, "0", "–",
+             *(cell(per_case[COPY_LAST][q]) for q in ("Ep@40", "Es@40", "Ep@80", "Es@80")),
+             "–", "–"]
     if val is not None:
         cells += [f"{val[COPY_LAST]['Ep@40']:.3g}", f"{val[COPY_LAST]['Ep@80']:.3g}", "–"]
     emit("| " + " | ".join(cells) + " |")

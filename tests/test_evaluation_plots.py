@@ -103,7 +103,7 @@ def test_groups_gallery_and_demo_figures_are_written(tmp_path):
     frames = 22.5 + rng.normal(0, 2, (14, 30, 2))
     P.plot_demo(tmp_path / "d.png", frames, frames[4:] + 0.2, 4, (1, 5, 10), {1: "h = 1"},
                 suptitle="demo")
-    for name, min_w in (("g.png", 800), ("gal.png", 400), ("d.png", 1600)):
+    for name, min_w in (("g.png", 800), ("gal.png", 400), ("d.png", 1300)):
         assert _png(tmp_path / name).shape[1] >= min_w
 
 
@@ -137,8 +137,15 @@ def test_redraw_tool_reads_back_what_tpnet_eval_writes(tmp_path, capsys):
             for h in (40, 80):
                 assert a.err[f"Ep_{E.HEADLINE}"][0, h - 1] == pytest.approx(
                     b.err[f"Ep_{E.HEADLINE}"][:, h - 1].mean(), rel=5e-3)
+    cases = {(c.name, c.ordering): c for c in tool.read_cases(tmp_path / "eval_cases.csv")}
+    assert set(cases) == {(c.name, "given") for c in curves}        # the csv holds "given"
+    for c in curves:
+        if c.ordering == "given":
+            for h in (40, 80):
+                np.testing.assert_allclose(cases[c.name, "given"].err["Ep_squared"][:, h - 1],
+                                           c.err["Ep_squared"][:, h - 1], rtol=1e-5)
     assert tool.main([str(tmp_path), "--out", str(tmp_path / "fig")]) == 0
-    for name in ("eval_error_vs_frame.png", "eval_error_vs_time.png"):
+    for name in ("eval_error_vs_frame.png", "eval_error_vs_time.png", "eval_spread.png"):
         _png(tmp_path / "fig" / name)
     with pytest.raises(ValueError, match="no curves of group 'nope'"):
         tool.read_curves(tmp_path / "eval_curves.csv", group="nope")

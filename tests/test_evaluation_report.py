@@ -21,7 +21,7 @@ def test_markdown_tables():
     assert lines[2] == "| 4 | **TP-Net, paper** (docs/spec.md §4) | 0.071 | 0.007 | 0.164 | 0.007 |"
     want40 = f"{np.linspace(0.01, 1, 90)[39]:.3f}"
     assert lines[3].startswith("| 4 | **TP-Net x.h5** |")          # the model next to the paper
-    assert lines[4].startswith(f"| 4 | copy last | {want40} |")
+    assert lines[4].startswith(f"| 4 | copy last | {want40} [{want40}, {want40}] med {want40} |")
     assert E.report.fmt_err(0.00084) == "0.00084" and E.report.fmt_err(1.185) == "1.185"
     # the paper's row only in the reading its table was published in
     assert "TP-Net, paper" in E.results_tables(curves, "squared")

@@ -30,7 +30,8 @@ def test_eval_cli_small(weights_file, tmp_path, capsys):
     assert "## Which reading the paper's table is" in printed and f"wrote {out}" in printed
     if HAS_MPL:
         assert {p.name for p in out.glob("*.png")} == {"eval_error_vs_frame.png",
-                                                       "eval_gallery.png"}
+                                                       "eval_gallery.png", "eval_spread.png"}
+    assert (out / "eval_cases.csv").is_file() and " med " in text     # every cell's spread
 
 
 def test_eval_cli_needs_weights_or_baselines_only(tmp_path, capsys):

@@ -118,8 +118,8 @@ def test_shipped_model_beats_the_baselines_on_position_error(rollouts, baseline)
 
 def test_shipped_model_shape_error_stays_near_copy_last(rollouts):
     """Regression guard for what the shipped models reach on E_s: within 1.5x of copying the
-    last frame at 40 and 80 frames (m = 4: 1.13x and 1.25x; m = 5: 1.14x and 1.48x,
-    weights/MODEL_CARD.md), and the one-step shape error within 1.2x (m = 4) or 1.25x (m = 3
+    last frame at 40 and 80 frames (m = 4: 1.13x and 1.25x; m = 5: 1.14x and 1.48x, released
+    reading, docs/history.md), and the one-step shape error within 1.2x (m = 4) or 1.25x (m = 3
     and 5, fewer epochs) of the random-phase ring floor (0.147)."""
     windows, truth, pred = rollouts
     ours, base = E.errors(truth, pred), E.errors(truth, E.copy_last(windows, 80))

@@ -1,8 +1,9 @@
 """Redraw the evaluation figures from the numbers a ``tpnet eval`` run wrote, without rerunning it.
 
 ``python tools/redraw_eval_figures.py docs`` reads ``docs/eval_curves.csv`` (per-step means of
-every curve) and the "Error against run time" table of ``docs/results.md``, and draws
-``eval_error_vs_frame.png`` and ``eval_error_vs_time.png`` into the same folder (``--out``: another
+every curve), ``docs/eval_cases.csv`` (every case's errors at 40 and 80 predictions) and the
+"Error against run time" table of ``docs/results.md``, and draws ``eval_error_vs_frame.png``,
+``eval_spread.png`` and ``eval_error_vs_time.png`` into the same folder (``--out``: another
 one) with :mod:`tpnet_ref.evaluation.plots`. The figures show means over the cases, which is what
 the files hold (the CSV to 4 significant digits, the table to the digits printed), so a change of
 the plotting code can be seen on the published numbers in seconds; the numbers themselves come
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tpnet_ref.evaluation.plots import plot_models, plot_timing
+from tpnet_ref.evaluation.plots import plot_models, plot_spread, plot_timing
 from tpnet_ref.evaluation.run import HEADLINE, Curve
 from tpnet_ref.evaluation.timing import TimingRow
 
@@ -43,8 +44,35 @@ def read_curves(path: str | Path, group: str = "test") -> list[Curve]:
     return out
 
 
+def read_cases(path: str | Path, group: str = "test") -> list[Curve]:
+    """The curves of ``group`` in an ``eval_cases.csv``, each error a ``(cases, H)`` array holding
+    every case's errors at the steps the file has (zero elsewhere; the spread figure reads only
+    those)."""
+    rows: dict[tuple[str, int, str], dict[tuple[int, int], dict[str, str]]] = {}
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            if r["group"] == group:
+                key = (r["method"], int(r["m"]), r["ordering"])
+                rows.setdefault(key, {})[(int(r["case"]), int(r["step"]))] = r
+    if not rows:
+        raise ValueError(f"{path}: no cases of group {group!r}")
+    out = []
+    for (name, m, ordering), cells in rows.items():
+        n_cases = max(c for c, _ in cells)
+        n_steps = max(h for _, h in cells)
+        keys = [k for k in next(iter(cells.values())) if k.startswith(("Ep_", "Es_"))]
+        err = {k: np.zeros((n_cases, n_steps)) for k in keys}
+        for (c, h), r in cells.items():
+            for k in keys:
+                err[k][c - 1, h - 1] = float(r[k])
+        out.append(Curve(name, m, ordering, err, group))
+    return out
+
+
 def _number(cell: str) -> float | None:
-    cell = cell.strip()
+    """A table cell's number: the cell itself, or the mean that leads an error cell
+    (``mean [lo, hi] med median``)."""
+    cell = cell.strip().split(" ")[0] if cell.strip() else ""
     return None if cell in ("", "–", "-") else float(cell)
 
 
@@ -95,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out) if args.out else src
     out.mkdir(parents=True, exist_ok=True)
     written = [plot_models(read_curves(src / "eval_curves.csv"), out / "eval_error_vs_frame.png")]
+    if (src / "eval_cases.csv").is_file():
+        written.append(plot_spread(read_cases(src / "eval_cases.csv"), out / "eval_spread.png"))
     if TIMING_HEADING in (src / "results.md").read_text().splitlines():
         written.append(plot_timing(read_timing(src / "results.md"),
                                    out / "eval_error_vs_time.png"))

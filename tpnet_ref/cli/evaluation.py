@@ -1,4 +1,4 @@
-"""``tpnet eval`` and ``tpnet demo`` (argparse only; the work is in tpnet_ref.evaluation)."""
+"""``tpnet eval``, ``tpnet demo`` and ``tpnet animate`` (argparse only; the work is in tpnet_ref.evaluation)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -28,6 +28,20 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=0, help="point shuffling seed")
     p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
     p.set_defaults(func=_cli_demo)
+
+    p = sub.add_parser("animate", help="a GIF of a held-out case: the simulator's ring and "
+                                       "TP-Net's rollout from shuffled frames, side by side")
+    p.add_argument("-o", "--output", default="rollout.gif", help="GIF to write")
+    p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
+    p.add_argument("--case", type=float, nargs=4, default=None,
+                   metavar=("FORCE", "ANGLE", "X", "Y"), help="scene (default: test case 1)")
+    p.add_argument("--last-frame", type=int, default=None,
+                   help="last model frame shown (default: the last simulated, 149)")
+    p.add_argument("--every", type=int, default=2, help="show every k-th model frame")
+    p.add_argument("--fps", type=int, default=12, help="GIF frames per second")
+    p.add_argument("--dpi", type=int, default=64, help="size: 64 gives 416 x 250 pixels")
+    p.add_argument("--seed", type=int, default=0, help="point shuffling seed")
+    p.set_defaults(func=_cli_animate)
 
     p = sub.add_parser("eval", help="evaluation on the 60 held-out cases: the paper's table in "
                                     "the squared reading, the other readings, orderings, "
@@ -74,6 +88,20 @@ def _cli_demo(args: Any) -> int:
     from ..evaluation import DEMO_CASE, demo
     demo(args.weights, case=args.case or DEMO_CASE, steps=args.steps, horizons=args.horizons,
          png=None if args.no_png else args.output, seed=args.seed, dtype=args.dtype)
+    return 0
+
+
+def _cli_animate(args: Any) -> int:
+    require_all(EVAL_MODULES, "eval", "tpnet animate")
+    from ..evaluation import DEMO_CASE
+    from ..evaluation.animate import animate
+    r = animate(args.output, args.weights, case=args.case or DEMO_CASE,
+                last_frame=args.last_frame, every=args.every, fps=args.fps, dpi=args.dpi,
+                seed=args.seed)
+    size = Path(r["path"]).stat().st_size
+    errs = ", ".join(f"@{h} {e:.3g}" for h, e in r["Ep_squared"].items())
+    print(f"wrote {r['path']} ({r['gif_frames']} frames, {size / 1e6:.2f} MB); "
+          f"TP-Net m = {r['m']} position error E_p (squared) on this case {errs}")
     return 0
 
 

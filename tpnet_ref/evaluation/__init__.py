@@ -4,6 +4,7 @@
                   :func:`evaluate` (one :class:`Curve` per method, m and input ordering)
 * :mod:`.timing`  error against run time (NumPy, PyTorch, onnxruntime, baselines, simulator)
 * :mod:`.shape`   ring geometry: the shape-error references and outline analysis
+* :mod:`.spread`  the per-case spread of a cell: mean, 95 % bootstrap interval, median
 * :mod:`.report`  ``results.md`` (the paper's table in the ``squared`` reading, the evidence
                   for that reading, the other readings) and ``eval_curves.csv``
 * :mod:`.plots`   the figures (matplotlib: the ``plot`` extra)
@@ -28,10 +29,11 @@ from .run import (HEADLINE, PAPER_TABLE, TEST_CASES, VARIANTS, Curve, ModelSpec,
                   table_horizons)
 from .shape import (collapsed_ring_error, radial_fit, radial_outline, reading_evidence,
                     resample_outline, rest_ring, ring_phase_floor, ring_rotation, spacing_stats)
+from .spread import Spread, bootstrap_ci, fmt_spread, spread
 from .suite import command_line, default_out_dir, run_eval
 from .timing import TimingRow, sim_coarse, timing_table
 
-__all__ = ["simulate_cases", "split_protocol", "order_points", "copy_last", "constant_velocity",
+__all__ = ["Spread", "bootstrap_ci", "fmt_spread", "spread", "simulate_cases", "split_protocol", "order_points", "copy_last", "constant_velocity",
            "batched_rollout", "errors", "evaluate", "generalisation_cases", "timing_table",
            "sim_coarse", "results_tables", "ordering_table", "md_table", "render_markdown",
            "write_results", "write_curves_csv", "kept_sections", "put_kept_section", "timing_md", "headline_md", "evidence_md",

@@ -77,6 +77,70 @@ def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     return Path(path)
 
 
+def plot_spread(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
+    """The per-case distribution of the position error after 40 and 80 predictions (one panel
+    each; reading ``squared``, ordering ``given``, log axis): for every m the model(s) and the two
+    baselines as a box (quartiles, whiskers 5-95 %) over every case's dot, the mean as a white
+    diamond with its 95 % bootstrap interval, the paper's TP-Net mean as a red star."""
+    from .run import PAPER_TABLE
+    from .spread import spread
+    plt = _plt()
+    key = f"Ep_{HEADLINE}"
+    given = [c for c in curves if c.ordering == "given"]
+    if not given:
+        raise ValueError("plot_spread: no curve of input ordering 'given'")
+    hs = table_horizons(min(c.err[key].shape[1] for c in given))
+    ms = sorted({c.m for c in given})
+    order = {"copy last": 1, "constant velocity": 2}
+    colours = {"copy last": "0.55", "constant velocity": "tab:orange"}
+    fig, axes = plt.subplots(1, len(hs), figsize=(5.6 * len(hs), 4.8), squeeze=False,
+                             sharey=True)
+    rng = np.random.default_rng(0)                  # the dots' horizontal jitter only
+    for j, h in enumerate(hs):
+        ax = axes[0, j]
+        x, ticks, labels = 0.0, [], []
+        for m in ms:
+            for c in sorted((c for c in given if c.m == m), key=lambda c: order.get(c.name, 0)):
+                v = np.maximum(c.err[key][:, h - 1], 1e-6)      # log axis: an exact 0 at 1e-6
+                col = colours.get(c.name, "tab:blue")
+                ax.boxplot(v, positions=[x], widths=0.6, whis=(5, 95), showfliers=False,
+                           medianprops=dict(color="k", lw=1.5),
+                           boxprops=dict(color=col), whiskerprops=dict(color=col),
+                           capprops=dict(color=col))
+                ax.scatter(x + rng.uniform(-0.18, 0.18, v.size), v, s=7, color=col, alpha=0.6,
+                           lw=0, zorder=3)
+                s = spread(c.err[key][:, h - 1])
+                ax.errorbar([x], [s.mean], yerr=[[s.mean - s.lo], [s.hi - s.mean]], fmt="D",
+                            ms=6, mfc="white", mec="k", ecolor="k", capsize=3, zorder=5)
+                if c.name not in order and m in PAPER_TABLE and h in HORIZONS:
+                    ax.scatter([x + 0.42], [PAPER_TABLE[m][2 * HORIZONS.index(h)]],
+                               marker="*", s=140, color="tab:red", zorder=6)   # beside the box
+                ticks.append(x)
+                labels.append(("TP-Net" if c.name not in order else c.name.replace(" ", "\n"))
+                              + f"\nm={m}")
+                x += 1.0
+            x += 0.6
+        ax.set_xticks(ticks)
+        ax.set_xticklabels(labels, fontsize=7)
+        ax.set_yscale("log")
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+        ax.set_title(f"after {h} predictions", fontsize=10)
+    axes[0, 0].set_ylabel(f"position error E_p ({HEADLINE}), one dot per case")
+    from matplotlib.lines import Line2D
+    handles = [Line2D([], [], ls="none", marker="D", mfc="white", mec="k", color="k",
+                      label="mean with 95 % bootstrap interval"),
+               Line2D([], [], color="k", lw=1.5, label="median; box: quartiles; "
+                                                     "whiskers: 5-95 %"),
+               Line2D([], [], ls="none", marker="*", ms=11, color="tab:red",
+                      label="TP-Net, paper (mean)")]
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.suptitle("Per-case position error on the held-out cases", fontsize=11)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
 def plot_groups(groups: dict[str, Sequence[Curve]], path: str | os.PathLike) -> Path:
     """Generalisation: E_p vs prediction step, one panel per group of scenes (ordering given).
 
@@ -205,10 +269,13 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
                               + "y (world units)", fontsize=7)
             if i == C - 1:
                 ax.set_xlabel("x (world units)", fontsize=7)
-    axes[0, -1].legend(fontsize=6, loc="upper right")
+    # one legend below the panels, where it covers no ring
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8,
+               frameon=False, markerscale=1.5)
     fig.suptitle("Simulated (dots) and predicted (crosses) rings on held-out cases; each panel "
                  "zoomed on its own, equal aspect, walls in grey", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.35 / (2.6 * C), 1, 1))
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return Path(path)
@@ -235,9 +302,9 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     frames m..m+H-1; ``titles[h]``: the errors printed above the panel of horizon ``h``."""
     plt = _plt()
     hs = [h for h in horizons if 1 <= h <= pred.shape[0]][:4]
-    fig = plt.figure(figsize=(17, 8.5))
-    gs = fig.add_gridspec(2, 4, width_ratios=(1, 1, 0.78, 0.78), wspace=0.28, hspace=0.42)
-    box = fig.add_subplot(gs[:, 0:2])
+    fig = plt.figure(figsize=(14, 8.2))
+    gs = fig.add_gridspec(2, 3, width_ratios=(2.25, 1, 1), wspace=0.32, hspace=0.5)
+    box = fig.add_subplot(gs[:, 0])
     c_true, c_pred = "black", "tab:red"
     last = m - 1 + pred.shape[0]
     tc = truth[: last + 1].mean(axis=1)
@@ -249,31 +316,47 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     for j in range(m):
         box.scatter(truth[j, :, 0], truth[j, :, 1], s=9, color="tab:blue",
                     label=f"input frames 0..{m - 1}" if j == 0 else None, zorder=3)
-    for k, h in enumerate(hs):
+    # the box shows the rings of a horizon only where they overlap no ring drawn before (the
+    # zoomed panels show every horizon)
+    drawn: list[np.ndarray] = [truth[j] for j in range(m)]
+    in_box: list[int] = []
+    for h in hs:
+        pair = np.vstack([truth[m - 1 + h], pred[h - 1]])
+        if all(np.linalg.norm(pair[:, None] - d[None], axis=-1).min() > 1.0 for d in drawn):
+            in_box.append(h)
+            drawn.append(pair)
+    obstacles = np.vstack(drawn + [tc, pc])
+    for k, h in enumerate(in_box):
         t, q = truth[m - 1 + h], pred[h - 1]
         box.scatter(t[:, 0], t[:, 1], s=9, color=c_true, zorder=3,
                     label="simulator: particles at h" if k == 0 else None)
         box.scatter(q[:, 0], q[:, 1], s=14, marker="x", color=c_pred, zorder=4,
                     label=f"{label}: predicted points" if k == 0 else None)
-        tcen, qcen = t.mean(0), q.mean(0)
-        box.plot([tcen[0], qcen[0]], [tcen[1], qcen[1]], color="0.5", lw=0.8, ls=":", zorder=2)
-        top = max(t[:, 1].max(), q[:, 1].max())       # one label, above both rings
-        box.annotate(f"h={h}", ((tcen[0] + qcen[0]) / 2, top), xytext=(0, 9),
-                     textcoords="offset points", ha="center", va="bottom", fontsize=9,
-                     weight="bold", bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none",
-                                              alpha=0.8))
+        # the label where the box is emptiest near the pair, with a leader line to the pair
+        centre = 0.5 * (t.mean(0) + q.mean(0))
+        cands = [centre + r * np.array([np.cos(a), np.sin(a)])
+                 for r in (5.5, 7.5) for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
+        cands = [c for c in cands if (c > BOX[0] + 3).all() and (c < BOX[1] - 3).all()]
+        spot = max(cands, key=lambda c: np.linalg.norm(obstacles - c, axis=1).min())
+        obstacles = np.vstack([obstacles, spot[None]])
+        box.annotate(f"h = {h}", centre, xytext=spot, ha="center", va="center", fontsize=9,
+                     weight="bold", zorder=6,
+                     arrowprops=dict(arrowstyle="-", color="0.35", lw=0.8, shrinkB=9),
+                     bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="0.6", alpha=0.9))
     box.set_xlim(*BOX)
     box.set_ylim(*BOX)
     box.set_aspect("equal")
     box.set_xlabel("x (world units)")
     box.set_ylabel("y (world units)")
-    box.set_title(f"The whole box: inputs (frames 0..{m - 1}), centroid paths to frame {last}, "
-                  f"rings at predictions h = {', '.join(map(str, hs))}", fontsize=10)
+    box.set_title(f"The whole box: inputs (frames 0..{m - 1}), centroid paths to frame {last},\n"
+                  f"rings at predictions h = {', '.join(map(str, in_box))}"
+                  + (" (the others overlap them: see the panels)" if len(in_box) < len(hs)
+                     else ""), fontsize=10)
     # one scale for every zoomed panel: the widest extent any of them needs, at least 7 units
     need = [np.ptp(np.vstack([truth[m - 1 + h], pred[h - 1]]), axis=0).max() for h in hs]
     half = 0.5 * max([7.0] + [n + 1.5 for n in need])
     for k, h in enumerate(hs):
-        ax = fig.add_subplot(gs[k // 2, 2 + k % 2])
+        ax = fig.add_subplot(gs[k // 2, 1 + k % 2])
         t, q = truth[m - 1 + h], pred[h - 1]
         _walls(ax)
         ax.plot(*np.vstack([t, t[:1]]).T, color=c_true, lw=1.0)
@@ -291,11 +374,11 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=10,
                frameon=False)
     if suptitle:
-        fig.suptitle(suptitle, fontsize=12)
-    fig.subplots_adjust(left=0.05, right=0.98, top=0.86, bottom=0.1)
+        fig.suptitle(_fit(suptitle, 13.5, 12), fontsize=12)
+    fig.subplots_adjust(left=0.05, right=0.98, top=0.84, bottom=0.1)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
 
 
-__all__ = ["plot_models", "plot_groups", "plot_timing", "plot_gallery", "plot_demo"]
+__all__ = ["plot_models", "plot_spread", "plot_groups", "plot_timing", "plot_gallery", "plot_demo"]

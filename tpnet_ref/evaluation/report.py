@@ -24,6 +24,7 @@ from ..protocol import FRAME_EVERY, HORIZONS, SIM_ROWS
 from . import plots as P
 from .run import HEADLINE, PAPER_TABLE, VARIANTS, Curve, table_horizons
 from .shape import reading_evidence
+from .spread import LEVEL, N_RESAMPLES, SEED, fmt_spread, spread
 from .timing import TimingRow
 
 #: one line on what each reading is (docs/spec.md §3)
@@ -72,8 +73,21 @@ def _curves_h(curves: Sequence[Curve]) -> tuple[int, ...]:
     return table_horizons(min(c.err[f"Ep_{HEADLINE}"].shape[1] for c in curves))
 
 
+def cell(values: Any) -> str:
+    """One table cell: the per-case ``values`` as ``mean [lo, hi] med median`` (the mean with
+    its 95 % bootstrap interval, and the median: :mod:`.spread`)."""
+    return fmt_spread(spread(np.asarray(values, dtype=np.float64).ravel()))
+
+
 def _err_cells(c: Curve, variant: str, hs: Sequence[int]) -> list[str]:
-    return [fmt_err(c.at(h, f"{k}_{variant}")) for h in hs for k in ("Ep", "Es")]
+    return [cell(c.err[f"{k}_{variant}"][:, h - 1]) for h in hs for k in ("Ep", "Es")]
+
+
+#: what a cell holds, said once above the tables of results.md
+CELL_TEXT = (f"Each cell: the mean over the cases [its {LEVEL:.0%} bootstrap interval] and the "
+             f"per-case median (`mean [lo, hi] med median`; percentile bootstrap, {N_RESAMPLES:,} "
+             f"resamples of the cases, seed {SEED}: docs/glossary.md, \"spread\"). The paper "
+             "gives means only.")
 
 
 def results_tables(curves: Sequence[Curve], variant: str = HEADLINE,
@@ -156,7 +170,7 @@ def headline_md(rep: "Report") -> str:
          f"{rep.n_cases} held-out cases, ordered input, normalised coordinates; reading "
          f"`squared`: {READING_TEXT['squared']}. \"@40\" is the 40th recursive prediction. "
          "This is the reading the paper's numbers can physically be (next section; "
-         "docs/spec.md §3).", "",
+         "docs/spec.md §3). " + CELL_TEXT, "",
          results_tables(rep.curves, "squared"), "",
          f"Scale: E_p / {2 * n} is the mean squared nearest-point distance, so the paper's "
          f"E_p {p40} @40 (m = 4) is a root-mean-square nearest-point distance of "
@@ -184,7 +198,7 @@ def timing_md(rows: Sequence[TimingRow], n_cases: int, variant: str = HEADLINE) 
         for h in hs:
             for k in ("Ep", "Es"):
                 e = r.err.get(f"{k}_{variant}")
-                cells.append(fmt_err(float(e[:, h - 1].mean())) if e is not None else "–")
+                cells.append(cell(e[:, h - 1]) if e is not None else "–")
         out.append([r.name, _fmt(r.ms_batch, 3), _fmt(r.ms_single, 3)] + cells + [r.note])
     return md_table(header, out)
 
@@ -335,6 +349,23 @@ def write_curves_csv(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     return Path(path)
 
 
+def write_cases_csv(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
+    """Every case's errors at the tables' horizons (40 and 80 predictions), one row per
+    (curve, case, step), input ordering ``given``: what the cells' intervals and medians are
+    computed from."""
+    keys = [f"{k}_{v}" for v in VARIANTS for k in ("Ep", "Es")]
+    lines = ["group,method,m,ordering,case,step," + ",".join(keys)]
+    for c in curves:
+        if c.ordering != "given":
+            continue
+        for h in table_horizons(c.err[keys[0]].shape[1]):
+            for i in range(c.err[keys[0]].shape[0]):
+                lines.append(f"{c.group},{c.name},{c.m},{c.ordering},{i + 1},{h},"
+                             + ",".join(f"{c.err[k][i, h - 1]:.6g}" for k in keys))
+    Path(path).write_text("\n".join(lines) + "\n")
+    return Path(path)
+
+
 #: a section of ``results.md`` written by another command (``bench/sizes.py --md``), kept when
 #: ``tpnet eval`` rewrites the file: ``<!-- kept: NAME -->`` ... ``<!-- /kept: NAME -->``
 _KEPT = re.compile(r"<!-- kept: (?P<name>[\w.-]+) -->\n.*?<!-- /kept: (?P=name) -->\n?", re.S)
@@ -363,6 +394,7 @@ def write_results(rep: Report, out_dir: str | os.PathLike, *, plots: bool = True
     rep.figures = []
     if plots:
         rep.figures.append(str(P.plot_models(rep.curves, out / "eval_error_vs_frame.png")))
+        rep.figures.append(str(P.plot_spread(rep.curves, out / "eval_spread.png")))
         if gallery:
             rep.figures.append(str(P.plot_gallery(out / "eval_gallery.png", **gallery)))
         if rep.timing:
@@ -372,14 +404,17 @@ def write_results(rep: Report, out_dir: str | os.PathLike, *, plots: bool = True
                                                  out / "eval_generalisation.png")))
     csv = write_curves_csv([*rep.curves, *(c for cs in rep.generalisation.values() for c in cs)],
                            out / "eval_curves.csv")
+    cases = write_cases_csv([*rep.curves, *(c for cs in rep.generalisation.values() for c in cs)],
+                            out / "eval_cases.csv")
     path = out / "results.md"
     kept = kept_sections(path.read_text()) if path.is_file() else {}
-    text = render_markdown(rep) + f"\nPer-step means of every curve: [{csv.name}]({csv.name}).\n"
+    text = (render_markdown(rep) + f"\nPer-step means of every curve: [{csv.name}]({csv.name}); "
+            f"every case's errors at the tables' horizons: [{cases.name}]({cases.name}).\n")
     path.write_text("".join([text, *("\n" + b for b in kept.values())]))
     return path
 
 
 __all__ = ["READING_TEXT", "md_table", "fmt_err", "table_horizons", "results_tables",
            "ordering_table", "evidence_rows", "evidence_md", "headline_md", "timing_md", "Report",
-           "render_markdown", "write_curves_csv", "write_results", "kept_sections",
+           "render_markdown", "write_curves_csv", "write_cases_csv", "cell", "CELL_TEXT", "write_results", "kept_sections",
            "put_kept_section"]

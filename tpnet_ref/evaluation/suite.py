@@ -92,7 +92,7 @@ def run_eval(args: Any, command: str | None = None, log: Any = None) -> Path:
     else:
         cases = np.asarray(TEST_CASES, dtype=float)
         frames = None
-        source = "held-out test cases simulated on the fly with tpnet_ref.sim, default scene"
+        source = "held-out test cases simulated on the fly with tpnet_ref.sim in the faithful scene, docs/glossary.md"
     if args.cases is not None:
         cases = cases[: args.cases]
         frames = None if frames is None else frames[: args.cases]

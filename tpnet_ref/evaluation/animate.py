@@ -1,0 +1,111 @@
+"""``tpnet animate``: a GIF of one held-out case, the simulator and TP-Net's rollout side by side.
+
+The model gets the first m frames with the points of each frame shuffled (as ``tpnet demo``)
+and predicts every later frame from its own predictions. Left: the simulator's ring; right: the
+prediction, with the simulator's ring faint behind it; both the whole box. matplotlib's Pillow
+writer (matplotlib depends on Pillow), no ffmpeg.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..config import normalize
+from ..model import load
+from ..protocol import FRAME_EVERY, SIM_ROWS, order_points, split_protocol
+from ..sim import simulate
+from .demo import DEMO_CASE
+from .plots import BOX, _plt, _walls
+from .run import errors
+
+#: simulator steps per second (docs/spec.md §5): model frame j is at t = 4 j / 45 s
+STEPS_PER_S = 45.0
+
+
+def animate(path: str | os.PathLike = "docs/rollout.gif", weights: str | None = None, *,
+            case: Sequence[float] = DEMO_CASE, last_frame: int | None = None, every: int = 2,
+            fps: int = 12, dpi: int = 64, seed: int = 0) -> dict[str, object]:
+    """Write a GIF of ``case``: the m input frames, then model frames m .. ``last_frame``
+    (default: the last simulated one), every ``every``-th, at ``fps`` GIF frames per second; ``dpi`` sets the size
+    (64: 416 x 250 pixels). Returns the path, the GIF frame count, the model's m and the squared
+    position error of the prediction at 40 and 80 predictions (normalised, docs/glossary.md)."""
+    if every < 1 or fps < 1 or dpi < 10:
+        raise ValueError(f"animate: every, fps >= 1 and dpi >= 10, got {every}, {fps}, {dpi}")
+    plt = _plt()
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    model = load(weights, dtype="float32")
+    m = model.config.m
+    frames = simulate(*case, SIM_ROWS)[::FRAME_EVERY]                    # (F, N, 2) world units
+    F = frames.shape[0]
+    last = F - 1 if last_frame is None else int(last_frame)
+    if not m <= last < F:
+        raise ValueError(f"animate: last_frame must lie in [{m}, {F - 1}], got {last_frame}")
+    H = last - m + 1
+    inputs, targets = split_protocol(frames[None], m, H)
+    window = order_points(inputs, "shuffle", seed)[0]                    # shuffled input frames
+    pred = model.rollout(window, H)                                      # frames m .. last
+    err = errors(normalize(targets), normalize(pred[None].astype(np.float64)))["Ep_squared"][0]
+
+    fig, (ax_t, ax_p) = plt.subplots(1, 2, figsize=(6.5, 3.9))
+    for ax, title in ((ax_t, "simulator"), (ax_p, f"TP-Net, from {m} shuffled frames")):
+        _walls(ax)
+        ax.set_xlim(*BOX)
+        ax.set_ylim(*BOX)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(title, fontsize=10)
+    # centre paths so far (the body is small in the box: the path shows where it went)
+    tc = frames.mean(axis=1)
+    pc = np.vstack([tc[:m], pred.mean(axis=1)])
+    path_t, = ax_t.plot([], [], "-", color="0.6", lw=0.8)
+    path_p, = ax_p.plot([], [], "-", color="tab:red", lw=0.8, alpha=0.45)
+    ring_t, = ax_t.plot([], [], "-o", color="k", ms=2.5, lw=1.0)
+    ghost, = ax_p.plot([], [], "-", color="0.6", lw=1.0, label="simulator's ring")
+    dots_p, = ax_p.plot([], [], "o", color="tab:red", ms=2.8, label="TP-Net's points")
+    inp_p, = ax_p.plot([], [], "o", color="tab:blue", ms=2.8, label="input (shuffled)")
+    fig.legend(handles=[inp_p, dots_p, ghost], loc="lower center", ncol=3, fontsize=8,
+               frameon=False, handletextpad=0.3, columnspacing=1.2, markerscale=1.6)
+    counter = fig.text(0.5, 0.94, "", ha="center", fontsize=10, family="monospace")
+    fig.subplots_adjust(left=0.02, right=0.98, top=0.86, bottom=0.1, wspace=0.06)
+    shown = list(range(m)) + list(range(m, last + 1, every))            # every input frame
+    if shown[-1] != last:
+        shown.append(last)
+
+    def closed(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.vstack([p, p[:1]])
+        return q[:, 0], q[:, 1]
+
+    def draw(j: int) -> tuple[object, ...]:
+        t = frames[j]
+        ring_t.set_data(*closed(t))
+        path_t.set_data(tc[: j + 1, 0], tc[: j + 1, 1])
+        path_p.set_data(pc[: j + 1, 0], pc[: j + 1, 1])
+        if j < m:
+            ghost.set_data([], [])
+            dots_p.set_data([], [])
+            inp_p.set_data(window[j][:, 0], window[j][:, 1])
+            what = f"input frame {j + 1} of {m}"
+        else:
+            ghost.set_data(*closed(t))
+            q = pred[j - m]
+            dots_p.set_data(q[:, 0], q[:, 1])
+            inp_p.set_data([], [])
+            what = f"prediction {j - m + 1}, E_p {err[j - m]:.2g}"
+        counter.set_text(f"frame {j:3d}   t = {j * FRAME_EVERY / STEPS_PER_S:4.1f} s   {what}")
+        return ring_t, ghost, dots_p, inp_p, counter, path_t, path_p
+
+    anim = FuncAnimation(fig, draw, frames=shown, blit=False)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    anim.save(out, writer=PillowWriter(fps=fps), dpi=dpi)
+    plt.close(fig)
+    return {"path": out, "gif_frames": len(shown), "m": m,
+            "Ep_squared": {h: float(err[h - 1]) for h in (40, 80) if h <= H}}
+
+
+__all__ = ["animate"]
