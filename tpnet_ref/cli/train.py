@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..training.recipe import N_STEPS_MAX, OPTIMIZER_MODES, SIZES, Recipe
+from ..training.recipe import N_ROLLOUT_MAX, N_STEPS_MAX, OPTIMIZER_MODES, SIZES, Recipe
 
 #: as tpnet_ref.training.loop.COMPILE_MODES (not imported from there: that module needs torch)
 COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
@@ -72,7 +72,8 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs)
     q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
     q.add_argument("--rollout", type=int, default=d.rollout,
-                   help=f"longest recursive loss (1..{N_STEPS_MAX}; published {N_STEPS_MAX})")
+                   help=f"longest recursive loss (1..{N_ROLLOUT_MAX}; published {N_STEPS_MAX}; "
+                        f"longer: only windows with that many frames after their inputs)")
     q.add_argument("--head-init", choices=("default", "template"), default=d.head_init,
                    help="template: the untrained head outputs a ring of the body's size")
     q.add_argument("--init-from", default=d.init_from, metavar="RUN_DIR|WEIGHTS.h5",

@@ -22,7 +22,7 @@ from typing import Any
 
 _NAMES = {
     "Recipe": "recipe", "WindowData": "recipe", "SIZES": "recipe", "size_config": "recipe",
-    "N_STEPS_MAX": "recipe",
+    "N_STEPS_MAX": "recipe", "N_ROLLOUT_MAX": "recipe",
     "TorchTPNet": "..torch_model", "chamfer_released": "..torch_model",
     "chamfer_shape": "..torch_model", "matched_distance": "..torch_model",
     "train": "loop", "export": "loop", "bench": "loop", "evaluate": "loop",

@@ -336,7 +336,7 @@ def _start_state(run_dir: Path, recipe: Recipe | None,
 
 def _load_data(data_path: str | os.PathLike, r: Recipe, s: TrainSettings) -> WindowData:
     data = WindowData(data_path, r.val_fraction, r.split_seed, s.limit_windows,
-                      s.allow_other_scene)
+                      s.allow_other_scene, horizon=max(N_STEPS_MAX, r.rollout))
     if data.m != r.tpnet_config.m:
         raise ValueError(f"dataset has m={data.m}, the recipe's network m={r.tpnet_config.m}")
     if len(data.train_win) == 0:
@@ -688,7 +688,8 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
     rng = np.random.default_rng(seed)
     x = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, cfg.m, cfg.n_out, cfg.dim))
                          .astype(np.float32)).to(dev)
-    y = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, N_STEPS_MAX, cfg.n_out, cfg.dim))
+    y = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, max(N_STEPS_MAX, *rollouts), cfg.n_out,
+                                                cfg.dim))
                          .astype(np.float32)).to(dev)
     out = {}
     for k in rollouts:

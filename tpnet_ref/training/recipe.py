@@ -4,7 +4,9 @@ Recipes (``Recipe.recipe``):
 
 * ``paper``: every step is the published loss, ``9·CD(P_{t+1}) + Σ_{i=2..8} CD(P_{t+i})`` over 8
   recursive predictions (released-code Chamfer: Euclidean, not squared, both directions summed);
-  ``rollout = K`` shortens it to K predictions (same weights).
+  ``rollout = K`` shortens it to K predictions, or lengthens it up to :data:`N_ROLLOUT_MAX`
+  (same weights, 1 for every step after the first; the windows are then those with K frames
+  after their inputs, gathered from the whole trajectories).
 * ``curriculum`` (default): ``pretrain_epochs`` of the 1-step loss (teacher forced, the first
   term alone), then the recursive loss with the rollout length growing linearly from 1 to 8 over
   ``ramp_epochs``, then the ``rollout``-step loss (8, the published one, by default). Same
@@ -29,8 +31,10 @@ import numpy as np
 from ..config import TPNetConfig
 from ..data import N_TARGETS, check_scene
 
-#: longest recursive loss: the published 8 predictions (the dataset's targets per window)
+#: the published recursive loss: 8 predictions (the dataset's targets per window)
 N_STEPS_MAX = N_TARGETS
+#: the longest recursive loss a recipe may ask for (the long-horizon experiments)
+N_ROLLOUT_MAX = 32
 #: how much of Adam's state a checkpoint keeps (:mod:`~tpnet_ref.training.checkpoint`)
 OPTIMIZER_MODES = ("full", "bf16", "none")
 
@@ -54,7 +58,7 @@ class Recipe:
     first_weight: float = 9.0
     shape_weight: float = 0.0           # λ of the added shape term λ·Σ w_i·CD(centred sets)
     match_weight: float = 0.0           # μ of the added term μ·Σ w_i·EMD (optimal bijection)
-    rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published)
+    rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published; up to 32)
     pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
     head_init: str = "default"          # "default" or "template" (output bias = a ring, see below)
@@ -76,8 +80,8 @@ class Recipe:
             raise ValueError(f"head_init must be 'default' or 'template', got {self.head_init!r}")
         if self.val_windows < 0:
             raise ValueError("val_windows must be >= 0")
-        if not 1 <= self.rollout <= N_STEPS_MAX:
-            raise ValueError(f"rollout must be in 1..{N_STEPS_MAX}, got {self.rollout}")
+        if not 1 <= self.rollout <= N_ROLLOUT_MAX:
+            raise ValueError(f"rollout must be in 1..{N_ROLLOUT_MAX}, got {self.rollout}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if self.noise < 0 or self.clip < 0 or self.shape_weight < 0 or self.match_weight < 0:
@@ -144,12 +148,16 @@ def size_config(size: str = "full", m: int = 4, **kw: Any) -> TPNetConfig:
 class WindowData:
     """The windows of a ``tpnet data generate`` file, gathered on demand from the trajectories
     (no copy of each window is held): :meth:`gather` -> inputs ``(B, m, N, 2)`` and targets
-    ``(B, 8, N, 2)``, float32, normalised. Train/validation split by trajectory. A file made
-    with another scene convention than the simulator's default is refused unless
-    ``allow_other_scene`` (:func:`tpnet_ref.data.check_scene`)."""
+    ``(B, H, N, 2)``, float32, normalised, ``H = max(8, horizon)``. With ``horizon`` > 8 (a
+    longer recursive loss) only the windows with ``horizon`` frames after their inputs are kept
+    (the file's windows stop 8 frames before a trajectory's end). Train/validation split by
+    trajectory, the same for every ``horizon``. A file made with another scene convention than
+    the simulator's default is refused unless ``allow_other_scene``
+    (:func:`tpnet_ref.data.check_scene`)."""
 
     def __init__(self, path: str | os.PathLike, val_fraction: float, seed: int,
-                 limit_windows: int | None = None, allow_other_scene: bool = False) -> None:
+                 limit_windows: int | None = None, allow_other_scene: bool = False,
+                 horizon: int = N_STEPS_MAX) -> None:
         import h5py
 
         if not Path(path).is_file():
@@ -175,6 +183,11 @@ class WindowData:
             raise ValueError(f"{path}: {n_traj} trajectories are too few for a validation split")
         perm = np.random.default_rng([seed, 12345]).permutation(n_traj)
         self.val_traj = np.sort(perm[:n_val])
+        if not 1 <= horizon <= N_ROLLOUT_MAX:
+            raise ValueError(f"horizon must be in 1..{N_ROLLOUT_MAX}, got {horizon}")
+        if horizon > self.n_targets:
+            win = win[win[:, 1] + self.m + horizon <= self.frames.shape[1]]
+            self.n_targets = int(horizon)
         is_val = np.isin(win[:, 0], self.val_traj)
         self.train_win = win[~is_val]
         self.val_win = win[is_val]
@@ -193,4 +206,5 @@ class WindowData:
                 f"trajectories), m={self.m}")
 
 
-__all__ = ["Recipe", "WindowData", "SIZES", "size_config", "N_STEPS_MAX", "OPTIMIZER_MODES"]
+__all__ = ["Recipe", "WindowData", "SIZES", "size_config", "N_STEPS_MAX", "N_ROLLOUT_MAX",
+           "OPTIMIZER_MODES"]
