@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from tpnet_ref import reference
+from tpnet_ref.checks import check_windows
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
 #: the m the invariance tests draw windows with (1 frame, the shortest time order, the released 4)
@@ -69,14 +70,20 @@ class Implementations:
         return reference_forward
 
     def engine(self, engine: str, dtype: str, sort: bool = False):
-        """``predict`` on the ``engine`` head ("numpy" or "numba"), the canonical sort on or
-        off: the window's features, that head, denormalised (what ``predict`` runs)."""
+        """``predict`` on the ``engine`` ("numpy" or "numba": its feature extractor and head),
+        the canonical sort on or off: the window's features, that head, denormalised (what
+        ``predict`` runs)."""
         def predict(window):
             model = self.model(len(window), dtype)
             model.sort_points = sort       # the flag canonical_points reads; nothing else caches it
             try:
                 head = next(h for h in model.heads if h.name == engine)
-                return model.denormalize(head(model.window_features([window]))[0])
+                # each engine's own feature extractor: the compiled one with the numba head
+                frames, _ = check_windows([window], model.config.m, model.config.dim,
+                                          model.dtype)
+                feats = model.frame_features(*model.canonical_points(frames),
+                                             1 if engine == "numba" else None)
+                return model.denormalize(head(feats.reshape(1, model.config.m, -1))[0])
             finally:
                 model.sort_points = True
         predict.__qualname__ = f"{engine}_engine_{'sorted' if sort else 'unsorted'}_{dtype}"

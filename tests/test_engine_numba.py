@@ -469,3 +469,53 @@ def test_two_threads_only_beside_a_one_thread_blas():
             EN._PARALLEL.release()
         assert EN._two_threads(True)
         EN._PARALLEL.release()
+
+
+@pytest.mark.parametrize("dtype,rtol", [("float32", 1e-5), ("float64", 1e-13)])
+def test_compiled_feature_extractor_equals_numpy_and_each_frame_is_its_own(shipped, scene, dtype,
+                                                                         rtol):
+    """The numba engine's feature extractor: NumPy's numbers up to rounding on scene frames and
+    on ragged ones (1 point, more points than a chunk); each frame the same bits alone, in a
+    batch, on one thread or two; a NaN point gives its frame NaN features (the head then raises)."""
+    import numba
+
+    model = shipped.astype(dtype)
+    fx = EN.NumbaFeatures(model.config, model.params, dtype)
+    rng = np.random.default_rng(31)
+    frames = [f for f in _scene_windows(scene, 4).reshape(-1, 30, 2)]
+    frames += [rng.uniform(10, 30, size=(n, 2)) for n in (1, 2, EN.FEATURE_CHUNK + 37, 5)]
+    pts, counts = _canonical(model, frames)
+    got = fx(pts, counts)
+    want = model.features(pts, counts)
+    assert got.shape == want.shape == (len(frames), model.config.global_features)
+    assert (want == 0).mean() > 0.3                       # zeros to skip, as on the scene
+    np.testing.assert_allclose(got, want, rtol=rtol, atol=rtol * np.abs(want).max())
+    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    for f in range(len(frames)):
+        alone = fx(pts[starts[f]:starts[f] + counts[f]], counts[f:f + 1])
+        assert np.array_equal(alone[0], got[f]), f
+    threads = numba.get_num_threads()
+    try:
+        for n in sorted({1, threads}):
+            numba.set_num_threads(n)
+            with blas.one_thread():
+                assert np.array_equal(fx(pts, counts, parallel=True), got), n
+    finally:
+        numba.set_num_threads(threads)
+    bad = pts.copy()
+    bad[counts[0] + 3] = np.nan
+    y = fx(bad, counts)
+    assert np.isnan(y[1]).any() and np.array_equal(y[0], got[0]) and np.array_equal(y[2:], got[2:])
+
+
+def test_the_engine_takes_its_feature_extractor_for_the_batches_its_head_runs(shipped, scene):
+    nb = shipped.with_engine("numba")
+    assert isinstance(nb.engine_features, EN.NumbaFeatures)
+    assert shipped.with_engine("numpy").engine_features is None
+    cfg = dataclasses.replace(SMALL, feature_transform_trained=True)
+    assert init_random(cfg, seed=1).with_engine("numba").engine_features is None
+    w = _scene_windows(scene, 2)[0]
+    pts, counts = _canonical(nb, w)
+    assert np.array_equal(nb.frame_features(pts, counts, 1), nb.engine_features(pts, counts))
+    assert np.array_equal(nb.frame_features(pts, counts, M.ENGINE_MAX_BATCH + 1),
+                          nb.features(pts, counts))

@@ -182,9 +182,9 @@ def test_rollout_computes_each_frame_feature_once(model64, monkeypatch):
     calls = []
     orig = type(model64).frame_features
 
-    def counting(self, points, counts):
+    def counting(self, points, counts, batch=None):
         calls.append(len(counts))
-        return orig(self, points, counts)
+        return orig(self, points, counts, batch)
 
     monkeypatch.setattr(type(model64), "frame_features", counting)
     model64.rollout(_window(np.random.default_rng(6)), 10)

@@ -545,6 +545,155 @@ def _project_parallel(x, kernel, bias, out, steps, bsz):
         _project_one(d, x, kernel, bias, out, steps, bsz)
 
 
+# ------------------------------------------------------------------ the feature extractor
+
+#: points of a frame that go through the per-point layers together (their activations stay in
+#: cache; a frame's max is taken over its chunks, exact whatever the cut)
+FEATURE_CHUNK = 64
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out):
+    """The global feature of frames ``f0 .. f1-1`` into ``out[f]``: frame ``f`` is the points
+    ``pts[starts[f] : starts[f] + counts[f]]`` (model coordinates, canonical order). The first
+    per-point layer ``w0 (dim, C0)`` directly; every later one (``ws``, ``bs``, the last one of
+    the MLP before the max) by :func:`_product`, reading only the weight rows of each group of
+    points' non-zero inputs; ReLU after each, the last layer's bias and ReLU after the max (as
+    :func:`tpnet_ref.layers.mlp_max`: the same numbers); then the global layer ``gw``, ``gb``
+    with ReLU. A NaN anywhere stays NaN through the max."""
+    dt = pts.dtype
+    nl = len(ws)
+    c0 = w0.shape[1]
+    dim = w0.shape[0]
+    cmax = c0
+    for li in range(nl):
+        cmax = max(cmax, ws[li].shape[1])
+    chunk = FEATURE_CHUNK
+    a = np.empty((chunk, cmax), dtype=dt)
+    b = np.empty((chunk, cmax), dtype=dt)
+    act = np.empty(((chunk + GROUP_ROWS - 1) // GROUP_ROWS, cmax), dtype=np.intp)
+    ns = np.empty(act.shape[0], dtype=np.intp)
+    cl = ws[nl - 1].shape[1]
+    pool = np.empty((1, cl), dtype=dt)
+    gout = np.empty((1, gw.shape[1]), dtype=dt)
+    gact = np.empty((1, cl), dtype=np.intp)
+    gns = np.empty(1, dtype=np.intp)
+    one_row = _groups(1, 1, False)
+    for f in range(f0, f1):
+        s0, n = starts[f], counts[f]
+        for p0 in range(0, n, chunk):
+            r = min(chunk, n - p0)
+            for i in range(r):
+                for j in range(c0):
+                    v = zero
+                    for d in range(dim):
+                        v += pts[s0 + p0 + i, d] * w0[d, j]
+                    v += b0[j]
+                    a[i, j] = zero if v < zero else v
+            grp = _groups(r, 1, False)
+            cur, nxt, cin = a, b, c0
+            for li in range(nl):
+                cw = ws[li].shape[1]
+                xi = cur[:r, :cin]
+                yo = nxt[:r, :cw]
+                _active(xi, grp, act, ns)
+                _product(xi, ws[li], grp, act, ns, yo)
+                if li < nl - 1:
+                    bb = bs[li]
+                    for i in range(r):
+                        for j in range(cw):
+                            v = yo[i, j] + bb[j]
+                            yo[i, j] = zero if v < zero else v
+                cur, nxt, cin = nxt, cur, cw
+            for i in range(r):                   # the max over the points (NaN kept)
+                if p0 == 0 and i == 0:
+                    for j in range(cl):
+                        pool[0, j] = cur[0, j]
+                else:
+                    for j in range(cl):
+                        v = cur[i, j]
+                        if v > pool[0, j] or v != v:      # once NaN, NaN stays
+                            pool[0, j] = v
+        bl = bs[nl - 1]
+        for j in range(cl):
+            v = pool[0, j] + bl[j]
+            pool[0, j] = zero if v < zero else v
+        _active(pool, one_row, gact, gns)
+        _product(pool, gw, one_row, gact, gns, gout)
+        for j in range(gw.shape[1]):
+            v = gout[0, j] + gb[j]
+            out[f, j] = zero if v < zero else v
+
+
+@njit(cache=True, nogil=True)
+def _features_serial(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
+    _frame_range(pts, starts, counts, 0, counts.shape[0], w0, b0, ws, bs, gw, gb, zero, out)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
+    """:func:`_features_serial`, the frames in two halves on two threads."""
+    nf = counts.shape[0]
+    half = (nf + 1) // 2
+    for h in prange(2):
+        _frame_range(pts, starts, counts, h * half, min(nf, (h + 1) * half), w0, b0, ws, bs,
+                     gw, gb, zero, out)
+
+
+class NumbaFeatures:
+    """The feature extractor as one compiled function (frames of any size, ragged included):
+    ``(points (P, dim), counts (F,))`` -> global features ``(F, k)`` in the file's order of
+    units, each frame computed on its own by the same code (the same bits alone, in a batch,
+    on one thread or two). Only for networks whose transform nets are the identity (the
+    released ones; :meth:`supports`). A call where the model's thread policy offers a second
+    thread and there are two frames or more runs the frames in two halves on two threads."""
+
+    def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: Any) -> None:
+        if not self.supports(config):
+            raise ValueError("NumbaFeatures: trained transform nets are not supported")
+        dt = self.dtype = np.dtype(dtype)
+        names = ([f"mlp1.{i}" for i in range(len(config.mlp1))]
+                 + [f"mlp2.{i}" for i in range(len(config.mlp2))])
+        w = [np.ascontiguousarray(params[f"{n}.w"], dtype=dt) for n in names]
+        b = [np.ascontiguousarray(params[f"{n}.b"], dtype=dt) for n in names]
+        # the products stream whole vectors: each layer's columns padded with zeros
+        self.w0, self.b0 = w[0], b[0]
+        pad_in = [padded_columns(x.shape[1], dt) for x in w]
+        self.ws = tuple(np.ascontiguousarray(np.pad(pad_columns(x, dt), ((0, p - x.shape[0]), (0, 0))))
+                        for x, p in zip(w[1:], pad_in[:-1]))
+        self.bs = tuple(pad_columns(x, dt) for x in b[1:])
+        gw = np.asarray(params["global.w"], dtype=dt)
+        self.gw = np.ascontiguousarray(np.pad(pad_columns(gw, dt),
+                                              ((0, pad_in[-1] - gw.shape[0]), (0, 0))))
+        self.gb = pad_columns(np.asarray(params["global.b"], dtype=dt), dt)
+        self.w0 = pad_columns(self.w0, dt)
+        self.b0 = pad_columns(self.b0, dt)
+        self.k = int(config.global_features)
+
+    @staticmethod
+    def supports(config: Any) -> bool:
+        return not (config.input_transform_trained or config.feature_transform_trained)
+
+    def __call__(self, points: np.ndarray, counts: np.ndarray, parallel: bool = False) -> np.ndarray:
+        """Global feature of every frame (see the class); ``parallel``: the frames on two
+        threads if :func:`_two_threads` allows."""
+        pts = np.ascontiguousarray(points, dtype=self.dtype)
+        counts = np.ascontiguousarray(counts, dtype=np.intp)
+        starts = np.zeros(counts.shape[0], dtype=np.intp)
+        np.cumsum(counts[:-1], out=starts[1:])
+        out = np.empty((counts.shape[0], self.gw.shape[1]), dtype=self.dtype)
+        args = (pts, starts, counts, self.w0, self.b0, self.ws, self.bs, self.gw, self.gb,
+                self.dtype.type(0), out)
+        if counts.shape[0] > 1 and _two_threads(parallel):
+            try:
+                _features_parallel(*args)
+            finally:
+                _PARALLEL.release()
+        else:
+            _features_serial(*args)
+        return out if out.shape[1] == self.k else np.ascontiguousarray(out[:, :self.k])
+
+
 #: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
 _PARALLEL = threading.Lock()
 
@@ -687,4 +836,4 @@ class NumbaHead:
         return _head(*args, False)
 
 
-__all__ = ["NumbaHead", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]
+__all__ = ["NumbaHead", "NumbaFeatures", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]

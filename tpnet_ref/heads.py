@@ -82,9 +82,22 @@ def build(model: Any, engine: str, used: dict[str, np.ndarray] | None) -> list[H
     return full[:-1] + [spec, full[-1]]
 
 
+def build_features(model: Any, engine: str) -> Any:
+    """The compiled feature extractor (:class:`tpnet_ref.engine_numba.NumbaFeatures`) that
+    goes with the numba head, or None: engine "numpy", or trained transform nets (the NumPy
+    extractor then serves every batch)."""
+    if engine != "numba":
+        return None
+    from . import engine_numba
+    if not engine_numba.NumbaFeatures.supports(model.config):
+        return None
+    return engine_numba.NumbaFeatures(model.config, model.params, model.dtype)
+
+
 def for_batch(heads: list[Head], batch: int) -> Head:
     """The first of ``heads`` that runs batches of ``batch`` windows."""
     return next(h for h in heads if h.max_batch is None or batch <= h.max_batch)
 
 
-__all__ = ["ENGINES", "ENGINE_MAX_BATCH", "Head", "resolve_engine", "build", "for_batch"]
+__all__ = ["ENGINES", "ENGINE_MAX_BATCH", "Head", "resolve_engine", "build", "build_features",
+           "for_batch"]

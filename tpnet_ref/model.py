@@ -33,7 +33,8 @@ import numpy as np
 from . import heads as H
 from . import specialize as S
 from . import unit_order as U
-from .blas import SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, one_thread, split_batch  # noqa: F401
+from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, one_thread, split_batch,  # noqa: F401
+                   two_threads)
 from .checks import check_params, check_window, check_windows, warn_about_input
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
 from .fast_numpy import BLOCK_POINTS, NumpyFeatures
@@ -81,6 +82,8 @@ class TPNet:
         self.features = NumpyFeatures(config, self.params, self.unit_order)
         #: the prediction network's heads, fastest first (:mod:`tpnet_ref.heads`)
         self.heads = H.build(self, self.engine, used)
+        #: the compiled feature extractor of the batches the numba head runs (None: NumPy's)
+        self.engine_features = H.build_features(self, self.engine)
         #: the scene-specialised network, if any (:meth:`specialize`)
         self.specialization: S.SceneHead | None = next(
             (h.scene for h in self.heads if h.name == "specialised"), None)
@@ -186,15 +189,23 @@ class TPNet:
             return pts, counts
         return pts[canonical_order(pts, counts)], counts
 
-    def frame_features(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    def frame_features(self, points: np.ndarray, counts: np.ndarray,
+                       batch: int | None = None) -> np.ndarray:
         """Global feature of every frame: ``points (P, dim)`` frame after frame, each in
-        canonical order, ``counts (F,)`` -> ``(F, global_features)``."""
+        canonical order, ``counts (F,)`` -> ``(F, global_features)``. ``batch``: the windows
+        they belong to; a batch the numba head runs (up to ``ENGINE_MAX_BATCH`` windows) takes
+        the compiled extractor (its frames on two threads when the call's thread plan offers
+        a second one; the same bits either way), anything else the NumPy one."""
+        if (self.engine_features is not None and batch is not None
+                and batch <= ENGINE_MAX_BATCH):
+            return self.engine_features(points, counts, two_threads())
         return self.features(points, counts)
 
     def window_features(self, windows: Any, normalized: bool = False) -> np.ndarray:
         """The global features of a batch's frames: ``(B, m, N, dim)`` -> ``(B, m, k)``."""
         frames, batch = check_windows(windows, self.config.m, self.config.dim, self.dtype)
-        return self.frame_features(*self.canonical_points(frames, normalized)).reshape(batch, self.config.m, -1)
+        return self.frame_features(*self.canonical_points(frames, normalized),
+                                   batch).reshape(batch, self.config.m, -1)
 
     def head_for(self, batch: int) -> H.Head:
         """The head that runs batches of ``batch`` windows (:mod:`tpnet_ref.heads`)."""
@@ -252,7 +263,7 @@ class TPNet:
     def _predict(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
         """``batch * m`` checked frames, window after window -> ``(batch, n_out, dim)``."""
         with self._threads("predict", batch, sum(f.shape[0] for f in frames)):
-            g = self.frame_features(*self.canonical_points(frames, normalized))
+            g = self.frame_features(*self.canonical_points(frames, normalized), batch)
             y = self.sequence_head(g.reshape(batch, self.config.m, -1))
         return y if normalized else self.denormalize(y)
 
@@ -285,7 +296,7 @@ class TPNet:
         # head takes it: a specialised one projects its kept units itself); the last m kept
         with self._threads("features", batch, sum(f.shape[0] for f in frames)):
             feats[:, :m] = self.frame_features(
-                *self.canonical_points(frames, normalized)).reshape(batch, m, -1)
+                *self.canonical_points(frames, normalized), batch).reshape(batch, m, -1)
             proj = self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1), batch)
             proj = None if proj is None else list(proj.reshape(m, batch, -1))
         counts = np.full(batch, c.n_out)
@@ -297,7 +308,7 @@ class TPNet:
                 flat = y.reshape(-1, c.dim)
                 if self.sort_points:
                     flat = flat[canonical_order(flat, counts)]
-                feats[:, m + s] = self.frame_features(flat, counts)
+                feats[:, m + s] = self.frame_features(flat, counts, batch)
                 if proj is not None and s + 1 < steps:
                     proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s], batch)]
         return out if normalized else self.denormalize(out)
