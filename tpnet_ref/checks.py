@@ -320,16 +320,20 @@ def _all_one_body(frames: np.ndarray) -> bool:
     f, n = frames.shape[:2]
     if n < BODY_MIN_POINTS:
         return True
-    centre = 0.5 * (frames.min(axis=1) + frames.max(axis=1))
-    ex, ey = frames[..., 0] - centre[:, None, 0], frames[..., 1] - centre[:, None, 1]
-    if not (np.sqrt(ex * ex + ey * ey) <= BODY_MAX_RADIUS).all():
+    # few NumPy calls: this runs on every predict (a window is 4 x 30 points, so each call's
+    # fixed cost, not the arithmetic, is what it costs)
+    e = frames - 0.5 * (frames.min(axis=1) + frames.max(axis=1))[:, None, :]
+    ex, ey = e[..., 0], e[..., 1]
+    if not (np.sqrt(np.einsum("fnk,fnk->fn", e, e)) <= BODY_MAX_RADIUS).all():
         return False
     # an outline (the scene's body is a ring): the points in the order of their angle about the
     # centre form a closed path; with no step longer than BODY_LINK_MIN (the smallest link) they
     # are one linked group whatever the link, and no pairwise distances are needed
-    path = np.take_along_axis(frames, np.argsort(np.arctan2(ey, ex), axis=1)[..., None], axis=1)
-    step = path - np.roll(path, 1, axis=1)
-    if (step[..., 0] ** 2 + step[..., 1] ** 2).max() <= BODY_LINK_MIN ** 2:
+    path = frames[np.arange(f)[:, None], np.argsort(np.arctan2(ey, ex), axis=1)]
+    step = np.empty_like(path)
+    np.subtract(path[:, 1:], path[:, :-1], out=step[:, 1:])
+    np.subtract(path[:, 0], path[:, -1], out=step[:, 0])
+    if np.einsum("fnk,fnk->fn", step, step).max() <= BODY_LINK_MIN ** 2:
         return True
     if f * n * n > BODY_MAX_POINTS ** 2:            # all frames' pairs at once would not be small
         return False                                # (the caller then judges frame by frame)
@@ -362,7 +366,12 @@ def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
         stacked = np.asarray(np.stack(frames) if isinstance(frames, list) else frames,
                              dtype=np.float64)
         if np.isfinite(stacked).all() and _all_one_body(stacked):
-            centres = list(stacked.mean(axis=1))     # no outliers: only the steps to judge
+            # no outliers: only the steps between the frames' centres to judge
+            c = stacked.mean(axis=1)
+            d = c[1:] - c[:-1]
+            if not (np.sqrt(np.einsum("fk,fk->f", d, d)) > BODY_MAX_STEP).any():
+                return None
+            centres = list(c)
             frames = []
     for i, f in enumerate(frames):
         f = np.asarray(f, dtype=np.float64)
