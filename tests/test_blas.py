@@ -41,7 +41,9 @@ def test_policy_follows_a_change_of_load_within_a_few_calls():
     _run(p, "k", {1: 5.0, 0: 4.0}, 40)
     assert p.preferred("k") == 0
     later = _run(p, "k", {1: 5.5, 0: 40.0}, 20)          # the other core got busy
-    assert later[2:].count(0) <= 2                      # switched after two slow calls
+    # switched after two slow calls; then a probe of two threads (two calls: a warm-up, then
+    # the measured one) every probe_every calls at first
+    assert later[2:].count(0) <= 4
     assert p.preferred("k") == 1
     back = _run(p, "k", {1: 5.5, 0: 4.0}, 200)           # and idle again
     assert p.preferred("k") == 0 and back[-8:].count(0) >= 7
@@ -139,3 +141,19 @@ def test_feature_blocks_on_two_threads_give_the_same_bits(engine, monkeypatch):
     (a,), (b, c) = runs["2"], runs["1"]
     for x, y, z in zip(a, b, c):
         assert np.array_equal(x, y) and np.array_equal(y, z)
+
+
+def test_a_two_thread_probe_is_measured_after_a_warm_up_call():
+    """Waking the second thread's sleeping workers makes the first two-thread call after a run
+    of one-thread calls slower: that call is not recorded, so two threads that are faster once
+    awake win."""
+    p = blas.ThreadPolicy(probe_every=8, keep=4, margin=0.1)
+    _run(p, "k", {1: 5.0, 0: 6.0}, 40)                  # two threads slower: one thread runs
+    assert p.preferred("k") == 1
+    prev, choices = 1, []
+    for _ in range(400):                                # now: 4.0 warm, 6.0 the first call
+        c = p.choose("k")
+        p.record("k", c, (4.0 if prev == 0 else 6.0) if c == 0 else 5.0)
+        prev = c
+        choices.append(c)
+    assert p.preferred("k") == 0 and choices[-16:].count(0) >= 14
