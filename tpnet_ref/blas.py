@@ -225,11 +225,14 @@ class ThreadPolicy:
             return self._best(times)
 
     @contextlib.contextmanager
-    def __call__(self, kind: Hashable) -> Iterator[int]:
+    def __call__(self, kind: Hashable, held: bool = False) -> Iterator[int]:
         """Run the block with a one-thread BLAS and the chosen plan (:func:`two_threads` tells
         the block); yields the choice (1, 0, or -1 when the policy stands aside: nested in
-        another :func:`one_thread` block, or one core) and records the block's latency."""
-        if in_one_thread() or cpu_count() < 2:
+        another :func:`one_thread` block, or one core) and records the block's latency.
+        ``held``: the caller holds a :func:`one_thread` block of its own around many such
+        blocks (a rollout's steps, ~30 us each saved) and was not itself nested in one when it
+        took it: the policy chooses all the same."""
+        if (in_one_thread() and not held) or cpu_count() < 2:
             with one_thread():
                 yield -1
             return
@@ -237,8 +240,11 @@ class ThreadPolicy:
         t = time.perf_counter()
         _LOCAL.two = choice == 0
         try:
-            with one_thread():
+            if held:
                 yield choice
+            else:
+                with one_thread():
+                    yield choice
         finally:
             _LOCAL.two = False
         self.record(kind, choice, time.perf_counter() - t)

@@ -553,14 +553,13 @@ FEATURE_CHUNK = 64
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out):
-    """The global feature of frames ``f0 .. f1-1`` into ``out[f]``: frame ``f`` is the points
-    ``pts[starts[f] : starts[f] + counts[f]]`` (model coordinates, canonical order). The first
-    per-point layer ``w0 (dim, C0)`` directly; every later one (``ws``, ``bs``, the last one of
-    the MLP before the max) by :func:`_product`, reading only the weight rows of each group of
-    points' non-zero inputs; ReLU after each, the last layer's bias and ReLU after the max (as
-    :func:`tpnet_ref.layers.mlp_max`: the same numbers); then the global layer ``gw``, ``gb``
-    with ReLU. A NaN anywhere stays NaN through the max."""
+def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
+    """The max over the points ``pts[p0:p1]`` of the per-point MLP's last products (before its
+    bias and ReLU) into ``pool (1, C)`` (NaN kept: once NaN, NaN stays). The first layer
+    ``w0 (dim, C0)`` directly; every later one (``ws``, ``bs``) by :func:`_product`, reading
+    only the weight rows of each group of points' non-zero inputs, ReLU after each but the
+    last. Points go through in chunks of :data:`FEATURE_CHUNK`; each point's numbers do not
+    depend on the others, and a max does not depend on the order, so neither does ``pool``."""
     dt = pts.dtype
     nl = len(ws)
     c0 = w0.shape[1]
@@ -574,55 +573,69 @@ def _frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out)
     act = np.empty(((chunk + GROUP_ROWS - 1) // GROUP_ROWS, cmax), dtype=np.intp)
     ns = np.empty(act.shape[0], dtype=np.intp)
     cl = ws[nl - 1].shape[1]
-    pool = np.empty((1, cl), dtype=dt)
-    gout = np.empty((1, gw.shape[1]), dtype=dt)
-    gact = np.empty((1, cl), dtype=np.intp)
-    gns = np.empty(1, dtype=np.intp)
+    for q0 in range(p0, p1, chunk):
+        r = min(chunk, p1 - q0)
+        for i in range(r):
+            for j in range(c0):
+                v = zero
+                for d in range(dim):
+                    v += pts[q0 + i, d] * w0[d, j]
+                v += b0[j]
+                a[i, j] = zero if v < zero else v
+        grp = _groups(r, 1, False)
+        cur, nxt, cin = a, b, c0
+        for li in range(nl):
+            cw = ws[li].shape[1]
+            xi = cur[:r, :cin]
+            yo = nxt[:r, :cw]
+            _active(xi, grp, act, ns)
+            _product(xi, ws[li], grp, act, ns, yo)
+            if li < nl - 1:
+                bb = bs[li]
+                for i in range(r):
+                    for j in range(cw):
+                        v = yo[i, j] + bb[j]
+                        yo[i, j] = zero if v < zero else v
+            cur, nxt, cin = nxt, cur, cw
+        for i in range(r):
+            if q0 == p0 and i == 0:
+                for j in range(cl):
+                    pool[0, j] = cur[0, j]
+            else:
+                for j in range(cl):
+                    v = cur[i, j]
+                    if v > pool[0, j] or v != v:      # once NaN, NaN stays
+                        pool[0, j] = v
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _finish_frame(pool, bl, gw, gb, zero, out, f):
+    """``out[f] = relu(relu(pool + bl) @ gw + gb)``: the MLP's last bias and ReLU after the max
+    (as :func:`tpnet_ref.layers.mlp_max`: the same numbers), then the global layer."""
+    cl = pool.shape[1]
+    for j in range(cl):
+        v = pool[0, j] + bl[j]
+        pool[0, j] = zero if v < zero else v
     one_row = _groups(1, 1, False)
+    act = np.empty((1, cl), dtype=np.intp)
+    ns = np.empty(1, dtype=np.intp)
+    g = np.empty((1, gw.shape[1]), dtype=pool.dtype)
+    _active(pool, one_row, act, ns)
+    _product(pool, gw, one_row, act, ns, g)
+    for j in range(gw.shape[1]):
+        v = g[0, j] + gb[j]
+        out[f, j] = zero if v < zero else v
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out):
+    """The global feature of frames ``f0 .. f1-1`` into ``out[f]``: frame ``f`` is the points
+    ``pts[starts[f] : starts[f] + counts[f]]`` (model coordinates, canonical order)."""
+    nl = len(ws)
+    pool = np.empty((1, ws[nl - 1].shape[1]), dtype=pts.dtype)
     for f in range(f0, f1):
-        s0, n = starts[f], counts[f]
-        for p0 in range(0, n, chunk):
-            r = min(chunk, n - p0)
-            for i in range(r):
-                for j in range(c0):
-                    v = zero
-                    for d in range(dim):
-                        v += pts[s0 + p0 + i, d] * w0[d, j]
-                    v += b0[j]
-                    a[i, j] = zero if v < zero else v
-            grp = _groups(r, 1, False)
-            cur, nxt, cin = a, b, c0
-            for li in range(nl):
-                cw = ws[li].shape[1]
-                xi = cur[:r, :cin]
-                yo = nxt[:r, :cw]
-                _active(xi, grp, act, ns)
-                _product(xi, ws[li], grp, act, ns, yo)
-                if li < nl - 1:
-                    bb = bs[li]
-                    for i in range(r):
-                        for j in range(cw):
-                            v = yo[i, j] + bb[j]
-                            yo[i, j] = zero if v < zero else v
-                cur, nxt, cin = nxt, cur, cw
-            for i in range(r):                   # the max over the points (NaN kept)
-                if p0 == 0 and i == 0:
-                    for j in range(cl):
-                        pool[0, j] = cur[0, j]
-                else:
-                    for j in range(cl):
-                        v = cur[i, j]
-                        if v > pool[0, j] or v != v:      # once NaN, NaN stays
-                            pool[0, j] = v
-        bl = bs[nl - 1]
-        for j in range(cl):
-            v = pool[0, j] + bl[j]
-            pool[0, j] = zero if v < zero else v
-        _active(pool, one_row, gact, gns)
-        _product(pool, gw, one_row, gact, gns, gout)
-        for j in range(gw.shape[1]):
-            v = gout[0, j] + gb[j]
-            out[f, j] = zero if v < zero else v
+        _pool_points(pts, starts[f], starts[f] + counts[f], w0, b0, ws, bs, zero, pool)
+        _finish_frame(pool, bs[nl - 1], gw, gb, zero, out, f)
 
 
 @njit(cache=True, nogil=True)
@@ -632,12 +645,31 @@ def _features_serial(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
 
 @njit(cache=True, nogil=True, parallel=True)
 def _features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
-    """:func:`_features_serial`, the frames in two halves on two threads."""
+    """:func:`_features_serial` on two threads: two frames or more, in two halves; one frame
+    (a rollout's new frame), its points in two halves, whose maxes are then combined (exact:
+    a max of the same numbers, NaN kept)."""
     nf = counts.shape[0]
-    half = (nf + 1) // 2
+    if nf > 1:
+        half = (nf + 1) // 2
+        for h in prange(2):
+            _frame_range(pts, starts, counts, h * half, min(nf, (h + 1) * half), w0, b0, ws,
+                         bs, gw, gb, zero, out)
+        return
+    nl = len(ws)
+    n = counts[0]
+    mid = starts[0] + (n + 1) // 2
+    pools = np.empty((2, 1, ws[nl - 1].shape[1]), dtype=pts.dtype)
     for h in prange(2):
-        _frame_range(pts, starts, counts, h * half, min(nf, (h + 1) * half), w0, b0, ws, bs,
-                     gw, gb, zero, out)
+        if h == 0:
+            _pool_points(pts, starts[0], mid, w0, b0, ws, bs, zero, pools[0])
+        else:
+            _pool_points(pts, mid, starts[0] + n, w0, b0, ws, bs, zero, pools[1])
+    p, q = pools[0], pools[1]
+    for j in range(p.shape[1]):
+        v = q[0, j]
+        if v > p[0, j] or v != v:
+            p[0, j] = v
+    _finish_frame(p, bs[nl - 1], gw, gb, zero, out, 0)
 
 
 class NumbaFeatures:
@@ -684,7 +716,7 @@ class NumbaFeatures:
         out = np.empty((counts.shape[0], self.gw.shape[1]), dtype=self.dtype)
         args = (pts, starts, counts, self.w0, self.b0, self.ws, self.bs, self.gw, self.gb,
                 self.dtype.type(0), out)
-        if counts.shape[0] > 1 and _two_threads(parallel):
+        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(parallel):
             try:
                 _features_parallel(*args)
             finally:

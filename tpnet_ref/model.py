@@ -33,8 +33,8 @@ import numpy as np
 from . import heads as H
 from . import specialize as S
 from . import unit_order as U
-from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, one_thread, split_batch,  # noqa: F401
-                   two_threads)
+from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
+                   split_batch, two_threads)
 from .checks import check_params, check_window, check_windows, warn_about_input
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
 from .fast_numpy import BLOCK_POINTS, NumpyFeatures
@@ -221,7 +221,7 @@ class TPNet:
         ``proj1 (m, B, ...)``: :meth:`project_frames` of the frames, if already known."""
         return self.head_for(len(features))(features, proj1)
 
-    def _threads(self, what: str, batch: int, points: int) -> Any:
+    def _threads(self, what: str, batch: int, points: int, held: bool = False) -> Any:
         """The block a call's work runs in: always a one-thread BLAS, and
         :data:`tpnet_ref.blas.adaptive`, which lets the parts that may take a second thread (the
         feature extractor's blocks of :data:`~tpnet_ref.fast_numpy.BLOCK_POINTS` points, the
@@ -229,7 +229,7 @@ class TPNet:
         way). A call with nothing to share runs on one thread."""
         if not self.head_for(batch).threaded and points <= BLOCK_POINTS:
             return one_thread()
-        return adaptive((id(self), what, batch, points))
+        return adaptive((id(self), what, batch, points), held)
 
     def preferred_threads(self, what: str = "predict", batch: int = 1, points: int = 0) -> int | None:
         """The plan :data:`tpnet_ref.blas.adaptive` measured faster for this model's calls of
@@ -293,24 +293,30 @@ class TPNet:
         except MemoryError:
             raise ValueError(f"steps: {steps} steps do not fit in memory") from None
         # BiLSTM 1's input projection of each frame, also computed once per frame (when the
-        # head takes it: a specialised one projects its kept units itself); the last m kept
-        with self._threads("features", batch, sum(f.shape[0] for f in frames)):
-            feats[:, :m] = self.frame_features(
-                *self.canonical_points(frames, normalized), batch).reshape(batch, m, -1)
-            proj = self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1), batch)
-            proj = None if proj is None else list(proj.reshape(m, batch, -1))
-        counts = np.full(batch, c.n_out)
-        for s in range(steps):
-            with self._threads("rollout step", batch, c.n_out):   # follows the load
-                y = self.sequence_head(feats[:, s:s + m],             # (batch, n_out, dim)
-                                       None if proj is None else np.stack(proj[-m:]))
-                out[:, s] = y
-                flat = y.reshape(-1, c.dim)
-                if self.sort_points:
-                    flat = flat[canonical_order(flat, counts)]
-                feats[:, m + s] = self.frame_features(flat, counts, batch)
-                if proj is not None and s + 1 < steps:
-                    proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s], batch)]
+        # head takes it: a specialised one projects its kept units itself); the last m kept.
+        # One one-thread BLAS block around all the steps, the thread plan still chosen per step
+        # (unless the rollout is itself nested in a block: a chunk of a split batch)
+        held = not in_one_thread()
+        with one_thread():
+            with self._threads("features", batch, sum(f.shape[0] for f in frames), held):
+                feats[:, :m] = self.frame_features(
+                    *self.canonical_points(frames, normalized), batch).reshape(batch, m, -1)
+                proj = self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1),
+                                           batch)
+                proj = None if proj is None else list(proj.reshape(m, batch, -1))
+            counts = np.full(batch, c.n_out)
+            for s in range(steps):
+                with self._threads("rollout step", batch, c.n_out, held):   # follows the load
+                    y = self.sequence_head(feats[:, s:s + m],             # (batch, n_out, dim)
+                                           None if proj is None else np.stack(proj[-m:]))
+                    out[:, s] = y
+                    flat = y.reshape(-1, c.dim)
+                    if self.sort_points:
+                        flat = flat[canonical_order(flat, counts)]
+                    feats[:, m + s] = self.frame_features(flat, counts, batch)
+                    if proj is not None and s + 1 < steps:
+                        proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s],
+                                                                               batch)]
         return out if normalized else self.denormalize(out)
 
 
