@@ -380,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
                      r["tpnet_ref float64, engine=numba"]["b1_ms"] / nb["b1_ms"]),
                     ("B=1 latency / engine=numpy B=1 latency", paired(alt["b1"], "numba", "numpy"))]
         print(f"\nratios and targets, engine=numba (the default where numba is installed; "
-              f"batches above {ENGINE_MAX_BATCH} windows take the NumPy path):")
+              f"batches above {ENGINE_MAX_BATCH} windows take NumPy's feature extractor):")
         for label, val in nchecks:
             lim = label.split("target ")[1].rstrip(")") if "target" in label else None
             ok = None if lim is None else (val <= float(lim[2:]) if lim.startswith("<=")

@@ -112,13 +112,21 @@ def test_permutation_invariance_is_bit_identical_under_the_engine(released_nb64,
     assert np.array_equal(model.rollout(perm, 3), roll)
 
 
-def test_large_batches_take_the_numpy_path_and_agree(released64, released_nb64):
+def test_large_batches_take_the_engine_head_and_numpys_features_and_agree(released64,
+                                                                           released_nb64):
+    """Every batch runs on the engine's head (a split one's chunks too); batches of more than
+    ENGINE_MAX_BATCH windows take the NumPy feature extractor."""
     rng = np.random.default_rng(8)
     wins = _windows(rng, M.ENGINE_MAX_BATCH + 1)
-    assert released_nb64.head_for(len(wins)).name == "numpy"
-    assert released_nb64.head_for(1).name == "numba"
+    for b in (1, len(wins), M.SPLIT_MIN_BATCH + 3):
+        assert released_nb64.head_for(b).name == "numba"
     np.testing.assert_allclose(released_nb64.predict_batch(wins), released64.predict_batch(wins),
                                rtol=0, atol=1e-10)
+    split = _windows(rng, M.SPLIT_MIN_BATCH + 3)
+    np.testing.assert_allclose(released_nb64.predict_batch(split),
+                               released64.predict_batch(split), rtol=0, atol=1e-10)
+    np.testing.assert_allclose(released_nb64.rollout_batch(wins, 3),
+                               released64.rollout_batch(wins, 3), rtol=0, atol=1e-9)
 
 
 def test_engine_reports_overflow_like_numpy():

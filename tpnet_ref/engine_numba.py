@@ -597,15 +597,17 @@ def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
                         v = yo[i, j] + bb[j]
                         yo[i, j] = zero if v < zero else v
             cur, nxt, cin = nxt, cur, cw
-        for i in range(r):
-            if q0 == p0 and i == 0:
-                for j in range(cl):
-                    pool[0, j] = cur[0, j]
-            else:
-                for j in range(cl):
-                    v = cur[i, j]
-                    if v > pool[0, j] or v != v:      # once NaN, NaN stays
-                        pool[0, j] = v
+        i0 = 0
+        if q0 == p0:
+            pool[0, :] = cur[0, :cl]
+            i0 = 1
+        pr = pool[0]
+        for i in range(i0, r):
+            cr = cur[i]
+            for j in range(cl):                       # branch-free: vectorises
+                v = cr[j]
+                p = pr[j]
+                pr[j] = v if (v > p) | (v != v) else p   # once NaN, NaN stays
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -9,9 +9,12 @@ the order of the sums differ.
 head           class                                     runs batches of     needs
 =============  ========================================  ==================  ==================
 numpy          :class:`tpnet_ref.fast_numpy.NumpyHead`   any size            NumPy
-numba          :class:`tpnet_ref.engine_numba.NumbaHead` up to 8 windows     numba (``metrics``)
+numba          :class:`tpnet_ref.engine_numba.NumbaHead` any size            numba (``metrics``)
 specialised    :class:`tpnet_ref.specialize.SpecialisedHead`  any size; flagged windows go to numpy
 =============  ========================================  ==================  ==================
+
+The numba head of a specialised model runs batches of up to :data:`ENGINE_MAX_BATCH` windows;
+the larger ones go to the specialised head.
 
 A model keeps its heads fastest first (:func:`build`) and gives a batch to the first whose
 ``max_batch`` admits it (:func:`for_batch`); the NumPy head takes any batch, so it comes last.
@@ -31,8 +34,10 @@ from .fast_numpy import NumpyHead
 #: the prediction engines: "numpy" (the NumPy head), "numba" (the compiled head of
 #: :mod:`tpnet_ref.engine_numba`; extra ``metrics``), "auto" (numba when installed)
 ENGINES = ("numpy", "numba", "auto")
-#: the numba head runs batches of up to this many windows; larger ones take the next head (BLAS
-#: products of many rows, split across threads: faster, measured in docs/performance.md)
+#: the numba head runs batches of every size (faster than the NumPy head at 1 to 64 windows, and
+#: free of the GIL, so a split batch's chunks run side by side); its compiled feature extractor
+#: takes batches of up to this many windows, larger ones NumPy's (BLAS products of many rows:
+#: 18 against 29 ms for 64 windows on one thread, docs/performance.md)
 ENGINE_MAX_BATCH = 8
 
 
@@ -72,8 +77,10 @@ def build(model: Any, engine: str, used: dict[str, np.ndarray] | None) -> list[H
     if engine == "numba":
         require("numba", "metrics", "engine='numba' (the Numba inference engine)")
         from . import engine_numba      # optional: imports numba
+        # every batch, or (specialised) the batches up to ENGINE_MAX_BATCH, the larger ones
+        # going to the specialised head, which computes only the scene's units
         full.insert(0, engine_numba.NumbaHead(cfg, model.params, model.dtype, model.unit_order,
-                                              ENGINE_MAX_BATCH))
+                                              None if used is None else ENGINE_MAX_BATCH))
     if used is None:
         return full
     # the specialised head after the numba one (faster on the batches it runs), its flagged
