@@ -1,7 +1,10 @@
-"""The optional Numba engine: TP-Net's prediction network (BiLSTMs, LayerNorms, head) as one
-compiled function. ``TPNet(..., engine="numba")`` or ``model.with_engine("numba")``; needs numba
-(the ``metrics`` extra). The NumPy path (:func:`tpnet_ref.layers.bilstm_steps`,
-:func:`tpnet_ref.layers.project_layer_norm`, specified by :func:`tpnet_ref.layers.lstm`) is the
+"""The Numba engine (``load()``'s default where numba is installed): TP-Net's prediction
+network (BiLSTMs, LayerNorms, head) as one compiled function, :class:`NumbaHead`, for every
+batch, and its feature extractor as another, :class:`NumbaFeatures`, for batches of up to
+:data:`tpnet_ref.heads.ENGINE_MAX_BATCH` windows. ``TPNet(..., engine="numba")`` or
+``model.with_engine("numba")``; needs numba (the ``metrics`` extra). The NumPy path
+(:func:`tpnet_ref.layers.bilstm_steps`, :func:`tpnet_ref.layers.project_layer_norm`,
+:class:`tpnet_ref.fast_numpy.NumpyFeatures`, specified by :mod:`tpnet_ref.reference`) is the
 reference; ``tests/test_engine_numba.py`` checks they agree.
 
 What it does that NumPy cannot:
@@ -680,7 +683,8 @@ class NumbaFeatures:
     units, each frame computed on its own by the same code (the same bits alone, in a batch,
     on one thread or two). Only for networks whose transform nets are the identity (the
     released ones; :meth:`supports`). A call where the model's thread policy offers a second
-    thread and there are two frames or more runs the frames in two halves on two threads."""
+    thread runs on two: two frames or more in two halves, one frame (a rollout's new one) its
+    points in two halves (:func:`_features_parallel`); the same bits either way."""
 
     def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: Any) -> None:
         if not self.supports(config):
@@ -709,8 +713,8 @@ class NumbaFeatures:
         return not (config.input_transform_trained or config.feature_transform_trained)
 
     def __call__(self, points: np.ndarray, counts: np.ndarray, parallel: bool = False) -> np.ndarray:
-        """Global feature of every frame (see the class); ``parallel``: the frames on two
-        threads if :func:`_two_threads` allows."""
+        """Global feature of every frame (see the class); ``parallel``: on two threads if
+        :func:`_two_threads` allows."""
         pts = np.ascontiguousarray(points, dtype=self.dtype)
         counts = np.ascontiguousarray(counts, dtype=np.intp)
         starts = np.zeros(counts.shape[0], dtype=np.intp)
