@@ -143,6 +143,6 @@ def test_parser_defaults_are_the_recipes():
     d = R.Recipe()
     assert (a.recipe, a.batch, a.lr, a.rollout, a.val_fraction) == (
         d.recipe, d.batch, d.lr, d.rollout, d.val_fraction)
-    assert a.epochs is None and a.threads == 2 and a.compile == "off" and a.precision == "auto"
+    assert a.epochs is None and a.threads == 2 and a.compile == "off" and a.precision == "float32"
     assert (a.checkpoint_minutes, a.log_every) == (L.TrainSettings.checkpoint_minutes,
                                                    L.TrainSettings.log_every)

@@ -103,8 +103,10 @@ def test_bench_prints_a_line_per_precision_and_marks_the_default(capsys):
     body = [ln.split(":")[0].strip() for ln in lines[1:]]
     assert body == ["1-step loss, float32", "1-step loss, bf16",
                     "2-step loss, float32", "2-step loss, bf16"]
-    marked = [ln for ln in lines[1:] if ln.endswith("(default)")]
-    assert len(marked) == 1 and marked[0].strip().startswith("2-step loss")
+    marked = [ln for ln in lines[1:] if "(default)" in ln]
+    assert len(marked) == 1 and marked[0].strip().startswith("2-step loss, float32")
+    auto = [ln for ln in lines[1:] if ln.endswith("(auto)")]
+    assert len(auto) == 1 and auto[0].strip().startswith("2-step loss")
     f32, bf = (float(ln.split(":")[1].split()[0]) for ln in lines[3:5])
-    assert ("bf16" in marked[0]) == (bf >= L.BF16_MIN_GAIN * f32)
+    assert ("bf16" in auto[0]) == (bf >= L.BF16_MIN_GAIN * f32)
     assert "x float32" in lines[4]

@@ -17,8 +17,10 @@ from ..training.recipe import N_ROLLOUT_MAX, N_STEPS_MAX, OPTIMIZER_MODES, SIZES
 COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
 #: as tpnet_ref.training.loop.PRECISIONS
 PRECISIONS = ("auto", "float32", "bf16")
-_PRECISION_HELP = ("the step's arithmetic: float32, bf16 (autocast to bfloat16; parameters, Adam "
-                   "state, coordinates and loss stay float32), auto (default: bf16 where a short "
+_PRECISION_HELP = ("the step's arithmetic: float32 (default), bf16 (autocast to bfloat16; "
+                   "parameters, Adam state, coordinates and loss stay float32; 1.7x faster on a "
+                   "CPU with AVX512_BF16, but its fine-tunes of the shipped model rolled out much "
+                   "worse at 40-80 predictions: docs/training.md), auto (bf16 where a short "
                    "timing at the start of the call finds it >= 1.15x faster, else float32)")
 _COMPILE_HELP = ("capture the step's loss with torch.compile: auto (reduce-overhead, i.e. CUDA "
                  "graphs, on a GPU; off on the CPU), reduce-overhead, default, eager (traced by "
@@ -89,7 +91,7 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     q.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
-    q.add_argument("--precision", choices=PRECISIONS, default="auto", help=_PRECISION_HELP)
+    q.add_argument("--precision", choices=PRECISIONS, default="float32", help=_PRECISION_HELP)
     q.add_argument("--max-steps", type=int, default=None, help="stop (with a checkpoint) at this step")
     q.add_argument("--max-minutes", type=float, default=None,
                    help="stop (with a checkpoint) after this many minutes")
@@ -136,8 +138,9 @@ def _add_bench(tsub: Any) -> None:
     b.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
     b.add_argument("--precisions", choices=PRECISIONS[1:], nargs="+",
                    default=list(PRECISIONS[1:]),
-                   help="time each of these (default both); the line marked (default) is the "
-                        "one `tpnet train run --precision auto` takes on this machine")
+                   help="time each of these (default both); the line marked (default) is "
+                        "the one `tpnet train run` takes (float32), (auto) the one "
+                        "`--precision auto` takes on this machine")
     b.add_argument("--shape-weight", type=float, default=0.0, help="λ of the timed loss")
     b.add_argument("--match-weight", type=float, default=0.0, help="μ of the timed loss")
     b.set_defaults(func=_cli_bench)
@@ -234,15 +237,16 @@ def _cli_bench(args: argparse.Namespace) -> int:
            for p in args.precisions}
     longest = max(args.rollouts)
     if dev == "cpu" and len(res) == 2:    # what auto would take, from these same timings
-        default = preferred_precision({p: r[longest] for p, r in res.items()})
+        auto = preferred_precision({p: r[longest] for p, r in res.items()})
     else:
-        default = choose_precision("auto", dev, cfg, args.batch, longest, args.threads)[0]
+        auto = choose_precision("auto", dev, cfg, args.batch, longest, args.threads)[0]
     print(f"train step throughput, size {args.size}, batch {args.batch}, "
           f"compile {resolve_compile(args.compile, dev)}, λ {args.shape_weight:g}, "
           f"μ {args.match_weight:g}, {hardware(dev)}:")
     for k in args.rollouts:
         for p, r in res.items():
-            mark = "  (default)" if p == default and k == longest else ""
+            mark = "".join(f"  ({w})" for w, q in (("default", "float32"), ("auto", auto))
+                           if p == q and k == longest)
             ratio = (f"  {r[k] / res['float32'][k]:.2f}x float32"
                      if p != "float32" and "float32" in res else "")
             print(f"  {k}-step loss, {p:7s}: {r[k]:8.1f} windows/s{ratio}{mark}")
