@@ -555,6 +555,16 @@ def _project_parallel(x, kernel, bias, out, steps, bsz):
 FEATURE_CHUNK = 64
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _max_into(dst, src, n):
+    """``dst[j] = max(dst[j], src[j])`` for ``j < n``, NaN kept (once NaN, NaN stays);
+    branch-free, so it vectorises."""
+    for j in range(n):
+        v = src[j]
+        p = dst[j]
+        dst[j] = v if (v > p) | (v != v) else p
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
     """The max over the points ``pts[p0:p1]`` of the per-point MLP's last products (before its
@@ -604,13 +614,8 @@ def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
         if q0 == p0:
             pool[0, :] = cur[0, :cl]
             i0 = 1
-        pr = pool[0]
         for i in range(i0, r):
-            cr = cur[i]
-            for j in range(cl):                       # branch-free: vectorises
-                v = cr[j]
-                p = pr[j]
-                pr[j] = v if (v > p) | (v != v) else p   # once NaN, NaN stays
+            _max_into(pool[0], cur[i], cl)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -669,12 +674,8 @@ def _features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
             _pool_points(pts, starts[0], mid, w0, b0, ws, bs, zero, pools[0])
         else:
             _pool_points(pts, mid, starts[0] + n, w0, b0, ws, bs, zero, pools[1])
-    p, q = pools[0], pools[1]
-    for j in range(p.shape[1]):
-        v = q[0, j]
-        if v > p[0, j] or v != v:
-            p[0, j] = v
-    _finish_frame(p, bs[nl - 1], gw, gb, zero, out, 0)
+    _max_into(pools[0, 0], pools[1, 0], pools.shape[2])
+    _finish_frame(pools[0], bs[nl - 1], gw, gb, zero, out, 0)
 
 
 class NumbaFeatures:
@@ -692,20 +693,16 @@ class NumbaFeatures:
         dt = self.dtype = np.dtype(dtype)
         names = ([f"mlp1.{i}" for i in range(len(config.mlp1))]
                  + [f"mlp2.{i}" for i in range(len(config.mlp2))])
-        w = [np.ascontiguousarray(params[f"{n}.w"], dtype=dt) for n in names]
-        b = [np.ascontiguousarray(params[f"{n}.b"], dtype=dt) for n in names]
-        # the products stream whole vectors: each layer's columns padded with zeros
-        self.w0, self.b0 = w[0], b[0]
-        pad_in = [padded_columns(x.shape[1], dt) for x in w]
-        self.ws = tuple(np.ascontiguousarray(np.pad(pad_columns(x, dt), ((0, p - x.shape[0]), (0, 0))))
-                        for x, p in zip(w[1:], pad_in[:-1]))
-        self.bs = tuple(pad_columns(x, dt) for x in b[1:])
-        gw = np.asarray(params["global.w"], dtype=dt)
-        self.gw = np.ascontiguousarray(np.pad(pad_columns(gw, dt),
-                                              ((0, pad_in[-1] - gw.shape[0]), (0, 0))))
-        self.gb = pad_columns(np.asarray(params["global.b"], dtype=dt), dt)
-        self.w0 = pad_columns(self.w0, dt)
-        self.b0 = pad_columns(self.b0, dt)
+        # the products stream whole vectors: every layer's columns padded with zeros to whole
+        # vectors, and its rows (inputs) to the previous layer's padded width
+        w = [np.asarray(params[f"{n}.w"], dtype=dt) for n in names + ["global"]]
+        b = [np.asarray(params[f"{n}.b"], dtype=dt) for n in names + ["global"]]
+        rows = [w[0].shape[0]] + [padded_columns(x.shape[1], dt) for x in w[:-1]]
+        ws = [np.pad(pad_columns(x, dt), ((0, r - x.shape[0]), (0, 0))) for x, r in zip(w, rows)]
+        bs = [pad_columns(x, dt) for x in b]
+        self.w0, self.b0 = ws[0], bs[0]
+        self.ws, self.bs = tuple(ws[1:-1]), tuple(bs[1:-1])
+        self.gw, self.gb = ws[-1], bs[-1]
         self.k = int(config.global_features)
 
     @staticmethod
