@@ -527,3 +527,38 @@ def test_the_engine_takes_its_feature_extractor_for_the_batches_its_head_runs(sh
     assert np.array_equal(nb.frame_features(pts, counts, 1), nb.engine_features(pts, counts))
     assert np.array_equal(nb.frame_features(pts, counts, M.ENGINE_MAX_BATCH + 1),
                           nb.features(pts, counts))
+
+
+_CACHED_RUN = """
+import sys, numpy as np
+from tpnet_ref.config import TPNetConfig
+from tpnet_ref.model import init_random
+cfg = TPNetConfig(lstm_units=tuple(int(u) for u in sys.argv[1].split(",")), n_out=7,
+                  mlp1=(8, 8), mlp2=(8, 16), global_features=12)
+w = np.random.default_rng(1).uniform(5, 30, (3, cfg.m, 7, 2))
+print(init_random(cfg, seed=0).with_engine("numba").predict_batch(w).tobytes().hex())
+"""
+
+
+def test_numbas_cache_serves_networks_of_any_depth_in_later_processes(tmp_path):
+    """Numba caches each compiled kernel on disk. A cached kernel that called a parallel one
+    crashed the next process (numba issues 4807, 10128) once networks of two depths had been
+    compiled: here a three-layer network, then a two-layer one, then the two-layer one again
+    from the cache (it was a segmentation fault), each in a new process; all three give what
+    the same networks give in this process."""
+    import os
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    got = []
+    for units in ("6,5,7", "6,5", "6,5"):
+        r = subprocess.run([sys.executable, "-c", _CACHED_RUN, units], env=env,
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, f"{units}: exit {r.returncode}: {r.stderr[-800:]}"
+        got.append(r.stdout.strip())
+    assert got[1] == got[2]
+    for units, hexed in zip(("6,5,7", "6,5"), got[:2]):
+        cfg = TPNetConfig(lstm_units=tuple(int(u) for u in units.split(",")), n_out=7,
+                          mlp1=(8, 8), mlp2=(8, 16), global_features=12)
+        w = np.random.default_rng(1).uniform(5, 30, (3, cfg.m, 7, 2))
+        want = init_random(cfg, seed=0).with_engine("numba").predict_batch(w)
+        assert np.frombuffer(bytes.fromhex(hexed), dtype=want.dtype).tobytes() == want.tobytes()

@@ -501,6 +501,8 @@ def _chain(meta: dict[str, Any]) -> list[str]:
         lines.append(f"{meta.get('source', '?')}: this file, total {int(meta['training_steps']):,} "
                      f"steps, {float(meta.get('epochs', 0.0)):.2f} epochs, "
                      f"{float(meta.get('wall_time_s', 0.0)) / 3600:.2f} h")
+    # the inputs of an average share their chain: each run once, where it first appears
+    lines = list(dict.fromkeys(lines))
     return [f"{i}. {line}" for i, line in enumerate(lines, start=1)]
 
 
@@ -546,6 +548,14 @@ def describe(path: str | os.PathLike) -> str:
         out.append("  validation   " + ", ".join(
             f"{k} {v:.4g}" if isinstance(v, (int, float)) else f"{k} {v}"
             for k, v in sorted(val.items())))
+    try:
+        parts = json.loads(meta.get("average_of", "[]") or "[]")
+    except (TypeError, ValueError):
+        parts = []
+    if isinstance(parts, list) and parts:
+        out.append("  average of   " + " + ".join(
+            f"{float(q.get('weight', 0.0)):.3g} x {q.get('weights_file', '?')}"
+            for q in parts if isinstance(q, dict)))
     chain = _chain(meta)
     if chain:
         out.append("  training runs (oldest first):")

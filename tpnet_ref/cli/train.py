@@ -1,4 +1,4 @@
-"""``tpnet train run|export|bench|score|baselines``: training in PyTorch (``train`` extra).
+"""``tpnet train run|export|average|bench|score|baselines``: training in PyTorch (``train`` extra).
 
 argparse only: each handler imports the training modules when it runs, so ``tpnet --help`` and
 the other commands work without torch, and a missing torch is one line naming the extra.
@@ -34,6 +34,7 @@ def add_cli(sub: Any) -> None:
 
     _add_run(tsub)
     _add_export(tsub)
+    _add_average(tsub)
     _add_bench(tsub)
     _add_score(tsub)
     _add_baselines(tsub)
@@ -125,6 +126,16 @@ def _add_export(tsub: Any) -> None:
     e.add_argument("output", help="native HDF5 weights file to write")
     e.add_argument("--dtype", choices=("float32", "float64"), default="float32")
     e.set_defaults(func=_cli_export)
+
+
+def _add_average(tsub: Any) -> None:
+    a = tsub.add_parser("average", help="one weights file from the weighted mean of fine-tunes "
+                                        "of one network (a model soup; NumPy only)")
+    a.add_argument("weights", nargs="+", help="native weights files of one network in one basis")
+    a.add_argument("-o", "--output", required=True, help="native weights file to write")
+    a.add_argument("--mix", type=float, nargs="+", default=None,
+                   help="each file's weight, in order, summing to 1 (default: equal)")
+    a.set_defaults(func=_cli_average)
 
 
 def _add_bench(tsub: Any) -> None:
@@ -220,6 +231,15 @@ def _cli_export(args: argparse.Namespace) -> int:
 
     model = export(args.checkpoint, args.output, dtype=args.dtype)
     print(f"wrote {args.output}: {model!r}")
+    return 0
+
+
+def _cli_average(args: argparse.Namespace) -> int:
+    from ..training.average import average
+
+    average(args.weights, args.output, args.mix)
+    mix = args.mix or [1.0 / len(args.weights)] * len(args.weights)
+    print(f"wrote {args.output}: " + " + ".join(f"{w:.3g} x {p}" for w, p in zip(mix, args.weights)))
     return 0
 
 
