@@ -78,6 +78,8 @@ def test_provenance_names_every_input_and_keeps_the_longest_chain(family, tmp_pa
     assert [q["content_sha256"] for q in parts] == [native.read_native(p)[2]["content_sha256"]
                                                      for p in paths]
     assert meta["source"] == "tpnet train average"
+    assert json.loads(meta["recipe"]) == {"recipe": "average", "mix": [0.5, 0.3, 0.2],
+                                          "files": [p.name for p in paths]}
     # the counters of the input with the most epochs (a.h5): the longest chain's compute
     assert int(meta["training_steps"]) == 150 and float(meta["epochs"]) == 15.0
     assert meta["hardware"] == "cpu; cuda:GPU"
@@ -137,3 +139,19 @@ def test_the_command_line(family, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "sum to 1" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "y.h5").exists()
+
+
+def test_a_fine_tune_of_an_average_names_it_in_its_chain(family, tmp_path):
+    """The chain of a file fine-tuned from an average (its ``parent_runs`` entry, as
+    ``--init-from`` records it) says what the average was."""
+    from tpnet_ref.training.average import _entry
+
+    paths, _ = family
+    out = tmp_path / "avg.h5"
+    average(paths[:2], out)
+    child = tmp_path / "child.h5"
+    _, params, _ = native.read_native(out)
+    _write(child, params, source="runs/child", training_steps=200, epochs=20.0,
+           parent_runs=json.dumps([_entry(out, native.read_native(out)[2])]))
+    text = native.describe(child)
+    assert "written by tpnet train average (the mean of 2 files)" in text

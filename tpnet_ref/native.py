@@ -478,8 +478,10 @@ def _runs(runs: Any) -> list[str]:
         if "weights_file" in rec:
             lines.extend(_runs(rec.get("parent_runs")))
             inner = rec.get("recipe") if isinstance(rec.get("recipe"), dict) else {}
-            lines.append(f"{name}: written by {rec.get('source') or '?'} "
-                         f"({inner.get('recipe', '?')} recipe, lr {inner.get('lr', '?')}); chain "
+            how = (f"the mean of {len(inner.get('files') or [])} files"
+                   if inner.get("recipe") == "average" else
+                   f"{inner.get('recipe', '?')} recipe, lr {inner.get('lr', '?')}")
+            lines.append(f"{name}: written by {rec.get('source') or '?'} ({how}); chain "
                          f"total {int(run.get('steps', 0)):,} steps, "
                          f"{float(run.get('epochs', 0.0)):.2f} epochs, "
                          f"{float(run.get('wall_s', 0.0)) / 3600:.2f} h")

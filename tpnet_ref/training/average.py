@@ -106,6 +106,8 @@ def average(paths: Sequence[str | os.PathLike], out: str | os.PathLike,
     big = max(range(len(files)), key=lambda i: float(metas[i].get("epochs", 0) or 0))
     prov: dict[str, Any] = {
         "source": "tpnet train average", "producer": "tpnet_ref.training",
+        "recipe": json.dumps({"recipe": "average", "mix": [float(x) for x in w],
+                              "files": [portable_path(str(p)) for p in paths]}),
         "average_of": json.dumps([{"weights_file": portable_path(str(p)), "weight": float(wi),
                                    "content_sha256": str(m.get(DIGEST_ATTR, ""))}
                                   for p, wi, m in zip(paths, w, metas)]),
