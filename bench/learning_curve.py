@@ -41,8 +41,9 @@ HORIZONS = (40, 80)
 #: the paper's m = 4 E_p (squared reading, test cases) at 40 and 80 predictions
 PAPER = {40: 0.071, 80: 0.164}
 #: GPU seconds inside a file's chain, by the commit that shipped it (weights/MODEL_CARD.md: runs
-#: 4-6 ran on one H100 for 392 + 319 + 386 s; every other run on the 2-core CPU)
-GPU_S = {"a2e0dea": 1097.0, "09f4aac": 1097.0}
+#: 4-6 ran on one H100 for 392 + 319 + 386 s, run 15 on one H200 for 387 s; every other run on
+#: the 2-core CPU)
+GPU_S = {"a2e0dea": 1097.0, "09f4aac": 1097.0, "8d4bf57": 1097.0, "a91856c": 1097.0 + 387.0}
 #: training windows per epoch of the full grid (docs/training.md, "Budget")
 WINDOWS_PER_EPOCH = 167_489
 
@@ -68,7 +69,9 @@ def compute_of(path: Path) -> dict:
         a = f.attrs
         return {"epochs": float(a.get("epochs", np.nan)),
                 "wall_s": float(a.get("wall_time_s", np.nan)),
-                "steps": int(a.get("training_steps", 0))}
+                "steps": int(a.get("training_steps", 0)),
+                # an average (tpnet train average) has the counters of its longest input
+                "average": str(a.get("average_of", ""))}
 
 
 def score(data: WindowData, files: dict[str, Path], horizon: int = 80) -> dict[str, dict]:
@@ -101,7 +104,13 @@ def plot(rows: list[dict], proj: dict | None, path: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), constrained_layout=True)
+    key = "; ".join(f"{size[0]}{i + 1} = {r['label']}"
+                    for size in ("full", "quarter")
+                    for i, r in enumerate(sorted((r for r in rows if r["size"] == size
+                                                  and r["shipped"]), key=lambda r: r["epochs"])))
+    fig.get_layout_engine().set(h_pad=0.1)
+    fig.supxlabel("shipped versions: " + key, fontsize=7)
     for ax, h in zip(axes, HORIZONS):
         for size, col in (("full", "C0"), ("quarter", "C1")):
             rs = sorted((r for r in rows if r["size"] == size), key=lambda r: r["epochs"])
@@ -114,9 +123,14 @@ def plot(rows: list[dict], proj: dict | None, path: str) -> None:
             if cand:
                 ax.plot([r["epochs"] for r in cand], [r[h] for r in cand], "s", color=col,
                         mfc="none", ms=8, label=f"{size}: candidates")
-            for r in rs:
+            # short labels centred on their points (close points stay readable); the key
+            # to the shipped versions' labels is under the plots
+            for i, r in enumerate(ship):
+                ax.annotate(f"{size[0]}{i + 1}", (r["epochs"], r[h]), textcoords="offset points",
+                            xytext=(0, 7), ha="center", fontsize=8)
+            for r in cand:
                 ax.annotate(r["label"], (r["epochs"], r[h]), textcoords="offset points",
-                            xytext=(4, 4), fontsize=7)
+                            xytext=(8, -3), ha="left", fontsize=7)
         ax.axhline(PAPER[h], color="k", ls=":", lw=1, label="paper (test cases)")
         if proj is not None and h == 80:
             e = np.geomspace(3, max(proj.get("epochs", 100), 100), 50)
@@ -160,10 +174,11 @@ def main(argv: list[str] | None = None) -> int:
             rows.append({"label": label, "size": "quarter" if label.startswith("quarter")
                          else "full", "shipped": False, "commit": "", "subject": path,
                          **compute_of(Path(path))})
-        # the same file shipped twice (re-stored, re-ordered) keeps one row
+        # the same file shipped twice (re-stored, re-ordered) keeps one row; an average and
+        # its longest input share their counters, not their weights
         seen, uniq = set(), []
         for r in rows:
-            key = (r["size"], round(r["epochs"], 6), r["steps"])
+            key = (r["size"], round(r["epochs"], 6), r["steps"], bool(r["average"]))
             if key not in seen:
                 seen.add(key)
                 uniq.append(r)
@@ -186,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
              "", "| file | size | epochs | wall h (of which GPU) | CPU h | E_p@40 | E_p@80 |",
              "|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (r["size"], r["epochs"])):
-        gpu = f" ({r['gpu_s'] / 3600:.2f} H100)" if r["gpu_s"] else ""
+        gpu = f" ({r['gpu_s'] / 3600:.2f} GPU)" if r["gpu_s"] else ""
         lines.append(f"| {r['label']}{'' if r['shipped'] else ' (candidate)'} | {r['size']} | "
                      f"{r['epochs']:.1f} | {r['wall_s'] / 3600:.2f}{gpu} | {r['cpu_h']:.2f} | "
                      f"{r[40]:.3g} ({r['median40']:.3g}) | {r[80]:.3g} ({r['median80']:.3g}) |")
