@@ -530,13 +530,19 @@ def test_the_engine_takes_its_feature_extractor_for_the_batches_its_head_runs(sh
 
 
 _CACHED_RUN = """
-import sys, numpy as np
+import os, sys, numpy as np
 from tpnet_ref.config import TPNetConfig
 from tpnet_ref.model import init_random
 cfg = TPNetConfig(lstm_units=tuple(int(u) for u in sys.argv[1].split(",")), n_out=7,
                   mlp1=(8, 8), mlp2=(8, 16), global_features=12)
 w = np.random.default_rng(1).uniform(5, 30, (3, cfg.m, 7, 2))
-print(init_random(cfg, seed=0).with_engine("numba").predict_batch(w).tobytes().hex())
+model = init_random(cfg, seed=0).with_engine("numba")
+out = []
+for plan in ("1", "2"):            # the one-thread head, then the two-thread one
+    os.environ["TPNET_THREADS"] = plan
+    out.append(model.predict_batch(w).tobytes().hex())
+assert out[0] == out[1], "one and two threads differ"
+print(out[0])
 """
 
 
@@ -544,8 +550,8 @@ def test_numbas_cache_serves_networks_of_any_depth_in_later_processes(tmp_path):
     """Numba caches each compiled kernel on disk. A cached kernel that called a parallel one
     crashed the next process (numba issues 4807, 10128) once networks of two depths had been
     compiled: here a three-layer network, then a two-layer one, then the two-layer one again
-    from the cache (it was a segmentation fault), each in a new process; all three give what
-    the same networks give in this process."""
+    from the cache (it was a segmentation fault), each in a new process and each on one and
+    on two threads; all give what the same networks give in this process."""
     import os
 
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))

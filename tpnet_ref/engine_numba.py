@@ -455,86 +455,76 @@ def _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, o
     _recur_dir(xs, d, rec[d], hs, u, steps, bsz, relu, one)
 
 
-# the two directions of a layer one after the other or on two threads: two functions (numba's
-# cache keeps one compiled version per function and signature, whatever its ``parallel`` flag)
-@njit(cache=True, nogil=True)
-def _layer_serial(x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
-    for d in range(2):
-        _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one)
+def _head_impl(parallel: bool):
+    """The prediction network after BiLSTM 1's input projection, compiled once one thread
+    (``_head_serial``) and once with each layer's two directions on two threads
+    (``_head_parallel``): ``head(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w,
+    head_b, steps, bsz, relu, one, eps, limit)`` -> ``(y (B, n_out*dim), bad)``.
 
-
-@njit(cache=True, nogil=True, parallel=True)
-def _layer_parallel(x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
-    for d in prange(2):
-        _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _head_out(hs, gamma, beta, head_w, head_b, steps, bsz, relu, li, one, eps, limit, bad):
-    """The end of the prediction network from the last BiLSTM's outputs ``hs (T*B, 2u)`` (row
-    ``t*B + b``): the forward state at ``T-1`` and the backward state at 0, LayerNorm, the
-    output layer -> ``(y (B, n_out*dim) in [0, 1], bad)``; ``bad`` as :func:`_norm_rows` (``li``:
-    the last layer's index)."""
-    dt = hs.dtype
-    u = hs.shape[1] // 2
-    src = np.empty((bsz, 2 * u), dtype=dt)
-    for b in range(bsz):
-        for q in range(u):
-            src[b, q] = hs[(steps - 1) * bsz + b, q]
-            src[b, u + q] = hs[b, u + q]
-    last = np.empty((bsz, 2 * u), dtype=dt)
-    none = np.empty(0, dtype=dt)
-    bad = _norm_rows(src, gamma, beta, relu, li, limit, one, eps, last, none, none, bad)
-    n = head_w.shape[1]
-    res = np.zeros((bsz, n), dtype=dt)
-    for b in range(bsz):
-        for q in range(head_w.shape[0]):
-            v = last[b, q]
-            for o in range(n):
-                res[b, o] += v * head_w[q, o]
-        for o in range(n):
-            res[b, o] = _sigmoid(res[b, o] + head_b[o], one)
-    return res, bad
-
-
-def _head(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head_b, steps, bsz,
-          relu, one, eps, limit, parallel):
-    """The prediction network after BiLSTM 1's input projection ``xp1 (T*B, 2, N)`` (row
-    ``t*B + b``, bias included, ``N`` = ``4u`` padded to whole vectors) -> ``(y (B, n_out*dim),
-    bad)``; ``bad`` is ``l + 1`` when the ReLU output of layer ``l`` reached ``limit`` (or NaN),
-    else 0 (the caller raises). ``kernels[l]`` ``(2, C, N)``, ``recs[l]`` ``(2, u, N)``,
+    ``xp1 (T*B, 2, N)``: row ``t*B + b``, bias included, ``N`` = ``4u`` padded to whole vectors;
+    ``bad`` is ``l + 1`` when the ReLU output of layer ``l`` reached ``limit`` (or NaN), else 0
+    (the caller raises). ``kernels[l]`` ``(2, C, N)``, ``recs[l]`` ``(2, u, N)``,
     ``gks[l]``/``csts[l]`` ``(2, N)``: ``gamma_{l-1} @ K_l`` and ``beta_{l-1} @ K_l + bias_l``
-    (ReLU: LayerNorm folded), or unused and ``bias_l`` (tanh). ``parallel``: each layer's two
-    directions on two threads.
+    (ReLU: LayerNorm folded), or unused and ``bias_l`` (tanh).
 
-    The loop over the layers is Python's: one compiled call per layer, none of them
-    specialised on the number of layers. A cached compiled function that calls a
-    ``parallel=True`` one is what numba cannot cache safely (numba issues 4807 and 10128: the
-    cached caller can name the parallel callee's code by another name than the cached callee
-    has, and the next process crashes); the two-layer network of the tests did."""
-    dt = xp1.dtype
-    nl = len(recs)
-    rows = steps * bsz
-    bad = 0
-    xs = xp1
-    x = np.empty((0, 1), dtype=dt)                     # the next layer's input
-    rr = np.empty(rows if relu else 0, dtype=dt)
-    rmu = np.empty(rows if relu else 0, dtype=dt)
-    layer = _layer_parallel if parallel else _layer_serial
-    hs = xs
-    for li in range(nl):
-        rec = recs[li]                                  # (2, u, N)
-        u = units[li]
-        if li > 0:
-            xs = np.empty((rows, 2, rec.shape[2]), dtype=dt)
-        hs = np.empty((rows, 2 * u), dtype=dt)
-        layer(x, kernels[li], gks[li], csts[li], rr, rmu, xs, rec, hs, u, steps, bsz, relu, one)
-        if li < nl - 1:
-            x = np.empty((rows, 2 * u), dtype=dt)
-            bad = _norm_rows(hs, gammas[li], betas[li], relu, li, limit, one, eps, x, rr, rmu,
-                             bad)
-    return _head_out(hs, gammas[nl - 1], betas[nl - 1], head_w, head_b, steps, bsz, relu,
-                     nl - 1, one, eps, limit, bad)
+    Two functions of their own names, each with its ``prange`` inside: numba's cache keeps one
+    compiled version per function and signature whatever its ``parallel`` flag, and a cached
+    function that calls a ``parallel=True`` one is what numba cannot cache safely (numba
+    issues 4807 and 10128: the caller can name the callee's code otherwise than the cached
+    callee does, and a later process crashed once networks of two depths had been compiled).
+    Here no compiled function calls a parallel one."""
+
+    def head(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head_b, steps, bsz,
+             relu, one, eps, limit):
+        dt = xp1.dtype
+        nl = len(recs)
+        rows = steps * bsz
+        bad = 0
+        xs = xp1
+        x = np.empty((0, 1), dtype=dt)                     # the next layer's input
+        rr = np.empty(rows if relu else 0, dtype=dt)
+        rmu = np.empty(rows if relu else 0, dtype=dt)
+        hs = np.empty((rows, 1), dtype=dt)
+        for li in range(nl):
+            rec = recs[li]                                  # (2, u, N)
+            u = units[li]
+            if li > 0:
+                xs = np.empty((rows, 2, rec.shape[2]), dtype=dt)
+            hs = np.empty((rows, 2 * u), dtype=dt)
+            kern, gk, cst = kernels[li], gks[li], csts[li]
+            for d in prange(2):                             # range where not parallel
+                _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one)
+            if li < nl - 1:
+                x = np.empty((rows, 2 * u), dtype=dt)
+                bad = _norm_rows(hs, gammas[li], betas[li], relu, li, limit, one, eps, x, rr,
+                                 rmu, bad)
+        # last layer: forward state at T-1, backward at 0, LayerNorm, head
+        u = hs.shape[1] // 2
+        src = np.empty((bsz, 2 * u), dtype=dt)
+        for b in range(bsz):
+            for q in range(u):
+                src[b, q] = hs[(steps - 1) * bsz + b, q]
+                src[b, u + q] = hs[b, u + q]
+        last = np.empty((bsz, 2 * u), dtype=dt)
+        bad = _norm_rows(src, gammas[nl - 1], betas[nl - 1], relu, nl - 1, limit, one, eps, last,
+                         rr[:0], rmu[:0], bad)
+        n = head_w.shape[1]
+        res = np.zeros((bsz, n), dtype=dt)
+        for b in range(bsz):
+            for q in range(head_w.shape[0]):
+                v = last[b, q]
+                for o in range(n):
+                    res[b, o] += v * head_w[q, o]
+            for o in range(n):
+                res[b, o] = _sigmoid(res[b, o] + head_b[o], one)
+        return res, bad
+
+    head.__name__ = head.__qualname__ = "_head_parallel" if parallel else "_head_serial"
+    return njit(cache=True, nogil=True, parallel=parallel, error_model="numpy")(head)
+
+
+_head_serial = _head_impl(False)
+_head_parallel = _head_impl(True)
 
 
 @njit(cache=True, nogil=True)
@@ -876,10 +866,10 @@ class NumbaHead:
                 self.eps, self.limit)
         if _two_threads(parallel):
             try:
-                return _head(*args, True)
+                return _head_parallel(*args)
             finally:
                 _PARALLEL.release()
-        return _head(*args, False)
+        return _head_serial(*args)
 
 
 __all__ = ["NumbaHead", "NumbaFeatures", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]
