@@ -8,8 +8,11 @@
 set -euo pipefail
 REPO=$(cd "$(dirname "$0")/.." && pwd)
 DEST=${1:-$REPO/weights}
-# the last commit that tracked them (main, 2026-11-24) and their SHA-256
-COMMIT=8048ad77da407cab139892fe53ccceab406dcc01
+# the last commit that tracked each of them and its SHA-256
+declare -A COMMIT=(
+  [tpnet-m3.h5]=8048ad77da407cab139892fe53ccceab406dcc01
+  [tpnet-m5.h5]=8048ad77da407cab139892fe53ccceab406dcc01
+)
 declare -A SHA=(
   [tpnet-m3.h5]=0954ae2f5922e1b4a97da048ad72fa46f7856eb8020856845da6bdcbe06ed318
   [tpnet-m5.h5]=6bc2c32c92c05d8346dc954f427f18f9884ffb9c2ecacc3bee321c795955803f
@@ -17,9 +20,10 @@ declare -A SHA=(
 mkdir -p "$DEST"
 for f in tpnet-m3.h5 tpnet-m5.h5; do
     if [ ! -f "$DEST/$f" ] || [ "$(sha256sum < "$DEST/$f" | cut -d' ' -f1)" != "${SHA[$f]}" ]; then
-        git -C "$REPO" cat-file -e "$COMMIT^{commit}" 2>/dev/null || {
-            echo "restore_weights: commit $COMMIT is not in this clone's history (a shallow clone?): fetch it, e.g. git fetch --unshallow" >&2; exit 1; }
-        git -C "$REPO" show "$COMMIT:weights/$f" > "$DEST/$f.tmp"
+        c=${COMMIT[$f]}
+        git -C "$REPO" cat-file -e "$c^{commit}" 2>/dev/null || {
+            echo "restore_weights: commit $c is not in this clone's history (a shallow clone?): fetch it, e.g. git fetch --unshallow" >&2; exit 1; }
+        git -C "$REPO" show "$c:weights/$f" > "$DEST/$f.tmp"
         mv "$DEST/$f.tmp" "$DEST/$f"
     fi
     got=$(sha256sum < "$DEST/$f" | cut -d' ' -f1)
