@@ -11,11 +11,11 @@ DEST=${1:-$REPO/weights}
 # the last commit that tracked each of them and its SHA-256
 declare -A COMMIT=(
   [tpnet-m3.h5]=8048ad77da407cab139892fe53ccceab406dcc01
-  [tpnet-m5.h5]=8048ad77da407cab139892fe53ccceab406dcc01
+  [tpnet-m5.h5]=eb1a13ea00497542d2eafe65d48fe34e37c230ea
 )
 declare -A SHA=(
   [tpnet-m3.h5]=0954ae2f5922e1b4a97da048ad72fa46f7856eb8020856845da6bdcbe06ed318
-  [tpnet-m5.h5]=6bc2c32c92c05d8346dc954f427f18f9884ffb9c2ecacc3bee321c795955803f
+  [tpnet-m5.h5]=3ada7c653f4929d75088f46e46a1baff87284cdf5b57d8ff5dce2eec38ed26ee
 )
 mkdir -p "$DEST"
 for f in tpnet-m3.h5 tpnet-m5.h5; do
