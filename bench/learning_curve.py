@@ -105,15 +105,19 @@ def plot(rows: list[dict], proj: dict | None, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), constrained_layout=True)
-    key = "; ".join(f"{size[0]}{i + 1} = {r['label']}"
-                    for size in ("full", "quarter")
-                    for i, r in enumerate(sorted((r for r in rows if r["size"] == size
-                                                  and r["shipped"]), key=lambda r: r["epochs"])))
+    colours = {"full": "C0", "quarter": "C1"}
+    by_size = {size: sorted((r for r in rows if r["size"] == size), key=lambda r: r["epochs"])
+               for size in colours}
+    # each shipped version's short label (f1, f2, ..., q1) and its key under the plots
+    short = {id(r): f"{size[0]}{i + 1}" for size, rs in by_size.items()
+             for i, r in enumerate(r for r in rs if r["shipped"])}
     fig.get_layout_engine().set(h_pad=0.1)
-    fig.supxlabel("shipped versions: " + key, fontsize=7)
+    fig.supxlabel("shipped versions: " + "; ".join(
+        f"{short[id(r)]} = {r['label']}" for rs in by_size.values() for r in rs if r["shipped"]),
+        fontsize=7)
     for ax, h in zip(axes, HORIZONS):
-        for size, col in (("full", "C0"), ("quarter", "C1")):
-            rs = sorted((r for r in rows if r["size"] == size), key=lambda r: r["epochs"])
+        for size, col in colours.items():
+            rs = by_size[size]
             if not rs:
                 continue
             ship = [r for r in rs if r["shipped"]]
@@ -125,8 +129,8 @@ def plot(rows: list[dict], proj: dict | None, path: str) -> None:
                         mfc="none", ms=8, label=f"{size}: candidates")
             # short labels centred on their points (close points stay readable); the key
             # to the shipped versions' labels is under the plots
-            for i, r in enumerate(ship):
-                ax.annotate(f"{size[0]}{i + 1}", (r["epochs"], r[h]), textcoords="offset points",
+            for r in ship:
+                ax.annotate(short[id(r)], (r["epochs"], r[h]), textcoords="offset points",
                             xytext=(0, 7), ha="center", fontsize=8)
             for r in cand:
                 ax.annotate(r["label"], (r["epochs"], r[h]), textcoords="offset points",

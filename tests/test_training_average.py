@@ -144,7 +144,7 @@ def test_the_command_line(family, tmp_path, capsys):
 def test_a_fine_tune_of_an_average_names_it_in_its_chain(family, tmp_path):
     """The chain of a file fine-tuned from an average (its ``parent_runs`` entry, as
     ``--init-from`` records it) says what the average was."""
-    from tpnet_ref.training.average import _entry
+    from tpnet_ref.training.lineage import file_state, inherited
 
     paths, _ = family
     out = tmp_path / "avg.h5"
@@ -152,6 +152,7 @@ def test_a_fine_tune_of_an_average_names_it_in_its_chain(family, tmp_path):
     child = tmp_path / "child.h5"
     _, params, _ = native.read_native(out)
     _write(child, params, source="runs/child", training_steps=200, epochs=20.0,
-           parent_runs=json.dumps([_entry(out, native.read_native(out)[2])]))
+           parent_runs=json.dumps(inherited(out, file_state(out, native.read_native(out)[2]))
+                                  ["runs"]))
     text = native.describe(child)
     assert "written by tpnet train average (the mean of 2 files)" in text

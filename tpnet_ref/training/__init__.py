@@ -9,8 +9,11 @@
 - :mod:`~tpnet_ref.training.checkpoint`: checkpoints in one file or in parts, fine-tuning
   provenance.
 - :mod:`~tpnet_ref.training.score`: baselines and model selection on validation trajectories.
+- :mod:`~tpnet_ref.training.average`: the weighted mean of fine-tunes of one network
+  (``tpnet train average``); :mod:`~tpnet_ref.training.lineage`: the provenance a run or an
+  average carries of its parents (both NumPy only).
 
-The command line is ``tpnet train run|export|bench|score|baselines`` (:mod:`tpnet_ref.cli.train`);
+The command line is ``tpnet train run|export|average|bench|score|baselines`` (:mod:`tpnet_ref.cli.train`);
 the recipe and the runs are in ``docs/training.md``. Importing this package needs nothing but
 NumPy: the names below are imported at first use, and those that need torch say so in one line
 when it is missing.

@@ -8,10 +8,11 @@ predictions than either file alone.
 
 Only files of the same network in the same basis can be averaged: the same configuration, and
 parameters that are still close (every tensor's correlation with the first file's at least
-``min_correlation``): two networks trained apart, or one whose units were re-sorted
-(``tpnet sort-units``) after the other was fine-tuned from it, have their hidden units in
-different orders, and their mean is a broken network. Sort the units of the result, not of
-the inputs. NumPy and h5py only (no torch).
+``min_correlation``): two networks trained apart have their hidden units in unrelated orders,
+and their mean is a broken network. (``tpnet sort-units`` does not change the parameters, only
+the engine's layout, so sorted and unsorted files average alike; the result carries no unit
+order: sort it.) The check is necessary, not sufficient: fine-tunes that drifted far apart
+pass it and still average badly, so score every average. NumPy and h5py only (no torch).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ import numpy as np
 
 from ..native import DIGEST_ATTR, read_native, write_native
 from ..provenance import portable_path
+from .lineage import file_state, inherited
 
 #: the smallest correlation, tensor by tensor, of a file's parameters with the first file's
 MIN_CORRELATION = 0.9
@@ -39,29 +41,6 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
     if na == 0.0 or nb == 0.0:
         return 1.0 if na == nb else 0.0
     return float(a @ b) / (na * nb)
-
-
-def _entry(path: str | os.PathLike, meta: dict[str, Any]) -> dict[str, Any]:
-    """The ``parent_runs`` entry of one input file (as a fine-tune from that file records it)."""
-    def num(key: str, cast: Any) -> Any:
-        try:
-            return cast(meta.get(key, 0) or 0)
-        except (TypeError, ValueError):
-            return cast(0)
-
-    def js(key: str, empty: str) -> Any:
-        try:
-            return json.loads(meta.get(key, empty) or empty)
-        except (TypeError, ValueError):
-            return json.loads(empty)
-
-    return {"run": portable_path(str(path)), "data": str(meta.get("data", "")),
-            "data_sha256": str(meta.get("data_sha256", "")),
-            "steps": num("training_steps", int), "epochs": num("epochs", float),
-            "windows_seen": num("windows_seen", int), "wall_s": num("wall_time_s", float),
-            "recipe": {"weights_file": portable_path(str(path)),
-                       "source": portable_path(str(meta.get("source", ""))),
-                       "recipe": js("recipe", "{}"), "parent_runs": js("parent_runs", "[]")}}
 
 
 def average(paths: Sequence[str | os.PathLike], out: str | os.PathLike,
@@ -97,8 +76,7 @@ def average(paths: Sequence[str | os.PathLike], out: str | os.PathLike,
             if not r >= min_correlation:
                 raise ValueError(
                     f"average: {path} is not in the basis of {paths[0]}: parameter {name} "
-                    f"correlates {r:.3f} < {min_correlation} (networks trained apart, or units "
-                    "re-sorted after a fine-tune: average first, then tpnet sort-units)")
+                    f"correlates {r:.3f} < {min_correlation} (networks trained apart)")
     dtype = next(iter(p0.values())).dtype
     params = {name: sum(float(wi) * f[1][name].astype(np.float64) for wi, f in zip(w, files))
               .astype(dtype) for name in p0}
@@ -111,7 +89,8 @@ def average(paths: Sequence[str | os.PathLike], out: str | os.PathLike,
         "average_of": json.dumps([{"weights_file": portable_path(str(p)), "weight": float(wi),
                                    "content_sha256": str(m.get(DIGEST_ATTR, ""))}
                                   for p, wi, m in zip(paths, w, metas)]),
-        "parent_runs": json.dumps([_entry(p, m) for p, m in zip(paths, metas)], sort_keys=True),
+        "parent_runs": json.dumps([inherited(p, file_state(p, m))["runs"][-1]
+                                   for p, m in zip(paths, metas)], sort_keys=True),
         "data": str(metas[big].get("data", "")), "data_sha256": str(metas[big].get("data_sha256", "")),
         "hardware": "; ".join(sorted({str(m.get("hardware", "")) for m in metas} - {""})),
     }

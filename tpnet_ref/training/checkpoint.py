@@ -27,7 +27,7 @@ from typing import Any
 from .. import load
 from ..config import TPNetConfig
 from ..extras import require
-from ..provenance import portable_path, scrub_text
+from .lineage import file_state
 from .recipe import OPTIMIZER_MODES, Recipe
 from ..torch_model import TorchTPNet
 
@@ -125,24 +125,6 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict, dict]:
     return payload, state
 
 
-def inherited(source: str | os.PathLike, pstate: dict) -> dict:
-    """Provenance carried into a fine-tuning run: the training that made its starting weights
-    (summed over the whole chain of runs, each listed)."""
-    prev = pstate.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
-                                    "epochs": 0.0})
-    me = {"run": portable_path(source), "data": portable_path(pstate.get("data", "")),
-          "data_sha256": pstate.get("data_sha256", ""), "steps": int(pstate.get("step", 0)),
-          "epochs": float(pstate["epochs"]) if "epochs" in pstate else
-          float(pstate.get("step", 0)) / (pstate.get("steps_per_epoch", 0) or 1),
-          "windows_seen": int(pstate.get("windows_seen", 0)),
-          "wall_s": float(pstate.get("wall_s", 0.0)),
-          "recipe": json.loads(scrub_text(json.dumps(pstate.get("recipe", {}))))}
-    return {"runs": prev["runs"] + [me],
-            "windows_seen": prev["windows_seen"] + me["windows_seen"],
-            "wall_s": prev["wall_s"] + me["wall_s"], "steps": prev["steps"] + me["steps"],
-            "epochs": prev["epochs"] + me["epochs"]}
-
-
 def load_parent(source: str | os.PathLike) -> tuple[dict, dict, TPNetConfig]:
     """Starting weights of a fine-tuning run: ``(torch state dict, provenance state, config)``
     from a run directory / ``checkpoint.pt`` or from a native weights file (``.h5``, e.g. a
@@ -150,25 +132,13 @@ def load_parent(source: str | os.PathLike) -> tuple[dict, dict, TPNetConfig]:
     p = Path(source)
     if p.suffix in (".h5", ".hdf5") and p.is_file():
         model = load(p, dtype="float32")
-        meta = model.meta
-        cfg = model.config
-        # the file's counters already total the chain that made it: one inherited entry
-        state = {"data": str(meta.get("data", "")), "data_sha256": str(meta.get("data_sha256", "")),
-                 "step": int(meta.get("training_steps", 0)),
-                 "epochs": float(meta.get("epochs", 0.0)),
-                 "windows_seen": int(meta.get("windows_seen", 0)),
-                 "wall_s": float(meta.get("wall_time_s", 0.0)),
-                 "recipe": {"weights_file": portable_path(p),
-                            "source": portable_path(str(meta.get("source", ""))),
-                            "recipe": json.loads(meta.get("recipe", "{}") or "{}"),
-                            "parent_runs": json.loads(meta.get("parent_runs", "[]") or "[]")}}
         net = TorchTPNet.from_numpy(model)
-        return net.state_dict(), state, cfg
+        return net.state_dict(), file_state(p, model.meta), model.config
     parent, pstate = load_checkpoint(source)
     if "recipe" not in pstate:
         raise ValueError(f"--init-from {source}: checkpoint has no checkpoint.json recipe")
     return parent["model"], pstate, Recipe.from_dict(pstate["recipe"]).tpnet_config
 
 
-__all__ = ["save_checkpoint", "load_checkpoint", "load_parent", "inherited", "CKPT_NAME",
+__all__ = ["save_checkpoint", "load_checkpoint", "load_parent", "CKPT_NAME",
            "SIDECAR_NAME", "OPTIMIZER_MODES"]

@@ -36,8 +36,9 @@ from ..config import TPNetConfig
 from ..extras import require
 from ..provenance import file_sha256, portable_path, scrub_text
 from ..weights.torch import import_torch
-from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, inherited, load_checkpoint, load_parent,
+from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, load_checkpoint, load_parent,
                          save_checkpoint)
+from .lineage import inherited
 from .recipe import N_STEPS_MAX, Recipe, WindowData
 from ..torch_model import TorchTPNet, chamfer_released, chamfer_shape
 
