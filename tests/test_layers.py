@@ -37,6 +37,32 @@ def test_fused_bilstm_equals_the_readable_lstm(act, return_sequences, dtype, ato
             np.testing.assert_allclose(got, want, rtol=0, atol=atol)
 
 
+@pytest.mark.parametrize("act", ["relu", "tanh"])
+@pytest.mark.parametrize("return_sequences", [True, False])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_one_direction_after_the_other_gives_the_same_bits(monkeypatch, act, return_sequences,
+                                                           dtype):
+    """One window whose recurrent weights are large runs one direction after the other
+    (DIRECTION_MAJOR_BYTES): the same operations on every number, so the same bits as both
+    directions stepped together -- and that path is taken (the threshold decides, not luck)."""
+    rng = np.random.default_rng(7)
+    c, u, steps = 64, 48, 4
+    fused = L.fuse_bilstm(_direction(rng, c, u, dtype), _direction(rng, c, u, dtype))
+    xp = rng.normal(size=(steps, c)).astype(dtype) @ fused.kernel
+    run = lambda: L.bilstm_steps(xp, fused.recurrent, fused.bias, steps, 1, act,  # noqa: E731
+                                 return_sequences)
+    monkeypatch.setattr(L, "DIRECTION_MAJOR_BYTES", fused.recurrent[0].nbytes + 1)
+    together = run()
+    calls = []
+    real = L.used_prefixes
+    monkeypatch.setattr(L, "used_prefixes", lambda x: calls.append(x.shape[0]) or real(x))
+    monkeypatch.setattr(L, "DIRECTION_MAJOR_BYTES", fused.recurrent[0].nbytes)
+    apart = run()
+    assert calls == [1] * (2 * (steps - 1))          # each direction's steps on its own
+    np.testing.assert_array_equal(apart, together)
+    assert np.abs(together).max() > 0
+
+
 def test_readable_bidirectional_lstm_is_two_lstm_directions():
     """The spec itself: forward states, and backward states re-aligned to the input's time."""
     rng = np.random.default_rng(1)
