@@ -10,11 +10,11 @@ REPO=$(cd "$(dirname "$0")/.." && pwd)
 DEST=${1:-$REPO/weights}
 # the last commit that tracked each of them and its SHA-256
 declare -A COMMIT=(
-  [tpnet-m3.h5]=8048ad77da407cab139892fe53ccceab406dcc01
+  [tpnet-m3.h5]=5490d2ffc37bc662fdb88be7680d89f1c3ea5559
   [tpnet-m5.h5]=eb1a13ea00497542d2eafe65d48fe34e37c230ea
 )
 declare -A SHA=(
-  [tpnet-m3.h5]=0954ae2f5922e1b4a97da048ad72fa46f7856eb8020856845da6bdcbe06ed318
+  [tpnet-m3.h5]=d565fa2efe5963da914a8047d63613e00298af4dd7940592faeab433286ecc49
   [tpnet-m5.h5]=3ada7c653f4929d75088f46e46a1baff87284cdf5b57d8ff5dce2eec38ed26ee
 )
 mkdir -p "$DEST"
