@@ -333,8 +333,8 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
     The projections are laid out once in step order (step ``s`` is forward time ``s`` and
     backward time ``T-1-s``), both directions advance together (for one window with large
     recurrent weights, one direction after the other: :data:`DIRECTION_MAJOR_BYTES`), and the
-    gates are updated in place. Each direction's recurrent product reads only the rows of ``recurrent`` that the
-    non-zero part of its state multiplies (:func:`used_columns`: a ReLU LSTM's state is mostly
+    gates are updated in place. Each direction's recurrent product reads only the rows of
+    ``recurrent`` that the non-zero part of its state multiplies (:func:`used_columns`: a ReLU LSTM's state is mostly
     zeros, and none at step 0, where h = c = 0). Time-major layout keeps every step's slice
     contiguous, so nothing is re-laid-out between layers. ``dtype``: of the result (default
     ``xp``'s).
@@ -356,8 +356,8 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
     # both directions advance together (half the calls), or, for one window whose recurrent
     # weights fill a core's L2 cache a direction, one direction after the other (the used rows
     # of one direction then stay in cache from step to step: BiLSTM 1 of the released network
-    # 700 -> 620 us on the Intel VM; a batch of 64 gained nothing); the same operations on
-    # every number either way
+    # 632 against 714 us on the Intel VM, bench/probes/numpy_two_threads.py; a batch reads each
+    # row once for all its windows anyway); the same operations on every number either way
     by_direction = bsz == 1 and recurrent[0].nbytes >= DIRECTION_MAJOR_BYTES
     with np.errstate(over="ignore"):
         for sel in ((slice(0, 1), slice(1, 2)) if by_direction else (slice(0, 2),)):
