@@ -324,6 +324,57 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     return bilstm_steps(xp, recurrent, bias, steps, bsz, activation, return_sequences, x.dtype)
 
 
+def advance_directions(xs: np.ndarray, hs: np.ndarray, c: np.ndarray, recurrent: np.ndarray,
+                       relu_act: bool = True) -> None:
+    """The step loop of :func:`bilstm_steps` for ``D`` directions together, in place.
+
+    ``xs (T, D, B, 4u)``: each direction's input projections plus bias, in its step order (they
+    become the gates; each spent step's slice then takes the next step's recurrent products);
+    ``hs (T, D, B, u)`` receives ``h`` after each step, ``c (D, B, u)`` the cell state;
+    ``recurrent (D, u, 4u)`` in the fused layout (:func:`fuse_bilstm`). ``relu_act``: ReLU as the
+    cell activation, else tanh. Any ``D`` gives each direction the same numbers: the element-wise
+    passes act on each number alone, and each direction has its own product."""
+    steps, _, bsz, u = hs.shape
+    zero = np.zeros(u, dtype=hs.dtype)                  # relu's operand: faster than a scalar
+    one = hs.dtype.type(1.0)
+    mixed = recurrent.dtype != hs.dtype
+    with np.errstate(over="ignore"):
+        for s in range(steps):
+            z = xs[s]                                   # gates computed in place
+            if s:                                       # + h @ recurrent (h = c = 0 at step 0)
+                hp = hs[s - 1]
+                zr = xs[s - 1]                          # the spent buffer takes the products
+                for d, k in enumerate(used_prefixes(hp)):
+                    if mixed:
+                        zr[d] = hp[d, :, :k] @ recurrent[d, :k]
+                    elif bsz == 1:
+                        np.dot(hp[d, 0, :k], recurrent[d, :k], out=zr[d, 0])
+                    else:
+                        np.matmul(hp[d, :, :k], recurrent[d, :k], out=zr[d])
+                z += zr
+            gates = z[..., :3 * u]                      # -x for i, f, o (negated weights)
+            np.exp(gates, out=gates)                    # may overflow to inf: 1/(1+inf) = 0
+            gates += one
+            np.divide(one, gates, out=gates)
+            g = z[..., 3 * u:]                          # cell candidate
+            if relu_act:
+                np.maximum(g, zero, out=g)
+            else:
+                np.tanh(g, out=g)
+            np.multiply(z[..., :u], g, out=g)           # i * g
+            if s == 0:                                  # c = i*g
+                c[...] = g
+            else:                                       # c = f*c + i*g
+                c *= z[..., u:2 * u]
+                c += g
+            h = hs[s]                                   # h = o * act(c)
+            if relu_act:
+                np.maximum(c, zero, out=h)
+            else:
+                np.tanh(c, out=h)
+            h *= z[..., 2 * u:3 * u]
+
+
 def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps: int, bsz: int,
                  activation: str = "relu", return_sequences: bool = True,
                  dtype: np.dtype | None = None) -> np.ndarray:
@@ -333,11 +384,11 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
     The projections are laid out once in step order (step ``s`` is forward time ``s`` and
     backward time ``T-1-s``), both directions advance together (for one window with large
     recurrent weights, one direction after the other: :data:`DIRECTION_MAJOR_BYTES`), and the
-    gates are updated in place. Each direction's recurrent product reads only the rows of
-    ``recurrent`` that the non-zero part of its state multiplies (:func:`used_columns`: a ReLU LSTM's state is mostly
-    zeros, and none at step 0, where h = c = 0). Time-major layout keeps every step's slice
-    contiguous, so nothing is re-laid-out between layers. ``dtype``: of the result (default
-    ``xp``'s).
+    gates are updated in place (:func:`advance_directions`). Each direction's recurrent product
+    reads only the rows of ``recurrent`` that the non-zero part of its state multiplies
+    (:func:`used_columns`: a ReLU LSTM's state is mostly zeros, and none at step 0, where
+    h = c = 0). Time-major layout keeps every step's slice contiguous, so nothing is
+    re-laid-out between layers. ``dtype``: of the result (default ``xp``'s).
     """
     u = recurrent.shape[1]
     relu_act = activation == "relu"
@@ -350,52 +401,14 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
     np.add(xp[::-1, :, 1], bias[4 * u:], out=xs[:, 1])
     c = np.empty((2, bsz, u), dtype=dt)
     hs = np.empty((steps, 2, bsz, u), dtype=dt)         # h after each step
-    zero = np.zeros(u, dtype=dt)                        # relu's operand: faster than a scalar
-    one = dt.type(1.0)
-    mixed = recurrent.dtype != dt
     # both directions advance together (half the calls), or, for one window whose recurrent
     # weights fill a core's L2 cache a direction, one direction after the other (the used rows
     # of one direction then stay in cache from step to step: BiLSTM 1 of the released network
     # 632 against 714 us on the Intel VM, bench/probes/numpy_two_threads.py; a batch reads each
     # row once for all its windows anyway); the same operations on every number either way
     by_direction = bsz == 1 and recurrent[0].nbytes >= DIRECTION_MAJOR_BYTES
-    with np.errstate(over="ignore"):
-        for sel in ((slice(0, 1), slice(1, 2)) if by_direction else (slice(0, 2),)):
-            rec, cs = recurrent[sel], c[sel]
-            for s in range(steps):
-                z = xs[s, sel]                              # gates computed in place
-                if s:                                       # + h @ recurrent (h = c = 0 at step 0)
-                    hp = hs[s - 1, sel]
-                    zr = xs[s - 1, sel]                     # the spent buffer takes the products
-                    for d, k in enumerate(used_prefixes(hp)):
-                        if mixed:
-                            zr[d] = hp[d, :, :k] @ rec[d, :k]
-                        elif bsz == 1:
-                            np.dot(hp[d, 0, :k], rec[d, :k], out=zr[d, 0])
-                        else:
-                            np.matmul(hp[d, :, :k], rec[d, :k], out=zr[d])
-                    z += zr
-                gates = z[..., :3 * u]                  # -x for i, f, o (negated weights)
-                np.exp(gates, out=gates)                # may overflow to inf: 1/(1+inf) = 0
-                gates += one
-                np.divide(one, gates, out=gates)
-                g = z[..., 3 * u:]                      # cell candidate
-                if relu_act:
-                    np.maximum(g, zero, out=g)
-                else:
-                    np.tanh(g, out=g)
-                np.multiply(z[..., :u], g, out=g)       # i * g
-                if s == 0:                              # c = i*g
-                    cs[...] = g
-                else:                                   # c = f*c + i*g
-                    cs *= z[..., u:2 * u]
-                    cs += g
-                h = hs[s, sel]                          # h = o * act(c)
-                if relu_act:
-                    np.maximum(cs, zero, out=h)
-                else:
-                    np.tanh(cs, out=h)
-                h *= z[..., 2 * u:3 * u]
+    for sel in ((slice(0, 1), slice(1, 2)) if by_direction else (slice(0, 2),)):
+        advance_directions(xs[:, sel], hs[:, sel], c[sel], recurrent[sel], relu_act)
     if not return_sequences:
         return np.concatenate([hs[-1, 0], hs[-1, 1]], axis=-1)
     # forward output at time t is hs[t, 0]; backward output at time t is hs[T-1-t, 1]

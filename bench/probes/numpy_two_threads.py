@@ -8,8 +8,9 @@ Three measurements of the shipped m = 4 model on scene windows, in one run, roun
    NumPy engine's B = 1 (one core by design): how much of the peer's lead is its second core.
 2. BiLSTM 1's recurrence of one window (the largest part of the prediction network): the
    engine's (one direction after the other, ``layers.DIRECTION_MAJOR_BYTES``), both directions
-   stepped together, and the backward direction handed to a second Python thread (a dedicated
-   worker woken by a lock: the cheapest hand-off Python offers) -- the same bits, checked.
+   stepped together, and the engine's step loop (``layers.advance_directions``) with the
+   backward direction handed to a second Python thread (a dedicated worker woken by a lock: the
+   cheapest hand-off Python offers) -- the same bits, checked.
 3. The cost of that hand-off alone (an empty job), and of a ``ThreadPoolExecutor`` round trip.
 
 Each figure is the median of the rounds' medians. What it answered is in docs/performance.md,
@@ -89,35 +90,18 @@ def main() -> None:
     rec, bias, u = lay.fused.recurrent, lay.fused.bias, lay.fused.recurrent.shape[1]
     steps = model.config.m
     both = lambda: L.bilstm_steps(xp, rec, bias, steps, 1, "relu", True)  # noqa: E731
-    x4 = xp.reshape(steps, 2, 4 * u)
-    zero, one = np.zeros(u, np.float32), np.float32(1.0)
+    x4 = xp.reshape(steps, 2, 1, 4 * u)
 
-    def direction(d: int) -> np.ndarray:
-        """One direction's states ``(steps, u)`` in its step order, by bilstm_steps's operations."""
-        xs_ = (x4[:, d] if d == 0 else x4[::-1, d]) + bias[4 * u * d:4 * u * (d + 1)]
-        hs, c, zr = np.empty((steps, u), np.float32), np.empty(u, np.float32), np.empty(4 * u, np.float32)
-        with np.errstate(over="ignore"):
-            for s in range(steps):
-                z = xs_[s]
-                if s:
-                    k = L.used_prefixes(hs[s - 1][None, None])[0]
-                    np.dot(hs[s - 1, :k], rec[d, :k], out=zr)
-                    z += zr
-                gates = z[:3 * u]
-                np.exp(gates, out=gates)
-                gates += one
-                np.divide(one, gates, out=gates)
-                gc = z[3 * u:]
-                np.maximum(gc, zero, out=gc)
-                np.multiply(z[:u], gc, out=gc)
-                if s == 0:
-                    c[...] = gc
-                else:
-                    c *= z[u:2 * u]
-                    c += gc
-                np.maximum(c, zero, out=hs[s])
-                hs[s] *= z[2 * u:3 * u]
-        return hs
+    def split() -> np.ndarray:
+        """bilstm_steps's layout, its step loop per direction, the backward one on the worker."""
+        xs = np.empty_like(x4)
+        np.add(x4[:, 0], bias[:4 * u], out=xs[:, 0])
+        np.add(x4[::-1, 1], bias[4 * u:], out=xs[:, 1])
+        hs, c = np.empty((steps, 2, 1, u), np.float32), np.empty((2, 1, u), np.float32)
+        worker.submit(L.advance_directions, xs[:, 1:], hs[:, 1:], c[1:], rec[1:])
+        L.advance_directions(xs[:, :1], hs[:, :1], c[:1], rec[:1])
+        worker.wait()
+        return np.concatenate([hs[:, 0], hs[::-1, 1]], axis=-1)
 
     def together() -> np.ndarray:     # bilstm_steps with its direction-major path turned off
         saved, L.DIRECTION_MAJOR_BYTES = L.DIRECTION_MAJOR_BYTES, 1 << 62
@@ -126,17 +110,8 @@ def main() -> None:
         finally:
             L.DIRECTION_MAJOR_BYTES = saved
 
-    def serial() -> np.ndarray:
-        return np.concatenate([direction(0), direction(1)[::-1]], axis=-1)[:, None]
-
     worker, pool = Worker(), ThreadPoolExecutor(max_workers=1)
-
-    def split() -> np.ndarray:
-        worker.submit(direction, 1)
-        fwd = direction(0)
-        return np.concatenate([fwd, worker.wait()[::-1]], axis=-1)[:, None]
-
-    same = all(np.array_equal(f(), both()) for f in (split, serial, together))
+    same = all(np.array_equal(f(), both()) for f in (split, together))
     rows: dict[str, list[float]] = {}
     with one_thread():
         for _ in range(args.rounds):
@@ -147,7 +122,6 @@ def main() -> None:
                 rows.setdefault(label, []).append(median_us(fn, calls) / 64)
             for label, fn in (("BiLSTM 1 recurrence, the engine's (bilstm_steps)", both),
                               ("BiLSTM 1 recurrence, both directions stepped together", together),
-                              ("BiLSTM 1 recurrence, one direction after the other", serial),
                               ("BiLSTM 1 recurrence, backward on a second thread", split),
                               ("hand-off to a waiting thread, empty job", lambda: (worker.submit(int), worker.wait())),
                               ("ThreadPoolExecutor round trip, empty job", lambda: pool.submit(int).result())):
