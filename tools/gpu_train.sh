@@ -30,6 +30,13 @@
 #   WORK=the repository (where data/, .whl/, .gpu/, runs/ are; CI points it at a scratch folder)
 #   STOP_STEP= (stop this call at that global step; CI stops the first call half-way)
 #   BUDGET= (empty: no --budget-minutes; give --epochs in TRAIN_ARGS)
+#   PRESET=released: a new run from scratch with `tpnet train run --preset released` (Keras
+#   initialisation, the released windows: DATA defaults to data/grid-m$M-released.h5, made
+#   with --windows released; Adam at a constant $LR, no warm-up, no clipping, the published
+#   loss) at batch $BATCH; INIT, SHAPE, MATCH, NOISE and BUDGET are not used (the schedule is
+#   constant: the run goes on call after call); use OPTIM=full so Adam's state travels
+#   BENCH_BATCHES="512 1024 2048" BENCH_COMPILE="off reduce-overhead": with BENCH=1, the
+#   windows/s of every pair first (the first minute of a lease: pick the fastest)
 set -euo pipefail
 REPO=$(cd "$(dirname "$0")/.." && pwd)
 cd "${WORK:-$REPO}"
@@ -40,6 +47,12 @@ SHAPE=${SHAPE:-4}; MATCH=${MATCH:-0}; NOISE=${NOISE:-0.001}; RECIPE=${RECIPE:-pa
 COMPILE=${COMPILE:-off}; DEVICE=${DEVICE:-auto}; THREADS=${THREADS:-8}
 WORKERS=${WORKERS:-$(nproc)}; BENCH=${BENCH:-0}; STOP_STEP=${STOP_STEP:-}; DATA=${DATA:-data/grid-m$M.h5}
 DATA_ARGS=${DATA_ARGS:-}; TRAIN_ARGS=${TRAIN_ARGS:-}; OPTIM=${OPTIM:-none}; PY=${PY:-python3}
+PRESET=${PRESET:-}; BENCH_BATCHES=${BENCH_BATCHES:-$BATCH}; BENCH_COMPILE=${BENCH_COMPILE:-$COMPILE}
+if [ "$PRESET" = released ]; then
+    DATA=${DATA_RELEASED:-data/grid-m$M-released.h5}; DATA_ARGS="--windows released $DATA_ARGS"
+elif [ -n "$PRESET" ]; then
+    echo "gpu_train: PRESET must be empty or 'released', got '$PRESET'" >&2; exit 2
+fi
 RUN=.gpu/$NAME
 MAX_FILES=8; MAX_MIB=16
 SITE=
@@ -91,8 +104,14 @@ fi
 
 # --- 3. train --------------------------------------------------------------------------------
 if [ "$BENCH" = 1 ]; then
-    T train bench --size "$SIZE" --batch "$BATCH" --rollouts 8 --iters 10 --device "$DEVICE" \
-        --threads "$THREADS" --compile "$COMPILE" --shape-weight "$SHAPE" --match-weight "$MATCH"
+    for c in $BENCH_COMPILE; do
+        for b in $BENCH_BATCHES; do
+            echo "gpu_train: bench batch $b compile $c"
+            T train bench --size "$SIZE" --batch "$b" --rollouts 8 --iters 10 --device "$DEVICE" \
+                --threads "$THREADS" --compile "$c" --precisions float32 \
+                --shape-weight "$SHAPE" --match-weight "$MATCH"
+        done
+    done
 fi
 common=(--device "$DEVICE" --threads "$THREADS" --compile "$COMPILE" --max-minutes "$MINUTES"
         --checkpoint-part-mib "$MAX_MIB" --checkpoint-optimizer "$OPTIM" --quiet)
@@ -100,6 +119,10 @@ common=(--device "$DEVICE" --threads "$THREADS" --compile "$COMPILE" --max-minut
 budget=(); [ -n "$BUDGET" ] && budget=(--budget-minutes "$BUDGET")
 if [ -f "$RUN/checkpoint.json" ]; then
     T train run "$DATA" -o "$RUN" --resume "${common[@]}"
+elif [ "$PRESET" = released ]; then
+    # shellcheck disable=SC2086
+    T train run "$DATA" -o "$RUN" --preset released --size "$SIZE" --batch "$BATCH" --lr "$LR" \
+        --val-windows 2048 "${common[@]}" $TRAIN_ARGS
 else
     init=(--size "$SIZE"); [ -n "$INIT" ] && init=(--init-from "$INIT")
     # shellcheck disable=SC2086
