@@ -77,13 +77,19 @@ def test_the_released_preset_starts_from_scratch_on_released_windows(tmp_path):
     recipe (Keras initialisation, constant rate, no clipping) whose Adam state comes back."""
     work = tmp_path / "repo"
     work.mkdir()
-    _call(work, OUT=str(tmp_path / "out"), PRESET="released", OPTIM="full", MATCH="0",
-          COMPILE="off", TRAIN_ARGS="--epochs 1 --val-fraction 0.25 --val-windows 0")
+    out = _call(work, OUT=str(tmp_path / "out"), PRESET="released", OPTIM="full", MATCH="0",
+                COMPILE="off", BENCH="1", BENCH_BATCHES="4 8", BENCH_COMPILE="off",
+                BATCH_AUTO="1", LR="3e-3",
+                TRAIN_ARGS="--epochs 1 --val-fraction 0.25 --val-windows 0")
+    picked = [ln for ln in out.splitlines() if ln.startswith("gpu_train: fastest batch")]
+    assert len(picked) == 1
+    batch = int(picked[0].split()[3])
+    assert batch in (4, 8) and "gpu_train: bench batch 4 compile off:" in out
     assert (work / "data" / "grid-m4-released.h5").is_file()
     state = json.loads((work / ".gpu" / "ci" / "checkpoint.json").read_text())
     r = state["recipe"]
     assert (r["init"], r["windows"], r["schedule"], r["clip"], r["warmup_steps"], r["batch"],
-            r["lr"]) == ("keras", "released", "constant", 0.0, 0, 8, 3e-3)
+            r["lr"]) == ("keras", "released", "constant", 0.0, 0, batch, 3e-3)
     assert "optimizer_resets" not in state
     assert len(_returned(tmp_path / "out")) >= 3
 
