@@ -594,6 +594,7 @@ def report_text(results: Sequence[CaseResult], layers: Sequence[str], after: int
     then the ``after`` layers that follow it (all agree: the closest call)."""
     lines = []
     width = max(len(r.case) for r in results)
+    same_missing = all(r.missing == results[0].missing for r in results)
     for r in results:
         head = f"{r.case:<{width}}  "
         f = r.first
@@ -610,8 +611,10 @@ def report_text(results: Sequence[CaseResult], layers: Sequence[str], after: int
                 lines.append(" " * (width + 2) + "then: " + ", ".join(
                     f"{x.layer} {x.max_abs:.2g}{'' if x.ok else ' (beyond)'}" for x in rest)
                     + (" ..." if len(r.layers) > i + 1 + after else ""))
-        if r.missing:
+        if r.missing and not same_missing:
             lines.append(" " * (width + 2) + f"not in the trace: {', '.join(r.missing)}")
+    if results and results[0].missing and same_missing:
+        lines.append(f"not in the trace (any case): {', '.join(results[0].missing)}")
     first = first_divergence(results, layers)
     n_bad = sum(r.first is not None for r in results)
     if first is None:

@@ -420,6 +420,7 @@ def model_tracer(path: str | os.PathLike, vectors: Vectors, engine: str = "numpy
         from .weights.keras import import_keras_h5
         tp = import_keras_h5(p, dtype="float32")
         check_same_network(vectors, tp.config, f"model {p}")
+        os.environ.setdefault("KERAS_BACKEND", "torch")     # the keras extra's backend
         require("keras", "keras", "tracing a Keras checkpoint")
         return ("Keras checkpoint, traced by a Keras model built from it",
                 lambda w: keras_trace(tp.config, tp.params, w))
