@@ -158,6 +158,8 @@ def test_onnx_export_agrees(vectors_dir, quarter, tmp_path):
 def test_keras_checkpoint_agrees(tmp_path):
     """A Keras checkpoint of the released structure (committed fixture), traced by a Keras 3
     model built from it, against vectors of the same checkpoint."""
+    import os
+    os.environ.setdefault("KERAS_BACKEND", "torch")      # the keras extra: Keras 3 on torch
     pytest.importorskip("keras")
     pytest.importorskip("pymunk")
     from tpnet_ref.weights.keras import import_keras_h5
