@@ -249,8 +249,9 @@ def make_cases(config: TPNetConfig, params: dict[str, np.ndarray],
         nxt = reference.forward(config, {k: np.asarray(v, np.float64) for k, v in params.items()},
                                 frames[-m:])
         frames.append(nxt)
-        cases.append(Case(f"rollout{s}", f"step {s} of a rollout from scene2: its newest {min(s, m)} "
-                          "frame(s) the reference's float64 predictions", frames[-m:]))
+        cases.append(Case(f"rollout{s}", f"step {s} of a rollout from scene2: its newest "
+                          f"{min(s, m)} frame(s) the reference's float64 predictions",
+                          frames[-m:]))
     return cases
 
 

@@ -5,9 +5,6 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-FIRST_ONLY_HELP = "print only the first diverging layer of each case and the summary"
-
-
 def add_cli(sub: Any) -> None:
     p = sub.add_parser(
         "vectors", help="write conformance vectors: DIR/manifest.json (cases, layers in forward "
