@@ -65,33 +65,39 @@ def run_rows(data: WindowData, label: str, run: Path) -> list[dict]:
     return rows, cache.get("copy last")
 
 
-def plot(rows: list[dict], copy_last: dict | None, path: str) -> None:
+def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dict]],
+         path: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
     runs = list(dict.fromkeys(r["run"] for r in rows))
+    colours = {label: f"C{i}" for i, label in enumerate(runs)}
     for label in runs:
         rr = [r for r in rows if r["run"] == label]
         w = np.array([r["windows_seen"] / 1e6 for r in rr])
         for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
-            ax.plot(w, [r[key] for r in rr], "o-", label=label)
-        per_point = np.array([sum(r[f"dead {k}"] or 0 for k in LAYERS[:6]) for r in rr])
-        total = sum(rr[0][f"units {k}"] or 0 for k in LAYERS[:6])
-        axes[2].plot(w, 100 * per_point / max(1, total), "o-", label=f"{label}: feature extractor")
-        axes[2].plot(w, [100 * (r["dead global"] or 0) / max(1, r["units global"] or 1)
-                         for r in rr], "s--", label=f"{label}: global layer")
+            ax.plot(w, [r[key] for r in rr], "o-", color=colours[label], label=label)
+        vals = [v for _, v in sorted(logs[label].items()) if v.get("dead")]
+        w = np.array([v["windows_seen"] / 1e6 for v in vals])
+        fe = [sum(v["dead"].get(k, 0) for k in LAYERS[:5]) for v in vals]
+        fe_of = [sum(v["dead"].get(k + "/of", 0) for k in LAYERS[:5]) for v in vals]
+        axes[2].plot(w, 100 * np.array(fe) / np.maximum(1, fe_of), "o-", color=colours[label],
+                     label=f"{label}: per-point layers")
+        axes[2].plot(w, [100 * v["dead"]["global"] / v["dead"]["global/of"] for v in vals],
+                     "s--", color=colours[label], label=f"{label}: global layer")
     for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
         if copy_last:
             ax.axhline(copy_last[key], color="grey", ls=":", label="copy last")
-        ax.set_yscale("log")
+        ax.set_ylim(bottom=0)
         ax.set_xlabel("training windows seen (millions)")
         ax.set_ylabel(f"validation {key.replace('@', ' @')} (released reading)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     axes[2].set_xlabel("training windows seen (millions)")
-    axes[2].set_ylabel("dead ReLU units (% of the layer(s))")
+    axes[2].set_ylabel("dead ReLU units (% of the layers' units)")
+    axes[2].set_ylim(bottom=0)
     axes[2].grid(alpha=0.3)
     axes[2].legend(fontsize=7)
     fig.suptitle("Quarter size from scratch: validation trajectories (356), 80 recursive "
@@ -114,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", message=".*training range.*")
     warnings.filterwarnings("ignore", message=".*one body.*")
     data = WindowData(args.data, 0.05, 0)
-    rows, copy_last = [], None
+    rows, copy_last, logs = [], None, {}
     for spec in args.runs:
         if "=" not in spec:
             ap.error(f"{spec!r}: expected LABEL=RUN_DIR")
@@ -123,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"{run}: no snapshots/ (train with --snapshots)")
         r, copy_last = run_rows(data, label, Path(run))
         rows += r
+        logs[label] = _val_records(Path(run))
     cols = ["run", "step", "windows_seen", "wall_s", "Ep@40", "Ep@80", "Es@80", "val_cd8",
             *(f"dead {k}" for k in LAYERS)]
     print(" | ".join(cols))
@@ -136,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
             w.writeheader()
             w.writerows(rows)
     if args.png:
-        plot(rows, copy_last, args.png)
+        plot(rows, copy_last, logs, args.png)
     return 0
 
 
