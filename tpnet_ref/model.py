@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from . import heads as H
+from . import recursive as R
 from . import specialize as S
 from . import unit_order as U
 from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
@@ -40,11 +41,7 @@ from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
 from .fast_numpy import BLOCK_POINTS, NumpyFeatures
 from .heads import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
 from .native import default_weights_path, read_native, write_native
-
-#: up to this many points the canonical order is one lexsort (measured 120 points: 19 -> 5 us);
-#: above it, row-wise stable argsorts (1,024 frames of 30 points: 1.5 ms instead of 7 ms)
-SMALL_SORT = 512
-
+from .point_order import SMALL_SORT, canonical_order  # noqa: F401  (re-exported)
 
 class TPNet:
     """A TP-Net with its parameters in one dtype. Build it with :func:`init_random`,
@@ -185,9 +182,12 @@ class TPNet:
             pts = self.normalize(pts)
         else:
             pts = pts + self.dtype.type(0.0)  # a copy, and -0.0 -> +0.0 for a canonical order
-        if not self.sort_points:
-            return pts, counts
-        return pts[canonical_order(pts, counts)], counts
+        return self.sorted_points(pts, counts), counts
+
+    def sorted_points(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
+        """``points (P, dim)`` of frames of ``counts`` points, each frame in canonical order
+        (:func:`tpnet_ref.point_order.canonical_order`; as given when ``sort_points`` is off)."""
+        return points[canonical_order(points, counts)] if self.sort_points else points
 
     def frame_features(self, points: np.ndarray, counts: np.ndarray,
                        batch: int | None = None) -> np.ndarray:
@@ -282,42 +282,9 @@ class TPNet:
 
     def _rollout(self, frames: list[np.ndarray], batch: int, normalized: bool,
                  steps: Any) -> np.ndarray:
-        """``batch * m`` checked frames -> ``(batch, steps, n_out, dim)``."""
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise ValueError(f"steps: expected a positive integer, got {steps!r}")
-        c, steps = self.config, int(steps)
-        m = c.m
-        try:
-            feats = np.empty((batch, m + steps, c.global_features), dtype=self.dtype)
-            out = np.empty((batch, steps, c.n_out, c.dim), dtype=self.dtype)
-        except MemoryError:
-            raise ValueError(f"steps: {steps} steps do not fit in memory") from None
-        # BiLSTM 1's input projection of each frame, also computed once per frame (when the
-        # head takes it: a specialised one projects its kept units itself); the last m kept.
-        # One one-thread BLAS block around all the steps, the thread plan still chosen per step
-        # (unless the rollout is itself nested in a block: a chunk of a split batch)
-        held = not in_one_thread()
-        with one_thread():
-            with self._threads("features", batch, sum(f.shape[0] for f in frames), held):
-                feats[:, :m] = self.frame_features(
-                    *self.canonical_points(frames, normalized), batch).reshape(batch, m, -1)
-                proj = self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1),
-                                           batch)
-                proj = None if proj is None else list(proj.reshape(m, batch, -1))
-            counts = np.full(batch, c.n_out)
-            for s in range(steps):
-                with self._threads("rollout step", batch, c.n_out, held):   # follows the load
-                    y = self.sequence_head(feats[:, s:s + m],             # (batch, n_out, dim)
-                                           None if proj is None else np.stack(proj[-m:]))
-                    out[:, s] = y
-                    flat = y.reshape(-1, c.dim)
-                    if self.sort_points:
-                        flat = flat[canonical_order(flat, counts)]
-                    feats[:, m + s] = self.frame_features(flat, counts, batch)
-                    if proj is not None and s + 1 < steps:
-                        proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s],
-                                                                               batch)]
-        return out if normalized else self.denormalize(out)
+        """``batch * m`` checked frames -> ``(batch, steps, n_out, dim)``
+        (:func:`tpnet_ref.recursive.rollout`)."""
+        return R.rollout(self, frames, batch, normalized, steps)
 
 
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
@@ -337,33 +304,6 @@ def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
                      used=used)       # specialised if the file says so
     except ValueError as exc:         # what the file holds does not fit together
         raise ValueError(f"{path}: {exc}") from None
-
-
-def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Indices that sort each frame's points by x, then y (then the remaining coordinates).
-
-    ``points (P, dim)``, ``counts (F,)`` -> ``(P,)`` indices into ``points``. Points that tie
-    on every coordinate are identical rows, so the sorted matrix does not depend on the input
-    order at all.
-    """
-    counts = np.asarray(counts)
-    dim = points.shape[1]
-    if points.shape[0] <= SMALL_SORT:
-        # few points (a window, a rollout's new frame): one lexsort is cheapest (same indices)
-        frame_id = np.repeat(np.arange(len(counts)), counts)
-        return np.lexsort([points[:, d] for d in range(dim - 1, -1, -1)] + [frame_id])
-    if counts.size and np.all(counts == counts[0]):
-        # equal frames: stable sorts within each row, least significant coordinate first
-        a = points.reshape(counts.size, int(counts[0]), dim)
-        idx = np.argsort(a[..., dim - 1], axis=1, kind="stable")
-        for d in range(dim - 2, -1, -1):
-            key = np.take_along_axis(a[..., d], idx, axis=1)
-            idx = np.take_along_axis(idx, np.argsort(key, axis=1, kind="stable"), axis=1)
-        idx += (np.arange(counts.size) * int(counts[0]))[:, None]
-        return idx.ravel()
-    frame_id = np.repeat(np.arange(len(counts)), counts)
-    keys = [points[:, d] for d in range(dim - 1, -1, -1)] + [frame_id]
-    return np.lexsort(keys)
 
 
 def init_random(config: TPNetConfig | None = None, seed: int = 0, dtype: Any = "float32",
