@@ -38,7 +38,7 @@ SCALES = (1e-3, 1.0, 45.0, 1e3)
 #: the rounding bound the project's tests allow a per-frame permutation, in world units, per
 #: dtype: the bound the project already states for where a row sits in a BLAS product (a window
 #: inside a batch against it alone, README). Measured with the canonical sort off:
-#: ``python bench/permutation_rounding.py`` (docs/testing.md)
+#: ``PYTHONPATH=bench python bench/probes/permutation_rounding.py`` (docs/testing.md)
 TOLERANCE = {"float32": 5e-4, "float64": 1e-11}
 
 Window = list  # m arrays (N_t, dim), float64
