@@ -20,9 +20,15 @@ class NonFiniteResultError(ArithmeticError):
     """Raised when finite input would give a non-finite result (for example float32 overflow)."""
 
 
+#: what an error that float64 cures advises: each form works as written (tests/test_error_advice.py)
+FLOAT64_ADVICE = ("predict in float64: dtype='float64' (tpnet_ref.predict(window, dtype='float64'), "
+                  "tpnet_ref.load(dtype='float64'), model.astype('float64'); "
+                  "tpnet predict --dtype float64)")
+
+
 def overflow_error(dtype: np.dtype, where: str) -> NonFiniteResultError:
     """The one-line error of a prediction network that overflowed in ``dtype`` at ``where``."""
-    remedy = ("try dtype='float64'" if dtype == np.float32
+    remedy = (FLOAT64_ADVICE if dtype == np.float32
               else "rescale the input towards the training range")
     return NonFiniteResultError(
         f"the prediction network overflowed in {dtype.name} at {where} (the ReLU LSTM's state "
@@ -119,7 +125,7 @@ def check_window(window: Any, m: int, dim: int, dtype: np.dtype,
     for i, f in enumerate(out):
         if not _fits(f, dtype):
             raise ValueError(f"{name}[{i}]: values beyond the {dtype.name} range "
-                             f"(|x| > {np.finfo(dtype).max:.3g}); use a float64 model")
+                             f"(|x| > {np.finfo(dtype).max:.3g}); {FLOAT64_ADVICE}")
     return out
 
 

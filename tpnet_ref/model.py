@@ -1,27 +1,15 @@
 """TP-Net in NumPy: the model a user holds -- config, parameters, input checks, the forward pass.
 
-Data flow for one window of ``m`` frames (``N`` points each; docs/spec.md §2):
-
-    frame (N, 2) --normalise, sort--> [input T-Net] -> MLP 2-64-64 -> [feature T-Net]
-        -> MLP 64-128-256-512 -> max over points (512) -> FC 512-128 ReLU  = G_t (128)
-    (G_{t-m+1} .. G_t) (m, 128) -> BiLSTM 512 -> LN -> BiLSTM 256 -> LN
-        -> BiLSTM 256 (last output) -> LN -> FC 512 -> N_out*2 sigmoid -> (N_out, 2) -> denormalise
-
-:mod:`tpnet_ref.reference` writes this out to be read; this module runs it fast and checks it:
 :meth:`TPNet.predict` is ``check -> canonical points -> frame_features -> sequence_head ->
-denormalise``. The feature extractor is the NumPy fast path (:mod:`tpnet_ref.fast_numpy`); the
-prediction network runs on one of the model's heads (:mod:`tpnet_ref.heads`: NumPy, Numba,
-scene-specialised), every one tested against the reference.
-
-Permutation invariance is exact, not approximate: each frame's points are put in a canonical
-order (lexicographic by x, then y) before the feature extractor, so every permutation of a
-frame produces the very same matrix and hence bit-identical output. ``sort_points=False`` (or
-:meth:`TPNet.with_point_sort`) runs the points in the order given, to check that the network
-itself is invariant (a shared per-point MLP and a max; :mod:`tpnet_ref.testing`). Every frame's global feature
-depends on that frame alone, so a batch computes all frames' features in one pass and a rollout
-computes each frame's features exactly once. The bits do not depend on threads
-(docs/architecture.md, "Determinism"): every product runs on a one-thread BLAS, and a large
-batch is cut into chunks by its size alone.
+denormalise`` (data flow with shapes: docs/architecture.md; the same network written to be read:
+:mod:`tpnet_ref.reference`). The feature extractor is the NumPy fast path
+(:mod:`tpnet_ref.fast_numpy`) or the Numba one; the prediction network runs on one of the
+model's heads (:mod:`tpnet_ref.heads`: NumPy, Numba, scene-specialised), every one tested
+against the reference; a rollout's loop is :mod:`tpnet_ref.recursive`. Permutation invariance
+is exact: each frame's points are put in canonical order first (:mod:`tpnet_ref.point_order`;
+``sort_points=False`` runs them as given, to check the network's own invariance). The bits do
+not depend on threads (docs/architecture.md, "Determinism"): every product runs on a one-thread
+BLAS, and a large batch is cut into chunks by its size alone.
 """
 from __future__ import annotations
 
@@ -36,7 +24,8 @@ from . import specialize as S
 from . import unit_order as U
 from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
                    split_batch, two_threads)
-from .checks import check_params, check_window, check_windows, warn_about_input
+from .checks import (NonFiniteResultError, check_params, check_window, check_windows,
+                     warn_about_input)
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
 from .fast_numpy import BLOCK_POINTS, NumpyFeatures
 from .heads import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
@@ -243,13 +232,19 @@ class TPNet:
         a one-line warning for input outside the training range or not one body, then run in
         chunks that depend on the batch size alone (:func:`tpnet_ref.blas.split_batch`)."""
         c = self.config
-        if one:
-            frames, batch = check_window(windows, c.m, c.dim, self.dtype), 1
-        else:
-            frames, batch = check_windows(windows, c.m, c.dim, self.dtype)
+        try:    # the user's error: its traceback ends here, not deep in the checks or heads
+            if one:
+                frames, batch = check_window(windows, c.m, c.dim, self.dtype), 1
+            else:
+                frames, batch = check_windows(windows, c.m, c.dim, self.dtype)
+        except (ValueError, TypeError) as exc:
+            raise exc.with_traceback(None) from None
         warn_about_input(frames, c.norm_lo, c.norm_hi, normalized,
                          "window" if one else "windows", one)
-        return split_batch(fn, frames, batch, c.m, self.threads, normalized, *args)
+        try:
+            return split_batch(fn, frames, batch, c.m, self.threads, normalized, *args)
+        except NonFiniteResultError as exc:
+            raise exc.with_traceback(None) from None
 
     # ------------------------------------------------------------ public API
     def predict(self, window: Any, normalized: bool = False) -> np.ndarray:
