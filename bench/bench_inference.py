@@ -12,7 +12,9 @@ used to choose anything): tpnet_ref float32 and float64, onnxruntime (graph buil
 ``tpnet_ref.onnx_peer``), PyTorch eager (``tpnet_ref.torch_model``). Peers that are not
 installed are skipped and said so. The NumPy engine reads only the weight rows of units that are
 non-zero (exact on every input), so its speed depends on the input: the same comparison on a
-random network of the released shape with uniform random input is printed too. Also: trained
+random network of the released shape with uniform random input is printed too. The default
+engine's ``predict`` (one window, its one-body check included) is timed on a ring of the scene
+and on four frames of random points, each against onnxruntime on the same input. Also: trained
 (non-identity) transform nets, an 80-frame rollout against 80 independent ``predict`` calls,
 cold start and peak memory in fresh processes. Prints each figure, the ratio to each peer and
 the targets of the performance issue. The ratios to onnxruntime are medians of ratios taken

@@ -25,7 +25,8 @@ class Machine:
         self.mine += seconds * own
 
     def monitor(self) -> blas.CoreMonitor:
-        return blas.CoreMonitor(read=self.read, clock=lambda: self.t, own=lambda: self.mine)
+        return blas.CoreMonitor(read=self.read, clock=lambda: self.t, own=lambda: self.mine,
+                                count_nice=False)
 
 
 def test_a_spinning_process_is_seen_and_its_end_too(monkeypatch):
@@ -50,6 +51,15 @@ def test_niced_background_jobs_do_not_take_a_core(monkeypatch):
     mon.taken()
     m.run(0.06, others=0.0, own=1.8, niced=0.2)          # nice 19 training: yields to us
     assert not mon.taken()
+
+
+def test_niced_jobs_count_where_the_kernel_groups_by_session(monkeypatch):
+    monkeypatch.setattr(blas, "cpu_count", lambda: 2)
+    m = Machine()
+    mon = blas.CoreMonitor(read=m.read, clock=lambda: m.t, own=lambda: m.mine, count_nice=True)
+    mon.taken()
+    m.run(0.06, others=0.0, own=1.0, niced=1.0)          # autogroup: nice orders one session only
+    assert mon.taken()
 
 
 def test_proc_stat_is_read_at_most_every_sample(monkeypatch):

@@ -156,21 +156,37 @@ def _read_proc_stat() -> tuple[float, float] | None:
     return (user + system + irq + softirq + steal) / tick, nice / tick
 
 
+def _nice_counts() -> bool:
+    """Whether niced processes take cores from this one: when it is niced itself, or when Linux
+    groups processes by session (``sched_autogroup_enabled``), where nice only orders the
+    processes of one session and another session's ``nice 19`` job gets its share all the same."""
+    if hasattr(os, "nice") and os.nice(0) > 0:
+        return True
+    try:
+        with open("/proc/sys/kernel/sched_autogroup_enabled", "rb") as f:
+            return f.read().strip() == b"1"
+    except OSError:
+        return False
+
+
 class CoreMonitor:
     """How many cores other processes take now, from /proc/stat, read at most every
     :data:`SAMPLE_S` seconds (one ``time.monotonic()`` per call in between; the read itself is
     about 20 us). Other processes' time at normal priority is the busy time of all cores less
     this process's own (``os.times``); time of niced processes (a background job at ``nice 19``)
-    does not count, since they yield the core to this one, unless this process is niced itself.
+    does not count, since they yield the core to this one -- unless this process is niced itself
+    or the kernel groups processes by session (autogroup), where they do not yield
+    (:func:`_nice_counts`; ``count_nice`` overrides).
     :meth:`taken` says whether fewer than two cores are free for a call's two threads;
     :attr:`generation` counts the changes, so that a policy can drop latencies measured before
     one. Where /proc/stat cannot be read it says "free" and never changes."""
 
     def __init__(self, read: Any = _read_proc_stat, clock: Any = time.monotonic,
-                 own: Any = None, sample_s: float = SAMPLE_S) -> None:
+                 own: Any = None, sample_s: float = SAMPLE_S,
+                 count_nice: bool | None = None) -> None:
         self._read, self._clock, self.sample_s = read, clock, sample_s
         self._own = own or (lambda: sum(os.times()[:2]))
-        self._niced = hasattr(os, "nice") and os.nice(0) > 0
+        self._niced = _nice_counts() if count_nice is None else bool(count_nice)
         self._last: tuple[float, float, float] | None = None
         self._lock = threading.Lock()
         self.others = 0.0        #: other processes' cores, over the last window
