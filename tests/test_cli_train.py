@@ -47,7 +47,7 @@ RECIPE_FLAGS = {
     "ramp_epochs": ("--ramp-epochs", 1.5), "rollout": ("--rollout", 4),
     "head_init": ("--head-init", "template"), "val_windows": ("--val-windows", 9),
     "val_fraction": ("--val-fraction", 0.1), "split_seed": ("--split-seed", 2),
-    "seed": ("--seed", 11),
+    "seed": ("--seed", 11), "init": ("--init", "keras"), "windows": ("--windows", "released"),
 }
 
 
@@ -76,13 +76,13 @@ def test_every_run_flag_reaches_the_settings(fake_data, tmp_path, runs):
                  "2.5", "--budget-minutes", "3", "--checkpoint-minutes", "1",
                  "--checkpoint-part-mib", "16", "--checkpoint-optimizer", "bf16",
                  "--allow-other-scene", "--log-every", "5", "--val-every", "6",
-                 "--export", "w.h5", "--precision", "bf16", "--quiet"]) == 0
+                 "--export", "w.h5", "--precision", "bf16", "--snapshots", "--quiet"]) == 0
     kw = runs[0][3]
     want = dict(resume=False, epochs=None, device="cpu", threads=1, max_steps=7,
                 max_minutes=2.5, checkpoint_minutes=1.0, log_every=5, val_every=6,
                 progress=False, export_path="w.h5", budget_minutes=3.0,
                 checkpoint_part_mib=16.0, checkpoint_optimizer="bf16", allow_other_scene=True,
-                compile="eager", precision="bf16")
+                compile="eager", precision="bf16", snapshots=True)
     assert kw == want
     names = {f.name for f in dataclasses.fields(L.TrainSettings)}
     assert set(kw) <= names and names - set(kw) == {"limit_windows"}   # library-only setting

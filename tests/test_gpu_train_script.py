@@ -72,6 +72,28 @@ def test_two_calls_resume_from_the_parts_that_came_back(tmp_path):
     assert steps[0] == 0 and steps[-1] == 14 and steps == sorted(steps)
 
 
+def test_the_released_preset_starts_from_scratch_on_released_windows(tmp_path):
+    """PRESET=released: the grid made with --windows released, a new run with the authors'
+    recipe (Keras initialisation, constant rate, no clipping) whose Adam state comes back."""
+    work = tmp_path / "repo"
+    work.mkdir()
+    out = _call(work, OUT=str(tmp_path / "out"), PRESET="released", OPTIM="full", MATCH="0",
+                COMPILE="off", BENCH="1", BENCH_BATCHES="4 8", BENCH_COMPILE="off",
+                BATCH_AUTO="1", LR="3e-3",
+                TRAIN_ARGS="--epochs 1 --val-fraction 0.25 --val-windows 0")
+    picked = [ln for ln in out.splitlines() if ln.startswith("gpu_train: fastest batch")]
+    assert len(picked) == 1
+    batch = int(picked[0].split()[3])
+    assert batch in (4, 8) and "gpu_train: bench batch 4 compile off:" in out
+    assert (work / "data" / "grid-m4-released.h5").is_file()
+    state = json.loads((work / ".gpu" / "ci" / "checkpoint.json").read_text())
+    r = state["recipe"]
+    assert (r["init"], r["windows"], r["schedule"], r["clip"], r["warmup_steps"], r["batch"],
+            r["lr"]) == ("keras", "released", "constant", 0.0, 0, batch, 3e-3)
+    assert "optimizer_resets" not in state
+    assert len(_returned(tmp_path / "out")) >= 3
+
+
 def test_unknown_subcommand_is_refused(tmp_path):
     r = subprocess.run(["bash", str(SCRIPT), "bogus"], env={**os.environ, "WORK": str(tmp_path)},
                        capture_output=True, text=True)

@@ -1,6 +1,6 @@
 """Mixed-precision training (``precision="bf16"``): what runs in bfloat16 and what stays float32,
 the per-machine choice of ``auto``, the record a run keeps, and ``tpnet train bench``'s lines.
-Parity of the validation loss at small scale is a measurement, not a test: docs/training.md."""
+Parity of the validation loss at small scale is a measurement, not a test: docs/history.md."""
 from __future__ import annotations
 
 import json

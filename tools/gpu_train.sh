@@ -30,16 +30,34 @@
 #   WORK=the repository (where data/, .whl/, .gpu/, runs/ are; CI points it at a scratch folder)
 #   STOP_STEP= (stop this call at that global step; CI stops the first call half-way)
 #   BUDGET= (empty: no --budget-minutes; give --epochs in TRAIN_ARGS)
+#   PRESET=released: a new run from scratch with `tpnet train run --preset released` (Keras
+#   initialisation, the released windows: DATA defaults to data/grid-m$M-released.h5, made
+#   with --windows released; Adam at a constant $LR, no warm-up, no clipping, the published
+#   loss) at batch $BATCH; INIT, SHAPE, MATCH, NOISE and BUDGET are not used (the schedule is
+#   constant: the run goes on call after call); use OPTIM=full so Adam's state travels
+#   (LR defaults to the released 1e-3 there)
+#   BENCH_BATCHES="512 1024 2048" BENCH_COMPILE="off reduce-overhead": with BENCH=1, the
+#   windows/s of every pair first (the first minute of a lease); BATCH_AUTO=1 then trains a
+#   new run with the fastest pair
 set -euo pipefail
 REPO=$(cd "$(dirname "$0")/.." && pwd)
 cd "${WORK:-$REPO}"
 
 M=${M:-4}; SIZE=${SIZE:-full}; NAME=${NAME:-m$M}; INIT=${INIT-$REPO/weights/tpnet-m4.h5}
-BUDGET=${BUDGET-6.5}; MINUTES=${MINUTES:-6.5}; BATCH=${BATCH:-512}; LR=${LR:-1e-4}
+PRESET=${PRESET:-}
+BUDGET=${BUDGET-6.5}; MINUTES=${MINUTES:-6.5}; BATCH=${BATCH:-512}
+if [ "$PRESET" = released ]; then LR=${LR:-1e-3}; else LR=${LR:-1e-4}; fi
 SHAPE=${SHAPE:-4}; MATCH=${MATCH:-0}; NOISE=${NOISE:-0.001}; RECIPE=${RECIPE:-paper}
 COMPILE=${COMPILE:-off}; DEVICE=${DEVICE:-auto}; THREADS=${THREADS:-8}
 WORKERS=${WORKERS:-$(nproc)}; BENCH=${BENCH:-0}; STOP_STEP=${STOP_STEP:-}; DATA=${DATA:-data/grid-m$M.h5}
 DATA_ARGS=${DATA_ARGS:-}; TRAIN_ARGS=${TRAIN_ARGS:-}; OPTIM=${OPTIM:-none}; PY=${PY:-python3}
+BENCH_BATCHES=${BENCH_BATCHES:-$BATCH}; BENCH_COMPILE=${BENCH_COMPILE:-$COMPILE}
+BATCH_AUTO=${BATCH_AUTO:-0}
+if [ "$PRESET" = released ]; then
+    DATA=${DATA_RELEASED:-data/grid-m$M-released.h5}; DATA_ARGS="--windows released $DATA_ARGS"
+elif [ -n "$PRESET" ]; then
+    echo "gpu_train: PRESET must be empty or 'released', got '$PRESET'" >&2; exit 2
+fi
 RUN=.gpu/$NAME
 MAX_FILES=8; MAX_MIB=16
 SITE=
@@ -91,8 +109,22 @@ fi
 
 # --- 3. train --------------------------------------------------------------------------------
 if [ "$BENCH" = 1 ]; then
-    T train bench --size "$SIZE" --batch "$BATCH" --rollouts 8 --iters 10 --device "$DEVICE" \
-        --threads "$THREADS" --compile "$COMPILE" --shape-weight "$SHAPE" --match-weight "$MATCH"
+    best=0; best_b=$BATCH; best_c=$COMPILE
+    for c in $BENCH_COMPILE; do
+        for b in $BENCH_BATCHES; do
+            out=$(T train bench --size "$SIZE" --batch "$b" --rollouts 8 --iters 10 \
+                --device "$DEVICE" --threads "$THREADS" --compile "$c" --precisions float32 \
+                --shape-weight "$SHAPE" --match-weight "$MATCH")
+            echo "$out"
+            wps=$(echo "$out" | awk '/8-step loss, float32/ {print $4}')
+            echo "gpu_train: bench batch $b compile $c: $wps windows/s"
+            if awk -v a="$wps" -v b="$best" 'BEGIN { exit !(a > b) }'; then
+                best=$wps; best_b=$b; best_c=$c
+            fi
+        done
+    done
+    echo "gpu_train: fastest batch $best_b compile $best_c ($best windows/s)"
+    if [ "$BATCH_AUTO" = 1 ]; then BATCH=$best_b; COMPILE=$best_c; fi
 fi
 common=(--device "$DEVICE" --threads "$THREADS" --compile "$COMPILE" --max-minutes "$MINUTES"
         --checkpoint-part-mib "$MAX_MIB" --checkpoint-optimizer "$OPTIM" --quiet)
@@ -100,6 +132,10 @@ common=(--device "$DEVICE" --threads "$THREADS" --compile "$COMPILE" --max-minut
 budget=(); [ -n "$BUDGET" ] && budget=(--budget-minutes "$BUDGET")
 if [ -f "$RUN/checkpoint.json" ]; then
     T train run "$DATA" -o "$RUN" --resume "${common[@]}"
+elif [ "$PRESET" = released ]; then
+    # shellcheck disable=SC2086
+    T train run "$DATA" -o "$RUN" --preset released --size "$SIZE" --batch "$BATCH" --lr "$LR" \
+        --val-windows 2048 "${common[@]}" $TRAIN_ARGS
 else
     init=(--size "$SIZE"); [ -n "$INIT" ] && init=(--init-from "$INIT")
     # shellcheck disable=SC2086

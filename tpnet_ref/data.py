@@ -13,6 +13,11 @@ File layout (HDF5, written by ``tpnet data generate``)::
     /train/done             (T,) bool        trajectory written (resuming skips these)
     /train/windows          (W, 3) int64     trajectory, first frame, kind (1 wall collision,
                                              0 normal interval, 2 whole-trajectory window)
+    /train/rows             (T, S, N, 2) float32  normalised, EVERY simulator row (only in a
+                                             file made with ``windows="released"``)
+    /train/windows_released (W', 3) int64    trajectory, first simulator ROW, kind: the released
+                                             preprocessing's windows (:func:`released_windows`;
+                                             only with ``windows="released"``)
     /test/...               the 60 held-out cases, same datasets, no windows
 
 Model frame ``j`` is simulation row ``4 j``, the state after ``4 j + 1`` steps (``simulate``'s
@@ -49,6 +54,14 @@ FORMAT = "tpnet_ref.data/3"
 LEGACY_IMPULSE_POINT = "particle_centre"
 N_TARGETS = 8
 KIND_NORMAL, KIND_COLLISION, KIND_WHOLE = 0, 1, 2
+#: how windows are drawn: "model" (starts at model frames, a collision begins inside the
+#: window) or "released" (the authors' preprocessing: starts at any simulator row)
+WINDOW_MODES = ("model", "released")
+#: the released preprocessing's COLLISION_RANGE_BOUND: a window is a "collision" window when a
+#: coordinate of its FIRST frame is within this many world units of the particle-centre range
+RELEASED_COLLISION_RANGE = 0.2
+#: the released share of training trajectories kept whole (int(0.035 * 6875) = 240)
+RELEASED_WHOLE_FRACTION = 0.035
 
 
 def train_grid(forces: Sequence[float] = TRAIN_FORCES, angles: Sequence[float] = TRAIN_ANGLES_DEG,
@@ -118,6 +131,39 @@ def sample_windows(contact: np.ndarray, rng: np.random.Generator, m: int,
     return np.stack([starts, kinds], axis=1).astype(np.int64)
 
 
+def released_windows(rows: np.ndarray, rng: np.random.Generator, m: int, whole: bool = False,
+                     n_collision: int = 15, n_normal: int = 5, n_targets: int = N_TARGETS,
+                     frame_every: int = FRAME_EVERY) -> np.ndarray:
+    """``(W, 2)`` (first simulator row, kind) of one trajectory's windows as the authors'
+    preprocessing draws them (docs/spec.md §5), from its ``(S, N, 2)`` rows in normalised
+    coordinates.
+
+    A window may start at ANY row ``s`` in ``0 .. S - (m + n_targets - 1) * frame_every - 1``;
+    its frames are rows ``s, s + frame_every, ...``. It is a collision window (kind 1) when
+    some coordinate of its FIRST frame is within :data:`RELEASED_COLLISION_RANGE` world units
+    of the particle-centre range (the normalisation bounds). ``n_normal`` starts are drawn from
+    all starts (kind 0), up to ``n_collision`` from the collision starts, and a collision start
+    already drawn as a normal one is dropped (the released code meant to; its loop that removes
+    from the list it iterates keeps some). ``whole``: every start instead (kind 2)."""
+    span = (m + n_targets - 1) * frame_every
+    n_starts = len(rows) - span
+    if n_starts < 1:
+        raise ValueError(f"trajectory of {len(rows)} rows is shorter than a window "
+                         f"({span + 1} rows)")
+    starts = np.arange(n_starts)
+    if whole:
+        return np.stack([starts, np.full(n_starts, KIND_WHOLE)], axis=1).astype(np.int64)
+    bound = RELEASED_COLLISION_RANGE / (NORM_HI - NORM_LO)
+    first = rows[:n_starts].reshape(n_starts, -1)
+    near = (first.max(axis=1) >= 1.0 - bound) | (first.min(axis=1) <= bound)
+    normal = np.sort(rng.choice(starts, size=min(n_normal, n_starts), replace=False))
+    pool = starts[near]
+    coll = np.sort(rng.choice(pool, size=min(n_collision, len(pool)), replace=False))
+    coll = coll[~np.isin(coll, normal)]
+    kinds = np.concatenate([np.full(len(normal), KIND_NORMAL), np.full(len(coll), KIND_COLLISION)])
+    return np.stack([np.concatenate([normal, coll]), kinds], axis=1).astype(np.int64)
+
+
 def _draw(rng: np.random.Generator, pool: np.ndarray, k: int) -> np.ndarray:
     if k <= 0 or len(pool) == 0:
         return np.zeros(0, dtype=np.int64)
@@ -126,21 +172,24 @@ def _draw(rng: np.random.Generator, pool: np.ndarray, k: int) -> np.ndarray:
 
 # --------------------------------------------------------------------------- generation
 def _simulate_one(job: tuple[int, tuple[float, float, float, float], int, dict]) -> tuple:
-    """Worker: one trajectory -> (index, frames (F, N, 2) float64)."""
+    """Worker: one trajectory -> (index, rows (S, N, 2) float64: every simulator row)."""
     idx, (f, a, x, y), steps, scene = job
-    traj = simulate(f, a, x, y, steps, params=SceneParams(**scene))
-    return idx, traj[::FRAME_EVERY]
+    return idx, simulate(f, a, x, y, steps, params=SceneParams(**scene))
 
 
 def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, *, m: int = 4,
              steps: int = SIM_ROWS, seed: int = 0, workers: int = 1, whole: int = 0,
-             params: SceneParams | None = None, progress: bool = True) -> dict:
+             params: SceneParams | None = None, progress: bool = True,
+             windows: str = "model") -> dict:
     """Simulate ``grid`` (``(T, 4)`` force, angle, x, y) and ``test_cases`` into HDF5 ``path``.
 
     Resumable: an existing file with the same settings keeps its finished trajectories.
     Deterministic: the simulation is deterministic and windows are drawn from
     ``default_rng([seed, trajectory])``. ``whole`` trajectories (chosen with the seed) also
-    give every window start (the paper keeps 240 whole). Returns counts."""
+    give every window start (the paper keeps 240 whole). ``windows="released"`` also keeps
+    every simulator row of the training trajectories (``/train/rows``, ~1 GB for the grid) and
+    the released preprocessing's windows (``/train/windows_released``, :func:`released_windows`:
+    ``whole`` trajectories give all their row starts and no sampled window). Returns counts."""
     import h5py
 
     if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
@@ -153,6 +202,8 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     if n_frames < m + N_TARGETS:
         raise ValueError(f"steps: {steps} rows give {n_frames} frames, fewer than a window "
                          f"(m + {N_TARGETS} = {m + N_TARGETS})")
+    if windows not in WINDOW_MODES:
+        raise ValueError(f"windows: must be one of {WINDOW_MODES}, got {windows!r}")
     for name, v in (("seed", seed), ("whole", whole)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
             raise ValueError(f"{name}: must be a non-negative integer, got {v!r}")
@@ -164,6 +215,8 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
                 "whole": int(whole), "norm_lo": NORM_LO, "norm_hi": NORM_HI,
                 "scene": json.dumps(scene, sort_keys=True),
                 "impulse_point": p.impulse_point, "sleep": bool(p.sleep)}
+    if windows != "model":              # files of the default mode keep their old attributes
+        settings["windows"] = windows
     splits = {"train": _cases(grid, "grid")}
     if test_cases is not None:
         splits["test"] = _cases(test_cases, "test_cases")
@@ -189,6 +242,10 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     except OSError as exc:
         raise ValueError(f"{path}: cannot open for writing as HDF5 ({exc})") from None
     with h5 as h:
+        made = _attr(h.attrs["windows"]) if "windows" in h.attrs else "model"
+        if "train" in h and made != windows:
+            raise ValueError(f"{path}: was written with windows={made!r}, not {windows!r}; "
+                             "use another file")
         for k, v in settings.items():
             if k in h.attrs and _attr(h.attrs[k]) != v:
                 raise ValueError(f"{path}: was written with {k}={_attr(h.attrs[k])!r}, not "
@@ -208,6 +265,9 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
                 g.create_dataset("normalized", shape=shape, dtype="f4", chunks=chunks)
                 g.create_dataset("contact", shape=(t, n_frames, 4), dtype=bool)
                 g.create_dataset("done", shape=(t,), dtype=bool)
+                if split == "train" and windows == "released":
+                    g.create_dataset("rows", shape=(t, steps, n, 2), dtype="f4",
+                                     chunks=(1, steps, n, 2))
             done = g["done"][...]
             todo = [i for i in range(t) if not done[i]]
             counts[f"{split}_skipped"] = t - len(todo)
@@ -215,6 +275,9 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
             counts[f"{split}_trajectories"] = t
             if split == "train":
                 counts["train_windows"] = _write_windows(g, m, seed, whole)
+                if windows == "released":
+                    counts["train_windows_released"] = _write_released_windows(g, m, seed,
+                                                                               whole)
     return counts
 
 
@@ -242,7 +305,10 @@ def _run(g: Any, cases: np.ndarray, todo: list[int], steps: int, scene: dict, wo
         tqdm = require("tqdm", "eval", "the progress bar (pass progress=False / --quiet)")
         bar = tqdm.tqdm(total=len(jobs), desc=f"simulate {split}", unit="traj")
 
-    def store(idx: int, frames: np.ndarray) -> None:
+    def store(idx: int, rows: np.ndarray) -> None:
+        frames = rows[::FRAME_EVERY]
+        if "rows" in g:
+            g["rows"][idx] = normalize(rows).astype(np.float32)
         g["positions"][idx] = frames.astype(np.float32)
         g["normalized"][idx] = normalize(frames).astype(np.float32)
         g["contact"][idx] = wall_contact(frames, p)
@@ -283,6 +349,26 @@ def _write_windows(g: Any, m: int, seed: int, whole: int) -> int:
     if "windows" in g:
         del g["windows"]
     g.create_dataset("windows", data=win)
+    return len(win)
+
+
+def _write_released_windows(g: Any, m: int, seed: int, whole: int) -> int:
+    """``/train/windows_released``: :func:`released_windows` of every trajectory; the ``whole``
+    ones (the same trajectories as ``/train/windows``' whole ones) give every start only."""
+    rows = g["rows"]
+    t = rows.shape[0]
+    keep = set()
+    if whole:
+        keep = set(np.random.default_rng([seed, t, 7]).choice(t, size=min(whole, t),
+                                                              replace=False).tolist())
+    out = []
+    for i in range(t):
+        w = released_windows(rows[i], np.random.default_rng([seed, i, 11]), m, whole=i in keep)
+        out.append(np.column_stack([np.full(len(w), i), w]))
+    win = np.concatenate(out).astype(np.int64)
+    if "windows_released" in g:
+        del g["windows_released"]
+    g.create_dataset("windows_released", data=win)
     return len(win)
 
 
@@ -399,5 +485,5 @@ def calibration_windows(model: Any, n_trajectories: int = 36, seed: int = 0,
 
 
 __all__ = ["calibration_cases", "calibration_windows", "generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
-           "collision_frames", "sample_windows", "scene_convention", "check_scene", "FORMAT",
+           "collision_frames", "sample_windows", "released_windows", "WINDOW_MODES", "scene_convention", "check_scene", "FORMAT",
            "N_TARGETS"]

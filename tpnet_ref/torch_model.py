@@ -18,6 +18,7 @@ This module is never imported by ``predict``.
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -142,6 +143,51 @@ class TNet(nn.Module):
         for lin in self.fc:
             g = torch.relu(lin(g))
         return self.out(g).view(-1, self.k, self.k)
+
+
+def _glorot_(weight: torch.Tensor, fan_in: int, fan_out: int) -> None:
+    """Keras' glorot-uniform: U(-a, a), a = sqrt(6 / (fan_in + fan_out))."""
+    a = math.sqrt(6.0 / (fan_in + fan_out))
+    with torch.no_grad():
+        weight.uniform_(-a, a)
+
+
+def init_keras(net: "TorchTPNet") -> None:
+    """Re-initialise ``net`` as the released Keras code does (docs/spec.md §2): every per-point
+    (Conv2D), global and head (Dense) kernel glorot-uniform with a zero bias; each LSTM's
+    kernel glorot-uniform over its fused ``(in, 4u)`` shape, its recurrent kernel orthogonal
+    over the whole ``(u, 4u)`` matrix (rows orthonormal: ``weight_hh`` ``(4u, u)`` has
+    orthonormal columns), its bias zero but the forget gate's 1 (``unit_forget_bias``);
+    LayerNorm gamma 1, beta 0. Keras computes a Conv2D kernel ``(kh, kw, in, out)``'s fans with
+    its receptive field ``kh * kw``: the first per-point layer is a ``(1, dim)`` convolution
+    over a ``(N, dim, 1)`` image, so its fans are ``dim`` and ``out * dim``. The transform
+    nets' last layers stay as built (zero weights, identity bias: the released code's
+    untracked variables). Draws from torch's global generator (seed it first)."""
+    dim = net.config.dim
+    firsts = {id(net.mlp1[0])}
+    if net.input_tnet is not None:
+        firsts.add(id(net.input_tnet.mlp[0]))
+    keep = {id(t.out) for t in net.modules() if isinstance(t, TNet)}
+    for mod in net.modules():
+        if isinstance(mod, nn.Linear) and id(mod) not in keep:
+            fan_in, fan_out = mod.in_features, mod.out_features
+            if id(mod) in firsts:
+                fan_out *= dim
+            _glorot_(mod.weight, fan_in, fan_out)
+            nn.init.zeros_(mod.bias)
+        elif isinstance(mod, BiLSTM):
+            u = mod.units
+            for sfx in ("_l0", "_l0_reverse"):
+                w_ih = getattr(mod, "weight_ih" + sfx)
+                _glorot_(w_ih, w_ih.shape[1], 4 * u)
+                nn.init.orthogonal_(getattr(mod, "weight_hh" + sfx))
+                with torch.no_grad():
+                    getattr(mod, "bias_ih" + sfx).zero_()
+                    getattr(mod, "bias_ih" + sfx)[u:2 * u] = 1.0
+                    getattr(mod, "bias_hh" + sfx).zero_()
+        elif isinstance(mod, nn.LayerNorm):
+            nn.init.ones_(mod.weight)
+            nn.init.zeros_(mod.bias)
 
 
 class TorchTPNet(nn.Module):
@@ -317,5 +363,5 @@ def matched_distance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return per.view(p.shape[:-2]).mean(dim=0)
 
 
-__all__ = ["TorchTPNet", "BiLSTM", "TNet", "chamfer_released", "chamfer_shape",
+__all__ = ["TorchTPNet", "BiLSTM", "TNet", "init_keras", "chamfer_released", "chamfer_shape",
            "matched_distance", "TORCH_FORMAT"]

@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.cli.specialize",   # specialize
     "tpnet_ref.cli.observe",      # observe
     "tpnet_ref.cli.export",       # export onnx
+    "tpnet_ref.cli.crosscheck",   # vectors, crosscheck
 )
 
 

@@ -27,6 +27,22 @@ _COMPILE_HELP = ("capture the step's loss with torch.compile: auto (reduce-overh
                  "TorchDynamo, eager kernels: proves on the CPU that the step traces), off")
 
 
+#: ``--preset NAME``: recipe fields set unless the option is given explicitly
+PRESETS: dict[str, dict[str, Any]] = {
+    "released": dict(recipe="paper", init="keras", windows="released", schedule="constant",
+                     lr=1e-3, batch=128, beta1=0.99, beta2=0.999, adam_eps=1e-7,
+                     warmup_steps=0, clip=0.0, noise=0.0, shape_weight=0.0, match_weight=0.0,
+                     rollout=N_STEPS_MAX, head_init="default"),
+}
+
+
+def apply_preset(args: argparse.Namespace, parser_defaults: dict[str, Any]) -> None:
+    """Set the preset's fields on ``args`` where they still hold the parser's default."""
+    for k, v in PRESETS.get(getattr(args, "preset", None) or "", {}).items():
+        if getattr(args, k) == parser_defaults.get(k):
+            setattr(args, k, v)
+
+
 def add_cli(sub: Any) -> None:
     p = sub.add_parser("train", help="train TP-Net in PyTorch (train extra) and export weights")
     tsub = p.add_subparsers(dest="train_command", metavar="TRAIN_COMMAND")
@@ -94,6 +110,19 @@ def _add_run(tsub: Any) -> None:
                         f"longer: only windows with that many frames after their inputs)")
     q.add_argument("--head-init", choices=("default", "template"), default=d.head_init,
                    help="template: the untrained head outputs a ring of the body's size")
+    q.add_argument("--init", choices=("torch", "keras"), default=d.init,
+                   help="initialisation of a new run: torch (nn.Linear defaults) or keras (the "
+                        "released code's: glorot-uniform kernels, zero biases, orthogonal "
+                        "recurrent kernels, forget-gate bias 1) (default: %(default)s)")
+    q.add_argument("--windows", choices=("model", "released"), default=d.windows,
+                   help="training windows: model (starts at model frames) or released (the "
+                        "authors' preprocessing: starts at any simulator row; needs a file "
+                        "from `tpnet data generate --windows released`) (default: %(default)s)")
+    q.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="released: the authors' recipe as released (the published 8-step "
+                        "loss from scratch, Keras initialisation, released windows, Adam at a "
+                        "constant 1e-3, batch 128, no warm-up, no clipping, no extra terms); "
+                        "options given explicitly still win")
     q.add_argument("--init-from", default=d.init_from, metavar="RUN_DIR|WEIGHTS.h5",
                    help="fine-tune: start from this run's weights or a native weights file "
                         "(fresh optimizer and schedule; its network is used, --size is ignored)")
@@ -131,10 +160,13 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--log-every", type=int, default=50, help="steps between train-loss log lines")
     q.add_argument("--val-every", type=int, default=None,
                    help="also validate every N steps (default: at epoch ends only)")
+    q.add_argument("--snapshots", action="store_true",
+                   help="after every validation also write RUN_DIR/snapshots/step-NNNNNNN.h5 "
+                        "(native weights, for learning curves: tpnet train score)")
     q.add_argument("--export", default=None, metavar="OUT.h5",
                    help="when the run completes, write the native weights file")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
-    q.set_defaults(func=_cli_run)
+    q.set_defaults(func=_cli_run, _run_defaults={a.dest: a.default for a in q._actions})
 
 
 def _add_export(tsub: Any) -> None:
@@ -225,6 +257,7 @@ def _cli_run(args: argparse.Namespace) -> int:
     from ..training.recipe import Recipe, size_config
 
     recipe = None
+    apply_preset(args, args._run_defaults)
     if not args.resume:
         if not Path(args.data).is_file():
             raise FileNotFoundError(f"dataset not found: {args.data}")
@@ -239,7 +272,8 @@ def _cli_run(args: argparse.Namespace) -> int:
                         warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
                         shape_weight=args.shape_weight, match_weight=args.match_weight,
                         pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
-                        rollout=args.rollout, head_init=args.head_init, init_from=args.init_from,
+                        rollout=args.rollout, head_init=args.head_init, init=args.init,
+                        windows=args.windows, init_from=args.init_from,
                         val_windows=args.val_windows, val_fraction=args.val_fraction, split_seed=args.split_seed,
                         seed=args.seed, config=cfg.to_dict())
     st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,
@@ -250,7 +284,7 @@ def _cli_run(args: argparse.Namespace) -> int:
                checkpoint_part_mib=args.checkpoint_part_mib,
                checkpoint_optimizer=args.checkpoint_optimizer,
                allow_other_scene=args.allow_other_scene, compile=args.compile,
-               precision=args.precision)
+               precision=args.precision, snapshots=args.snapshots)
     print(f"{args.run_dir}: step {st['step']}/{st['total_steps']} ({st['stopped']}), "
           f"{st['windows_seen']} windows seen, {st['wall_s']:.0f} s, last validation "
           + json.dumps(st.get("last_val", {})))

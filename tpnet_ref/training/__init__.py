@@ -14,7 +14,7 @@
   average carries of its parents (both NumPy only).
 
 The command line is ``tpnet train run|export|average|bench|score|baselines`` (:mod:`tpnet_ref.cli.train`);
-the recipe and the runs are in ``docs/training.md``. Importing this package needs nothing but
+the recipe is in ``docs/training.md``, the runs in ``docs/history.md``. Importing this package needs nothing but
 NumPy: the names below are imported at first use, and those that need torch say so in one line
 when it is missing.
 """

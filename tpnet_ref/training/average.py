@@ -2,7 +2,7 @@
 
 Fine-tunes of one network that started from the same weights stay in one basin of the loss:
 the mean of their parameters is often better than each of them (Wortsman et al. 2022, "Model
-soups"). Here the shipped m = 4 file and its fine-tune on a GPU (``docs/training.md``, "Weight
+soups"). Here the shipped m = 4 file and its fine-tune on a GPU (``docs/history.md``, "Weight
 averaging") averaged half and half scored better on the validation trajectories at 40 and 80
 predictions than either file alone.
 

@@ -40,7 +40,7 @@ from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, load_checkpoint, load_pa
                          save_checkpoint)
 from .lineage import inherited
 from .recipe import N_STEPS_MAX, Recipe, WindowData
-from ..torch_model import TorchTPNet, chamfer_released, chamfer_shape
+from ..torch_model import TorchTPNet, chamfer_released, chamfer_shape, init_keras
 
 torch = require("torch", "train")
 
@@ -190,6 +190,45 @@ def init_head_template(net: Any, data: "WindowData", weight_scale: float = 0.1) 
 
 
 # ------------------------------------------------------------------------------------- eval
+def dead_units(net: Any, x: Any) -> dict[str, int]:
+    """Units that are zero on every input of ``x`` (``(B, m, N, dim)`` windows): per ReLU
+    layer of the feature extractor (a per-point unit counts as dead when it is <= 0 at every
+    point of every frame; such a unit gets no gradient) and per BiLSTM (both directions'
+    outputs; with the ReLU cell a unit whose cell state never turns positive), each
+    ``{layer: dead}`` with ``{layer + "/of": units}`` beside it."""
+    out: dict[str, int] = {}
+
+    def count(name: str, a: Any) -> None:
+        alive = (a.reshape(-1, a.shape[-1]) > 0).any(dim=0)
+        out[name] = int((~alive).sum())
+        out[name + "/of"] = int(alive.numel())
+
+    was = net.training
+    net.eval()
+    with torch.no_grad():
+        b, m = x.shape[:2]
+        h = x.reshape(b * m, *x.shape[2:])
+        if net.input_tnet is not None:
+            h = torch.bmm(h, net.input_tnet(h))
+        for i, lin in enumerate(net.mlp1):
+            h = torch.relu(lin(h))
+            count(f"mlp1.{i}", h)
+        if net.feature_tnet is not None:
+            h = torch.bmm(h, net.feature_tnet(h))
+        for i, lin in enumerate(net.mlp2):
+            h = torch.relu(lin(h))
+            count(f"mlp2.{i}", h)
+        g = torch.relu(net.global_fc(h.amax(dim=1)))
+        count("global", g)
+        s = g.reshape(b, m, -1)
+        for i in range(1, len(net.config.lstm_units) + 1):
+            s = getattr(net, f"lstm{i}")(s)
+            count(f"lstm{i}", s)
+            s = getattr(net, f"ln{i}")(s)
+    net.train(was)
+    return out
+
+
 def evaluate(net: Any, data: WindowData, wins: np.ndarray, r: Recipe, device: str,
              batch: int = 256) -> dict[str, float]:
     """Validation: the recipe's ``r.rollout``-step loss (weights ``first_weight``, 1, ...; with
@@ -255,6 +294,8 @@ class TrainSettings:
     - ``log_every``: steps between train-loss records of ``log.jsonl``; ``val_every``: also
       validate every that many steps (None: at epoch ends only; on resume: the run's).
     - ``limit_windows``: use only that many windows of the dataset; ``progress``: a tqdm bar.
+    - ``snapshots``: after every validation's checkpoint, also export the native weights file
+      ``snapshots/step-NNNNNNN.h5`` (learning curves scored later with ``tpnet train score``).
     - ``export_path``: when the run completes, write the native weights file (:func:`export`).
     - ``budget_minutes`` (new runs only): fit the run to a wall-clock budget on this device: a
       few steps of the longest loss (``r.rollout`` predictions, batch ``r.batch``) are timed on
@@ -290,6 +331,7 @@ class TrainSettings:
     allow_other_scene: bool = False
     compile: str = "off"
     precision: str = "float32"
+    snapshots: bool = False
 
 
 def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Recipe | None = None,
@@ -337,7 +379,8 @@ def _start_state(run_dir: Path, recipe: Recipe | None,
 
 def _load_data(data_path: str | os.PathLike, r: Recipe, s: TrainSettings) -> WindowData:
     data = WindowData(data_path, r.val_fraction, r.split_seed, s.limit_windows,
-                      s.allow_other_scene, horizon=max(N_STEPS_MAX, r.rollout))
+                      s.allow_other_scene, horizon=max(N_STEPS_MAX, r.rollout),
+                      windows=r.windows)
     if data.m != r.tpnet_config.m:
         raise ValueError(f"dataset has m={data.m}, the recipe's network m={r.tpnet_config.m}")
     if len(data.train_win) == 0:
@@ -351,7 +394,10 @@ def _build_network(r: Recipe, dev: str, data: WindowData, payload: dict | None,
     (resume), the parent's weights (``init_from``) or the template head."""
     cfg = r.tpnet_config
     torch.manual_seed(r.seed)
-    net = TorchTPNet(cfg).to(dev)
+    net = TorchTPNet(cfg)
+    if payload is None and not r.init_from and r.init == "keras":
+        init_keras(net)
+    net = net.to(dev)
     if payload is None and r.init_from:
         parent, pstate, pcfg = load_parent(r.init_from)
         # the weights do not depend on m (the LSTMs run over any number of frames), so a
@@ -454,12 +500,20 @@ class _Run:
         if state["step"] == 0 and not s.resume:
             ev = evaluate(self.net, self.data, self.val_win, r, self.dev)
             _log(run_dir, {"kind": "val", "step": 0, "epoch": 0.0, "windows_seen": 0,
-                           "wall_s": 0.0, **ev})
+                           "wall_s": 0.0, **ev, "dead": self.dead()})
             state["last_val"] = ev
         self.stop_step = self.total if s.max_steps is None else min(self.total, int(s.max_steps))
         self.deadline = None if max_minutes is None else self.t_start + 60.0 * max_minutes
         self.wall0 = state["wall_s"]
         self.last_ckpt = time.perf_counter()
+
+    def dead(self) -> dict[str, int]:
+        """:func:`dead_units` over the inputs of (at most 1,024 of) the validation windows."""
+        wins = self.val_win[:: max(1, len(self.val_win) // 1024)][:1024]
+        if len(wins) == 0:
+            return {}
+        x, _ = self.data.gather(wins)
+        return dead_units(self.net, torch.from_numpy(x).to(self.dev))
 
     def _fit_budget(self, minutes: float) -> None:
         """Set the run's epochs to 90 % of what ``minutes`` allow at the benchmarked rate."""
@@ -577,6 +631,9 @@ class _Run:
         if epoch_end or (self.val_every and step % self.val_every == 0):
             self.validate(n_steps, lr, epoch_end, bar)
             self.checkpoint()
+            if self.s.snapshots:
+                (self.run_dir / "snapshots").mkdir(exist_ok=True)
+                export(self.run_dir, self.run_dir / "snapshots" / f"step-{step:07d}.h5")
         elif time.perf_counter() - self.last_ckpt > 60.0 * self.s.checkpoint_minutes:
             self.checkpoint()
 
@@ -588,7 +645,8 @@ class _Run:
         n = max(1, state["epoch_loss_n"])
         rec = {"kind": "val", "step": state["step"], "epoch": state["step"] / self.spe,
                "train_loss": state["epoch_loss_sum"] / n, "rollout": n_steps, "lr": lr,
-               "windows_seen": state["windows_seen"], "wall_s": self.wall(), **ev}
+               "windows_seen": state["windows_seen"], "wall_s": self.wall(), **ev,
+               "dead": self.dead()}
         _log(self.run_dir, rec)
         state["last_val"] = ev
         if epoch_end:

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..config import TPNetConfig
 from ..data import N_TARGETS, check_scene
+from ..protocol import FRAME_EVERY
 
 #: the published recursive loss: 8 predictions (the dataset's targets per window)
 N_STEPS_MAX = N_TARGETS
@@ -62,6 +63,8 @@ class Recipe:
     pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
     head_init: str = "default"          # "default" or "template" (output bias = a ring, see below)
+    init: str = "torch"                 # "torch" (nn.Linear defaults) or "keras" (released)
+    windows: str = "model"              # "model" or "released" (tpnet_ref.data.released_windows)
     init_from: str = ""                 # fine-tune: start from this run's (or .h5 file's) weights
     val_windows: int = 0                # validate on this many evenly spaced windows (0: all)
     val_fraction: float = 0.05
@@ -78,6 +81,10 @@ class Recipe:
             raise ValueError("epochs must be > 0 and batch >= 1")
         if self.head_init not in ("default", "template"):
             raise ValueError(f"head_init must be 'default' or 'template', got {self.head_init!r}")
+        if self.init not in ("torch", "keras"):
+            raise ValueError(f"init must be 'torch' or 'keras', got {self.init!r}")
+        if self.windows not in ("model", "released"):
+            raise ValueError(f"windows must be 'model' or 'released', got {self.windows!r}")
         if self.val_windows < 0:
             raise ValueError("val_windows must be >= 0")
         if not 1 <= self.rollout <= N_ROLLOUT_MAX:
@@ -153,11 +160,18 @@ class WindowData:
     (the file's windows stop 8 frames before a trajectory's end). Train/validation split by
     trajectory, the same for every ``horizon``. A file made with another scene convention than
     the simulator's default is refused unless ``allow_other_scene``
-    (:func:`tpnet_ref.data.check_scene`)."""
+    (:func:`tpnet_ref.data.check_scene`).
+
+    ``windows="released"`` trains on the released preprocessing's windows
+    (``/train/windows_released``: starts at any simulator row, frames ``FRAME_EVERY`` rows
+    apart) of a file made with ``tpnet data generate --windows released``; the validation
+    windows stay the model-frame windows of the validation trajectories, so runs of both modes
+    are scored on the same windows. Internally every window is then ``(trajectory, first
+    row, kind)``."""
 
     def __init__(self, path: str | os.PathLike, val_fraction: float, seed: int,
                  limit_windows: int | None = None, allow_other_scene: bool = False,
-                 horizon: int = N_STEPS_MAX) -> None:
+                 horizon: int = N_STEPS_MAX, windows: str = "model") -> None:
         import h5py
 
         if not Path(path).is_file():
@@ -174,7 +188,17 @@ class WindowData:
                 raise ValueError(f"{path}: /train is incomplete; run generate again to finish it")
             self.frames = g["normalized"][...]
             win = g["windows"][...]
+            self.rows = None
+            if windows == "released":
+                if "windows_released" not in g or "rows" not in g:
+                    raise ValueError(f"{path}: has no released windows; make it with "
+                                     "`tpnet data generate --windows released`")
+                self.rows = g["rows"][...]
+                released = g["windows_released"][...]
+            elif windows != "model":
+                raise ValueError(f"windows must be 'model' or 'released', got {windows!r}")
         self.path = str(path)
+        self.windows = windows
         n_traj = self.frames.shape[0]
         n_val = int(round(val_fraction * n_traj))
         if val_fraction > 0:
@@ -187,21 +211,31 @@ class WindowData:
             raise ValueError(f"horizon must be in 1..{N_ROLLOUT_MAX}, got {horizon}")
         if horizon > self.n_targets:
             win = win[win[:, 1] + self.m + horizon <= self.frames.shape[1]]
+            if self.rows is not None:
+                span = (self.m + horizon - 1) * FRAME_EVERY
+                released = released[released[:, 1] + span < self.rows.shape[1]]
             self.n_targets = int(horizon)
         is_val = np.isin(win[:, 0], self.val_traj)
         self.train_win = win[~is_val]
         self.val_win = win[is_val]
+        if self.rows is not None:       # every window as (trajectory, first row, kind)
+            self.train_win = released[~np.isin(released[:, 0], self.val_traj)]
+            self.val_win = self.val_win * np.array([1, FRAME_EVERY, 1])
         if limit_windows is not None:
             self.train_win = self.train_win[:limit_windows]
             self.val_win = self.val_win[:limit_windows]
         self._offs = np.arange(self.m + self.n_targets)
 
     def gather(self, win: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        f = self.frames[win[:, 0:1], win[:, 1:2] + self._offs[None, :]]
+        if self.rows is not None:
+            f = self.rows[win[:, 0:1], win[:, 1:2] + FRAME_EVERY * self._offs[None, :]]
+        else:
+            f = self.frames[win[:, 0:1], win[:, 1:2] + self._offs[None, :]]
         return f[:, :self.m], f[:, self.m:]
 
     def describe(self) -> str:
-        return (f"{self.path}: {self.frames.shape[0]} trajectories, {len(self.train_win)} train "
+        return (f"{self.path}: {self.frames.shape[0]} trajectories, {len(self.train_win)} "
+                f"{'released ' if self.rows is not None else ''}train "
                 f"windows, {len(self.val_win)} validation windows ({len(self.val_traj)} "
                 f"trajectories), m={self.m}")
 

@@ -1,0 +1,144 @@
+"""Learning curves of training runs side by side: validation E_p@40 / E_p@80 of every snapshot
+and the dead units per layer, against the windows seen and the wall time.
+
+Each RUN is a ``tpnet train run ... --snapshots`` directory (its ``snapshots/step-*.h5`` and
+``log.jsonl``). Every snapshot is scored with the test protocol on the validation trajectories
+of DATA (:func:`tpnet_ref.training.score.score_rollouts`: frames 0..m-1 in, 80 recursive
+predictions, released reading; never the 60 test cases); scores are cached in
+``RUN/snapshots/scores.json`` so a rerun scores only new snapshots.
+
+    python tools/recipe_curves.py data/grid-m4.h5 released=runs/q-released \\
+        current=runs/q-current --png docs/recipe_curves.png --csv docs/recipe_curves.csv
+
+Prints one row per snapshot (run, step, windows seen, wall time, E_p@40, E_p@80, E_s@80,
+val_cd8, dead units of each layer) and the copy-last baseline.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from tpnet_ref.training.recipe import WindowData
+from tpnet_ref.training.score import score_rollouts
+
+LAYERS = ("mlp1.0", "mlp1.1", "mlp2.0", "mlp2.1", "mlp2.2", "global", "lstm1", "lstm2", "lstm3")
+
+
+def _val_records(run: Path) -> dict[int, dict]:
+    out = {}
+    for line in (run / "log.jsonl").read_text().splitlines():
+        rec = json.loads(line)
+        if rec.get("kind") == "val":
+            out[int(rec["step"])] = rec
+    return out
+
+
+def run_rows(data: WindowData, label: str, run: Path) -> list[dict]:
+    """One row per snapshot of ``run`` (scored now or read from its cache)."""
+    snaps = sorted((run / "snapshots").glob("step-*.h5"))
+    cache_path = run / "snapshots" / "scores.json"
+    cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
+    todo = [s for s in snaps if s.name not in cache]
+    if todo:
+        scores = score_rollouts(data, [str(s) for s in todo])
+        for s in todo:
+            cache[s.name] = scores[str(s)]
+        cache["copy last"] = scores["copy last"]
+        cache_path.write_text(json.dumps(cache, indent=1, sort_keys=True))
+    vals = _val_records(run)
+    rows = []
+    for s in snaps:
+        step = int(s.stem.split("-")[1])
+        rec = vals.get(step, {})
+        dead = rec.get("dead", {})
+        rows.append({"run": label, "step": step, "windows_seen": rec.get("windows_seen"),
+                     "wall_s": rec.get("wall_s"), **cache[s.name],
+                     "val_cd8": rec.get("val_cd8"),
+                     **{f"dead {k}": dead.get(k) for k in LAYERS},
+                     **{f"units {k}": dead.get(k + "/of") for k in LAYERS}})
+    return rows, cache.get("copy last")
+
+
+def plot(rows: list[dict], copy_last: dict | None, path: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    runs = list(dict.fromkeys(r["run"] for r in rows))
+    for label in runs:
+        rr = [r for r in rows if r["run"] == label]
+        w = np.array([r["windows_seen"] / 1e6 for r in rr])
+        for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
+            ax.plot(w, [r[key] for r in rr], "o-", label=label)
+        per_point = np.array([sum(r[f"dead {k}"] or 0 for k in LAYERS[:6]) for r in rr])
+        total = sum(rr[0][f"units {k}"] or 0 for k in LAYERS[:6])
+        axes[2].plot(w, 100 * per_point / max(1, total), "o-", label=f"{label}: feature extractor")
+        axes[2].plot(w, [100 * (r["dead global"] or 0) / max(1, r["units global"] or 1)
+                         for r in rr], "s--", label=f"{label}: global layer")
+    for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
+        if copy_last:
+            ax.axhline(copy_last[key], color="grey", ls=":", label="copy last")
+        ax.set_yscale("log")
+        ax.set_xlabel("training windows seen (millions)")
+        ax.set_ylabel(f"validation {key.replace('@', ' @')} (released reading)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[2].set_xlabel("training windows seen (millions)")
+    axes[2].set_ylabel("dead ReLU units (% of the layer(s))")
+    axes[2].grid(alpha=0.3)
+    axes[2].legend(fontsize=7)
+    fig.suptitle("Quarter size from scratch: validation trajectories (356), 80 recursive "
+                 "predictions; dead units on 1,024 validation windows")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("data", help="the grid file (tpnet data generate) whose validation "
+                                 "trajectories score the snapshots")
+    ap.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR",
+                    help="run directories made with --snapshots, each with a label")
+    ap.add_argument("--png", default=None, help="write the curves to this PNG")
+    ap.add_argument("--csv", default=None, help="write the rows to this CSV")
+    args = ap.parse_args(argv)
+    # an early snapshot's rollouts leave the trained range on purpose: no warning per case
+    warnings.filterwarnings("ignore", module="tpnet_ref")
+    warnings.filterwarnings("ignore", message=".*training range.*")
+    warnings.filterwarnings("ignore", message=".*one body.*")
+    data = WindowData(args.data, 0.05, 0)
+    rows, copy_last = [], None
+    for spec in args.runs:
+        if "=" not in spec:
+            ap.error(f"{spec!r}: expected LABEL=RUN_DIR")
+        label, run = spec.split("=", 1)
+        if not (Path(run) / "snapshots").is_dir():
+            ap.error(f"{run}: no snapshots/ (train with --snapshots)")
+        r, copy_last = run_rows(data, label, Path(run))
+        rows += r
+    cols = ["run", "step", "windows_seen", "wall_s", "Ep@40", "Ep@80", "Es@80", "val_cd8",
+            *(f"dead {k}" for k in LAYERS)]
+    print(" | ".join(cols))
+    for r in rows:
+        print(" | ".join(f"{r[c]:.4g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
+    if copy_last:
+        print("copy last: " + ", ".join(f"{k} {v:.4g}" for k, v in copy_last.items()))
+    if args.csv:
+        with open(args.csv, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    if args.png:
+        plot(rows, copy_last, args.png)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
