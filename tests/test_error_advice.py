@@ -184,3 +184,18 @@ def test_a_usage_error_points_at_help_and_help_works(capsys):
 def test_dtype_must_be_float32_or_float64(model):
     with pytest.raises(ValueError, match="'float32' or 'float64'"):
         tpnet_ref.predict(_window(), model=model, dtype="float16")
+
+
+def test_frames_without_a_frame_rate_say_pass_fps_and_that_works(tmp_path, capsys):
+    pytest.importorskip("pymunk")
+    pytest.importorskip("cv2")
+    frames = tmp_path / "frames"
+    assert main(["sim", "render", "--steps", "20", "--size", "320", "-o", str(frames)]) == 0
+    capsys.readouterr()
+    camera = "7.111,312.9,312.9"                  # given by hand: no calibration file, no fps
+    out = str(tmp_path / "w.npy")
+    assert main(["observe", str(frames), "--camera", camera, "-o", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.endswith("frame rate unknown; pass --fps")
+    assert main(["observe", str(frames), "--camera", camera, "--fps", "45", "-o", out]) == 0
+    assert np.load(out).shape == (4, 30, 2)
