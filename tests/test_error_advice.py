@@ -199,3 +199,19 @@ def test_frames_without_a_frame_rate_say_pass_fps_and_that_works(tmp_path, capsy
     assert err.count("\n") == 0 and err.endswith("frame rate unknown; pass --fps")
     assert main(["observe", str(frames), "--camera", camera, "--fps", "45", "-o", out]) == 0
     assert np.load(out).shape == (4, 30, 2)
+
+
+def test_a_file_without_a_digest_says_scrub_provenance_and_that_adds_one(tmp_path, capsys):
+    import h5py
+    from tpnet_ref.native import DIGEST_ATTR, UnverifiedFileWarning
+    src, dst = tmp_path / "old.h5", tmp_path / "new.h5"
+    shutil.copy(tpnet_ref.native.shipped_weights_path(4, "quarter"), src)
+    with h5py.File(src, "r+") as f:                   # as written before digests existed
+        del f.attrs[DIGEST_ATTR]
+    with pytest.warns(UnverifiedFileWarning, match="`tpnet scrub-provenance SRC DST`") as rec:
+        tpnet_ref.load(src, engine="numpy")
+    _one_line(rec[0].message)
+    assert main(["scrub-provenance", str(src), str(dst)]) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tpnet_ref.load(dst, engine="numpy")
