@@ -12,7 +12,9 @@ used to choose anything): tpnet_ref float32 and float64, onnxruntime (graph buil
 ``tpnet_ref.onnx_peer``), PyTorch eager (``tpnet_ref.torch_model``). Peers that are not
 installed are skipped and said so. The NumPy engine reads only the weight rows of units that are
 non-zero (exact on every input), so its speed depends on the input: the same comparison on a
-random network of the released shape with uniform random input is printed too. Also: trained
+random network of the released shape with uniform random input is printed too. The default
+engine's ``predict`` (one window, its one-body check included) is timed on a ring of the scene
+and on four frames of random points, each against onnxruntime on the same input. Also: trained
 (non-identity) transform nets, an 80-frame rollout against 80 independent ``predict`` calls,
 cold start and peak memory in fresh processes. Prints each figure, the ratio to each peer and
 the targets of the performance issue. The ratios to onnxruntime are medians of ratios taken
@@ -54,6 +56,7 @@ import numpy as np  # noqa: E402
 
 import tpnet_ref  # noqa: E402
 from _common import TEST_CASE_B1, machine, scene_windows  # noqa: E402
+from tpnet_ref.blas import adaptive  # noqa: E402
 from tpnet_ref.checks import OutsideTrainingRangeWarning  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
 
@@ -238,11 +241,17 @@ def main(argv: list[str] | None = None) -> int:
         if nb32 is not None:
             b1["numba"] = lambda: nb32.predict_batch(x1, normalized=True)
             b256["numba"] = lambda: nb32.predict_batch(x256, normalized=True)
+            # what tpnet_ref.predict runs: one window, its one-body check included; a ring of
+            # the scene and four frames of random points (the checks' cost must not depend on it)
+            b1["numba predict(), ring"] = lambda: nb32.predict(x1[0], normalized=True)
+            b1["numba predict(), random points"] = lambda: nb32.predict(r1[0], normalized=True)
+            b1["onnxruntime, random points"] = lambda: ort_fn(r1)
         alt = {"b1": alternate(b1, 8, t_min / 4, 20), "b256": alternate(b256, 6, t_min / 2, 3)}
         for k in b1:
-            print(f"  {k:38s} B=1 {np.median(alt['b1'][k]) * 1e3:7.3f} ms   "
-                  f"B=256 {256 / np.median(alt['b256'][k]):8.1f} windows/s   "
-                  f"(medians of {len(alt['b1'][k])} and {len(alt['b256'][k])} rounds)")
+            thr = (f"B=256 {256 / np.median(alt['b256'][k]):8.1f} windows/s   " if k in b256
+                   else " " * 32)
+            print(f"  {k:38s} B=1 {np.median(alt['b1'][k]) * 1e3:7.3f} ms   {thr}"
+                  f"(medians of {len(alt['b1'][k])} rounds)")
     print("\nthe same on a random network of the released shape, uniform random input:")
     measure("tpnet_ref float32, random network", lambda x: m_rand.predict_batch(x, normalized=True),
             (r1, r256))
@@ -286,16 +295,22 @@ def main(argv: list[str] | None = None) -> int:
         print("\nB = 1 latency with one core busy (a second process spinning), interleaved with idle:")
         def busy_idle(model, label: str) -> float:
             points = int(np.prod(x1.shape[1:3]))
-            name = {1: "one thread", 0: "two threads", None: "one thread (no choice to make)"}
+            name = {1: "one thread", 0: "two threads", None: "not measured yet"}
+
+            def plan() -> str:
+                if adaptive.monitor is not None and adaptive.monitor.taken():
+                    return f"one thread (other core taken: {adaptive.monitor.others:.1f})"
+                return name[model.preferred_threads("predict", 1, points)]
+
             idle_t, busy_t, chose = [], [], {"idle": [], "busy": []}
             for _ in range(BUSY_ROUNDS):       # short paired rounds: the VM's speed drifts
                 idle_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 4, 20))
-                chose["idle"].append(name[model.preferred_threads("predict", 1, points)])
+                chose["idle"].append(plan())
                 spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
                 try:
                     time.sleep(0.2)
                     busy_t.append(timeit(lambda: model.predict(x1[0], normalized=True), t_min / 4, 20))
-                    chose["busy"].append(name[model.preferred_threads("predict", 1, points)])
+                    chose["busy"].append(plan())
                 finally:
                     spin.kill()
                     spin.wait()
@@ -303,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {label}: idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
                   f"-> {ratio:.2f}x (median of {BUSY_ROUNDS} rounds' busy/idle: "
                   + ", ".join(f"{b / i:.2f}" for b, i in zip(busy_t, idle_t)) + ")")
-            print(f"    plan the policy (tpnet_ref.blas.adaptive) measured faster, round by round: "
+            print(f"    plan of the policy (tpnet_ref.blas.adaptive) at each block's end: "
                   f"idle {', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
             return ratio
 
@@ -378,7 +393,14 @@ def main(argv: list[str] | None = None) -> int:
                     ("cold start seconds, first process after installing", nb_first),
                     ("float64 / float32 time, B=1 (target <= 2.5)",
                      r["tpnet_ref float64, engine=numba"]["b1_ms"] / nb["b1_ms"]),
-                    ("B=1 latency / engine=numpy B=1 latency", paired(alt["b1"], "numba", "numpy"))]
+                    ("B=1 latency / engine=numpy B=1 latency", paired(alt["b1"], "numba", "numpy")),
+                    ("B=1 predict(), scene ring / onnxruntime (target <= 0.75)",
+                     paired(alt["b1"], "numba predict(), ring", "onnxruntime")),
+                    ("B=1 predict(), random points / onnxruntime (target <= 0.75)",
+                     paired(alt["b1"], "numba predict(), random points",
+                            "onnxruntime, random points")),
+                    ("B=1 predict(), random points / ring",
+                     paired(alt["b1"], "numba predict(), random points", "numba predict(), ring"))]
         print(f"\nratios and targets, engine=numba (the default where numba is installed; "
               f"batches above {ENGINE_MAX_BATCH} windows take NumPy's feature extractor):")
         for label, val in nchecks:

@@ -88,10 +88,20 @@ def comparisons(w: np.ndarray, engines: tuple[str, ...]) -> dict:
     return out
 
 
+def _determinism_probe():
+    """``tests/determinism_probe.py`` loaded from its path (it lists the kernels this CPU runs),
+    without putting ``tests/`` on ``sys.path``."""
+    import importlib.util
+    path = Path(__file__).resolve().parents[1] / "tests" / "determinism_probe.py"
+    spec = importlib.util.spec_from_file_location("determinism_probe", path)
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    return probe
+
+
 def kernels(w: np.ndarray) -> dict:
     """Each OpenBLAS kernel this CPU runs (a fresh process each) against the default."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    import determinism_probe as probe
+    probe = _determinism_probe()
     runnable = [k for k, why in probe.runnable_kernels().items() if not why]
     res, out = {}, {}
     with tempfile.TemporaryDirectory() as tmp:

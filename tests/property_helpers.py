@@ -21,7 +21,7 @@ MS = [1, 2, 4]
 SEED = 21
 #: the suite's TP-Net: the released structure at a quarter of every width (the shipped
 #: ``size="quarter"`` shape, 0.45 M parameters), so that a property runs many windows quickly;
-#: ``bench/permutation_rounding.py`` measures the released shape
+#: ``bench/probes/permutation_rounding.py`` measures the released shape
 QUARTER = dataclasses.replace(TPNetConfig(), mlp1=(16, 16), mlp2=(32, 64, 128),
                               global_features=32, lstm_units=(128, 64, 64))
 

@@ -11,6 +11,7 @@ import pytest
 import tpnet_ref
 from tpnet_ref.config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from tpnet_ref import model as M
+from tpnet_ref import point_order
 from tpnet_ref import reference
 from tpnet_ref.model import init_random
 
@@ -215,7 +216,7 @@ def test_canonical_order_small_and_large_paths_give_the_same_indices(monkeypatch
     for counts in (np.full(4, 30), np.array([5, 1, 40, 17])):
         pts = np.round(rng.uniform(0, 3, (int(counts.sum()), 2)), 0)     # many exact ties
         small = M.canonical_order(pts, counts)
-        monkeypatch.setattr(M, "SMALL_SORT", 0)
+        monkeypatch.setattr(point_order, "SMALL_SORT", 0)
         large = M.canonical_order(pts, counts)
         monkeypatch.undo()
         np.testing.assert_array_equal(small, large)

@@ -368,7 +368,7 @@ def test_overflow_in_rollout_midway_raises(small64):
 @pytest.mark.parametrize("dtype, frames", [("float32", 10_000), ("float64", 1_000)])
 def test_long_rollout_stays_finite(small64, dtype, frames):
     """10,000 frames (float32); the released shape's 10,000-frame float32/float64 divergence is
-    measured by bench/stability_network.py (docs/reliability.md)."""
+    measured by bench/probes/stability_network.py (docs/reliability.md)."""
     model = small64.astype(dtype)
     y = model.rollout(_scene_window(), frames)
     assert y.shape == (frames, 5, 2) and _in_range(y)

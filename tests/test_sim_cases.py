@@ -1,4 +1,6 @@
-"""The training grid and the 60 held-out test cases (tpnet_ref.sim.cases) against the brief's CSVs."""
+"""The training grid and the 60 held-out test cases (tpnet_ref.sim.cases) against the CSV lists
+they were typed from (test_cases.csv, train_grid.csv: the paper's cases as the project received
+them, kept outside the repository)."""
 from __future__ import annotations
 
 import csv
@@ -9,7 +11,7 @@ import pytest
 
 from tpnet_ref.sim.cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
 
-# the brief's data folder: $TPNET_SHARED_DATA, else shared/data beside the repository checkout
+# the folder of those CSVs: $TPNET_SHARED_DATA, else shared/data beside the repository checkout
 SHARED = os.environ.get("TPNET_SHARED_DATA",
                         str(Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -24,20 +26,22 @@ def test_sizes_and_ranges():
         assert 2.85 <= x <= 42.15 and 2.85 <= y <= 42.15
 
 
-def test_test_cases_match_the_brief_csv():
+def test_test_cases_match_their_csv():
     path = os.path.join(SHARED, "test_cases.csv")
     if not os.path.exists(path):
-        pytest.skip("the brief's data folder is not here")
+        pytest.skip(f"{path} is not here (set TPNET_SHARED_DATA to the folder holding "
+                    "test_cases.csv and train_grid.csv)")
     with open(path) as f:
         rows = [(float(r["force"]), float(r["angle_deg"]), float(r["x"]), float(r["y"]))
                 for r in csv.DictReader(f)]
     assert rows == list(TEST_CASES)
 
 
-def test_train_positions_match_the_brief_csv():
+def test_train_positions_match_their_csv():
     path = os.path.join(SHARED, "train_grid.csv")
     if not os.path.exists(path):
-        pytest.skip("the brief's data folder is not here")
+        pytest.skip(f"{path} is not here (set TPNET_SHARED_DATA to the folder holding "
+                    "test_cases.csv and train_grid.csv)")
     with open(path) as f:
         lines = f.read().splitlines()
     header = {ln[2:].split(":")[0]: ln.split(":")[1].split() for ln in lines if ln.startswith("#")}

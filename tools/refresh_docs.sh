@@ -18,5 +18,5 @@ tpnet eval --weights weights/tpnet-m3.h5 --weights weights/tpnet-m4.h5 \
     --weights weights/tpnet-m5.h5 --generalisation --out docs --quiet
 python tools/headline_tables.py
 tpnet animate -o docs/rollout.gif
-python bench/observe_figure.py -o docs/observe_example.png
+python bench/probes/observe_figure.py -o docs/observe_example.png
 git status --short -- README.md weights/MODEL_CARD.md docs

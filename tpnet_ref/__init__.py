@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import importlib as _importlib
+import weakref as _weakref
 from typing import Any as _Any
 
 import numpy as _np
@@ -48,40 +49,61 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
     return _load_file(path, dtype, engine)
 
 
-def _model(model: TPNet | None) -> TPNet:
+def _model(model: TPNet | None, dtype: _Any = None) -> TPNet:
+    """``model`` (default: the shipped m = 4 model, loaded once), in ``dtype`` when one is given
+    (a converted copy, kept while the model lives)."""
     global _default_model
     if model is not None:
         if not isinstance(model, TPNet):
             raise TypeError(f"model: expected a tpnet_ref TPNet, got {type(model).__name__}")
+    else:
+        if _default_model is None:
+            _default_model = load()
+        model = _default_model
+    if dtype is None or _np.dtype(dtype) == model.dtype:
         return model
-    if _default_model is None:
-        _default_model = load()
-    return _default_model
+    if _np.dtype(dtype) not in (_np.dtype(_np.float32), _np.dtype(_np.float64)):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    key = _np.dtype(dtype).name
+    copies = _AS_DTYPE.setdefault(model, {})
+    if key not in copies:
+        copies[key] = model.astype(key)
+    return copies[key]
 
 
-def predict(window: _Any, model: TPNet | None = None, normalized: bool = False) -> _np.ndarray:
+#: each model's copies in another dtype (:func:`_model`), dropped with the model
+_AS_DTYPE: _Any = _weakref.WeakKeyDictionary()
+
+
+def predict(window: _Any, model: TPNet | None = None, normalized: bool = False,
+            dtype: _Any = None) -> _np.ndarray:
     """Next point set ``(n_out, 2)`` from a window ``(m, N, 2)`` or m arrays ``(N_i, 2)``.
     Input outside the training range gives a one-line ``OutsideTrainingRangeWarning``, a window
-    that does not look like one body (stray points) a ``NotOneBodyWarning``."""
-    return _model(model).predict(window, normalized=normalized)
+    that does not look like one body (stray points) a ``NotOneBodyWarning``. ``dtype``
+    ("float32" or "float64"; default: the model's): compute in this dtype (the model converted
+    once and kept)."""
+    return _model(model, dtype).predict(window, normalized=normalized)
 
 
-def predict_batch(windows: _Any, model: TPNet | None = None,
-                  normalized: bool = False) -> _np.ndarray:
-    """Next point set of each window: ``(B, m, N, 2)`` or a list of windows -> ``(B, n_out, 2)``."""
-    return _model(model).predict_batch(windows, normalized=normalized)
+def predict_batch(windows: _Any, model: TPNet | None = None, normalized: bool = False,
+                  dtype: _Any = None) -> _np.ndarray:
+    """Next point set of each window: ``(B, m, N, 2)`` or a list of windows -> ``(B, n_out, 2)``
+    (``dtype``: as :func:`predict`)."""
+    return _model(model, dtype).predict_batch(windows, normalized=normalized)
 
 
-def rollout(window: _Any, steps: int, model: TPNet | None = None,
-            normalized: bool = False) -> _np.ndarray:
-    """``steps`` recursive predictions ``(steps, n_out, 2)``; the window slides by one frame."""
-    return _model(model).rollout(window, steps, normalized=normalized)
+def rollout(window: _Any, steps: int, model: TPNet | None = None, normalized: bool = False,
+            dtype: _Any = None) -> _np.ndarray:
+    """``steps`` recursive predictions ``(steps, n_out, 2)``; the window slides by one frame
+    (``dtype``: as :func:`predict`)."""
+    return _model(model, dtype).rollout(window, steps, normalized=normalized)
 
 
 def rollout_batch(windows: _Any, steps: int, model: TPNet | None = None,
-                  normalized: bool = False) -> _np.ndarray:
-    """:func:`rollout` of every window, stepped together: ``(B, m, N, 2)`` -> ``(B, steps, n_out, 2)``."""
-    return _model(model).rollout_batch(windows, steps, normalized=normalized)
+                  normalized: bool = False, dtype: _Any = None) -> _np.ndarray:
+    """:func:`rollout` of every window, stepped together: ``(B, m, N, 2)`` ->
+    ``(B, steps, n_out, 2)`` (``dtype``: as :func:`predict`)."""
+    return _model(model, dtype).rollout_batch(windows, steps, normalized=normalized)
 
 
 def example_window() -> _np.ndarray:

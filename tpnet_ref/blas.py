@@ -133,6 +133,92 @@ def _fixed_choice() -> int | None:
     return {"1": 1, "2": 0, "all": 0}.get(fixed or "")
 
 
+#: :class:`CoreMonitor`: seconds between two looks at /proc/stat (jiffies are 10 ms, so a
+#: shorter window could not tell a spinning core from noise)
+SAMPLE_S = 0.05
+#: :class:`CoreMonitor`: the other core counts as taken above this many cores' worth of other
+#: processes' time at normal priority, and as free again below the second figure (hysteresis)
+TAKEN_CORES, FREE_CORES = 0.6, 0.35
+
+
+def _read_proc_stat() -> tuple[float, float] | None:
+    """Seconds all cores spent busy at normal priority (user, system, irq, softirq, steal) and at
+    a lower one (nice), from the first line of /proc/stat; None where there is none."""
+    try:
+        with open("/proc/stat", "rb") as f:
+            v = f.readline().split()
+    except OSError:
+        return None
+    if len(v) < 9 or v[0] != b"cpu":
+        return None
+    user, nice, system, _idle, _io, irq, softirq, steal = (int(x) for x in v[1:9])
+    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    return (user + system + irq + softirq + steal) / tick, nice / tick
+
+
+def _nice_counts() -> bool:
+    """Whether niced processes take cores from this one: when it is niced itself, or when Linux
+    groups processes by session (``sched_autogroup_enabled``), where nice only orders the
+    processes of one session and another session's ``nice 19`` job gets its share all the same."""
+    if hasattr(os, "nice") and os.nice(0) > 0:
+        return True
+    try:
+        with open("/proc/sys/kernel/sched_autogroup_enabled", "rb") as f:
+            return f.read().strip() == b"1"
+    except OSError:
+        return False
+
+
+class CoreMonitor:
+    """How many cores other processes take now, from /proc/stat, read at most every
+    :data:`SAMPLE_S` seconds (one ``time.monotonic()`` per call in between; the read itself is
+    about 20 us). Other processes' time at normal priority is the busy time of all cores less
+    this process's own (``os.times``); time of niced processes (a background job at ``nice 19``)
+    does not count, since they yield the core to this one -- unless this process is niced itself
+    or the kernel groups processes by session (autogroup), where they do not yield
+    (:func:`_nice_counts`; ``count_nice`` overrides).
+    :meth:`taken` says whether fewer than two cores are free for a call's two threads;
+    :attr:`generation` counts the changes, so that a policy can drop latencies measured before
+    one. Where /proc/stat cannot be read it says "free" and never changes."""
+
+    def __init__(self, read: Any = _read_proc_stat, clock: Any = time.monotonic,
+                 own: Any = None, sample_s: float = SAMPLE_S,
+                 count_nice: bool | None = None) -> None:
+        self._read, self._clock, self.sample_s = read, clock, sample_s
+        self._own = own or (lambda: sum(os.times()[:2]))
+        self._niced = _nice_counts() if count_nice is None else bool(count_nice)
+        self._last: tuple[float, float, float] | None = None
+        self._lock = threading.Lock()
+        self.others = 0.0        #: other processes' cores, over the last window
+        self.is_taken = False
+        self.generation = 0
+
+    def taken(self) -> bool:
+        """Whether other processes take so much of the machine that a second thread would wait
+        (looked at again when :data:`SAMPLE_S` has passed since the last look)."""
+        now = self._clock()
+        last = self._last
+        if last is not None and now - last[0] < self.sample_s:
+            return self.is_taken
+        with self._lock:
+            if self._last is not last:                  # another thread looked meanwhile
+                return self.is_taken
+            stat = self._read()
+            if stat is None:
+                self._last = (now, 0.0, 0.0)
+                return self.is_taken
+            busy = stat[0] + (stat[1] if self._niced else 0.0)
+            own = self._own()
+            if last is not None and now > last[0]:
+                self.others = max(0.0, (busy - last[1]) - (own - last[2])) / (now - last[0])
+                free = cpu_count() - self.others
+                taken = free < 2 - TAKEN_CORES if not self.is_taken else free < 2 - FREE_CORES
+                if taken != self.is_taken:
+                    self.is_taken, self.generation = taken, self.generation + 1
+            self._last = (now, busy, own)
+            return self.is_taken
+
+
 class ThreadPolicy:
     """Runs each call of a kind on one thread or with a second thread for the parts that may
     take one (:func:`two_threads`), whichever its recent calls of that kind measured faster. The
@@ -147,16 +233,23 @@ class ThreadPolicy:
     (another process taking a core, then leaving) moves the choice. Nested inside another
     :func:`one_thread` block (a chunk of a split batch, a caller's block) or on one core it runs
     one thread and measures nothing. ``TPNET_THREADS=1`` or ``=2`` fixes the choice.
-    Thread-safe; about 2 us per call.
+
+    ``monitor`` (a :class:`CoreMonitor`; the process-wide :data:`adaptive` has one): while it
+    sees the other core taken by another process, every call runs one thread without a probe;
+    when it sees the machine change (taken, or free again), the latencies measured before are
+    dropped, so the next few calls measure both plans afresh instead of trusting minutes-old
+    figures. Thread-safe; about 2 us per call.
     """
 
     def __init__(self, probe_every: int = PROBE_EVERY, keep: int = KEEP,
-                 margin: float = MARGIN) -> None:
+                 margin: float = MARGIN, monitor: CoreMonitor | None = None) -> None:
         self.probe_every, self.keep, self.margin = probe_every, keep, margin
+        self.monitor = monitor
         # per kind: the latencies of each choice, [calls, calls between probes, probing now,
         # a two-thread probe's call due after its warm-up, this call is a warm-up]
         self._kinds: dict[Hashable, tuple[dict[int, deque], list[int]]] = {}
         self._lock = threading.Lock()
+        self._generation = 0
 
     @staticmethod
     def _median(t: deque) -> float:
@@ -170,7 +263,13 @@ class ThreadPolicy:
         fixed = _fixed_choice()
         if fixed is not None:
             return fixed
+        taken = self.monitor is not None and self.monitor.taken()
         with self._lock:
+            if self.monitor is not None and self.monitor.generation != self._generation:
+                self._generation = self.monitor.generation
+                self._kinds.clear()                 # the machine changed: measure afresh
+            if taken:
+                return 1
             if kind not in self._kinds and len(self._kinds) >= 256:
                 self._kinds.clear()                 # many kinds (ragged windows): start over
             times, st = self._kinds.setdefault(
@@ -250,8 +349,9 @@ class ThreadPolicy:
         self.record(kind, choice, time.perf_counter() - t)
 
 
-#: the process-wide policy :mod:`tpnet_ref.model` runs the Numba engine's single windows under
-adaptive = ThreadPolicy()
+#: the process-wide policy :mod:`tpnet_ref.model` runs the Numba engine's single windows under;
+#: it watches the other cores (:class:`CoreMonitor`)
+adaptive = ThreadPolicy(monitor=CoreMonitor())
 
 
 
@@ -296,4 +396,4 @@ def describe() -> str:
 
 
 __all__ = ["SMALL_PRODUCT", "BLOCK_COLUMNS", "one_thread", "in_one_thread", "two_threads",
-           "ThreadPolicy", "adaptive", "PROBE_EVERY", "cpu_count", "describe"]
+           "ThreadPolicy", "CoreMonitor", "adaptive", "PROBE_EVERY", "cpu_count", "describe"]

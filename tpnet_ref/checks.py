@@ -20,9 +20,15 @@ class NonFiniteResultError(ArithmeticError):
     """Raised when finite input would give a non-finite result (for example float32 overflow)."""
 
 
+#: what an error that float64 cures advises: each form works as written (tests/test_error_advice.py)
+FLOAT64_ADVICE = ("predict in float64: dtype='float64' (tpnet_ref.predict(window, dtype='float64'), "
+                  "tpnet_ref.load(dtype='float64'), model.astype('float64'); "
+                  "tpnet predict --dtype float64)")
+
+
 def overflow_error(dtype: np.dtype, where: str) -> NonFiniteResultError:
     """The one-line error of a prediction network that overflowed in ``dtype`` at ``where``."""
-    remedy = ("try dtype='float64'" if dtype == np.float32
+    remedy = (FLOAT64_ADVICE if dtype == np.float32
               else "rescale the input towards the training range")
     return NonFiniteResultError(
         f"the prediction network overflowed in {dtype.name} at {where} (the ReLU LSTM's state "
@@ -119,7 +125,7 @@ def check_window(window: Any, m: int, dim: int, dtype: np.dtype,
     for i, f in enumerate(out):
         if not _fits(f, dtype):
             raise ValueError(f"{name}[{i}]: values beyond the {dtype.name} range "
-                             f"(|x| > {np.finfo(dtype).max:.3g}); use a float64 model")
+                             f"(|x| > {np.finfo(dtype).max:.3g}); {FLOAT64_ADVICE}")
     return out
 
 
@@ -361,6 +367,26 @@ def _all_one_body(frames: np.ndarray) -> bool:
         lab = new
 
 
+def _cannot_hold_a_body(frames: np.ndarray) -> np.ndarray:
+    """Boolean ``(F,)`` for ``frames (F, N, 2)``: True where no strip ``2 * BODY_MAX_RADIUS`` wide,
+    along x or along y, holds ``max(BODY_MIN_POINTS, N / 2)`` points, so that
+    :func:`body_outliers` cannot find a body of the scene's size there (the body it keeps lies
+    within ``BODY_MAX_RADIUS`` of one centre, so inside such a strip both ways) and
+    :func:`window_body_problem` leaves the frame to the training-range check. Scattered points
+    (a window of random points) are decided in a few NumPy calls instead of the pairwise
+    grouping; the strip is taken a hair wider, so that a True is never wrong (a False only costs
+    the full test)."""
+    f, n = frames.shape[:2]
+    if n < BODY_MIN_POINTS:
+        return np.zeros(f, dtype=bool)
+    side = 2 * BODY_MAX_RADIUS * (1 + 1e-9) + 1e-9
+    need = max(BODY_MIN_POINTS, math.ceil(n / 2))
+    s = np.sort(frames, axis=1)                            # each coordinate on its own
+    # a strip holds `need` points iff some `need` consecutive sorted values span at most `side`
+    fits = ((s[:, need - 1:] - s[:, :n - need + 1]) <= side).any(axis=1)   # (F, 2): x, y
+    return ~fits.all(axis=1)
+
+
 def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
     """Why a window (``(F, N, 2)`` or a list of ``(N_i, 2)`` frames, world units) does not look
     like one body moving, or ``None``: stray points or a second blob in a frame
@@ -382,8 +408,17 @@ def window_body_problem(frames: np.ndarray | list[np.ndarray]) -> str | None:
                 return None
             centres = list(c)
             frames = []
+        elif np.isfinite(stacked).all():
+            # scattered points cannot hold a body: the loop below would stop at the first such
+            # frame, so only the frames before it need the pairwise test
+            scattered = np.flatnonzero(_cannot_hold_a_body(stacked))
+            if scattered.size:
+                frames = list(frames[:int(scattered[0]) + 1])
     for i, f in enumerate(frames):
         f = np.asarray(f, dtype=np.float64)
+        if len(f) >= BODY_MIN_POINTS and len(f) <= BODY_MAX_POINTS and \
+                _cannot_hold_a_body(f[None])[0]:
+            return None                                    # no body: as body_outliers says below
         out = body_outliers(f)
         k = int(out.sum())
         if k and (len(f) - k < BODY_MIN_POINTS or k > len(f) - k):

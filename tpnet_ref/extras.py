@@ -18,6 +18,7 @@ EXTRAS: dict[str, str] = {
     "eval": "the evaluation protocol and the demo (metrics, sim, plot, tqdm)",
     "train": "training (PyTorch, scipy, tqdm)",
     "onnx": "the ONNX export, tpnet export onnx (onnx)",
+    "openvino": "the exported ONNX file run in OpenVINO (onnx, openvino)",
     "crosscheck": "framework cross-checks (PyTorch, onnx, onnxruntime)",
     "vision": "the camera path: masks, images and videos (OpenCV headless)",
     "box2d": "the Box2D 2.3 scene that validates the simulator (tpnet_ref.sim.box2d)",

@@ -1,27 +1,15 @@
 """TP-Net in NumPy: the model a user holds -- config, parameters, input checks, the forward pass.
 
-Data flow for one window of ``m`` frames (``N`` points each; docs/spec.md §2):
-
-    frame (N, 2) --normalise, sort--> [input T-Net] -> MLP 2-64-64 -> [feature T-Net]
-        -> MLP 64-128-256-512 -> max over points (512) -> FC 512-128 ReLU  = G_t (128)
-    (G_{t-m+1} .. G_t) (m, 128) -> BiLSTM 512 -> LN -> BiLSTM 256 -> LN
-        -> BiLSTM 256 (last output) -> LN -> FC 512 -> N_out*2 sigmoid -> (N_out, 2) -> denormalise
-
-:mod:`tpnet_ref.reference` writes this out to be read; this module runs it fast and checks it:
 :meth:`TPNet.predict` is ``check -> canonical points -> frame_features -> sequence_head ->
-denormalise``. The feature extractor is the NumPy fast path (:mod:`tpnet_ref.fast_numpy`); the
-prediction network runs on one of the model's heads (:mod:`tpnet_ref.heads`: NumPy, Numba,
-scene-specialised), every one tested against the reference.
-
-Permutation invariance is exact, not approximate: each frame's points are put in a canonical
-order (lexicographic by x, then y) before the feature extractor, so every permutation of a
-frame produces the very same matrix and hence bit-identical output. ``sort_points=False`` (or
-:meth:`TPNet.with_point_sort`) runs the points in the order given, to check that the network
-itself is invariant (a shared per-point MLP and a max; :mod:`tpnet_ref.testing`). Every frame's global feature
-depends on that frame alone, so a batch computes all frames' features in one pass and a rollout
-computes each frame's features exactly once. The bits do not depend on threads
-(docs/architecture.md, "Determinism"): every product runs on a one-thread BLAS, and a large
-batch is cut into chunks by its size alone.
+denormalise`` (data flow with shapes: docs/architecture.md; the same network written to be read:
+:mod:`tpnet_ref.reference`). The feature extractor is the NumPy fast path
+(:mod:`tpnet_ref.fast_numpy`) or the Numba one; the prediction network runs on one of the
+model's heads (:mod:`tpnet_ref.heads`: NumPy, Numba, scene-specialised), every one tested
+against the reference; a rollout's loop is :mod:`tpnet_ref.recursive`. Permutation invariance
+is exact: each frame's points are put in canonical order first (:mod:`tpnet_ref.point_order`;
+``sort_points=False`` runs them as given, to check the network's own invariance). The bits do
+not depend on threads (docs/architecture.md, "Determinism"): every product runs on a one-thread
+BLAS, and a large batch is cut into chunks by its size alone.
 """
 from __future__ import annotations
 
@@ -31,20 +19,18 @@ from typing import Any
 import numpy as np
 
 from . import heads as H
+from . import recursive as R
 from . import specialize as S
 from . import unit_order as U
 from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
                    split_batch, two_threads)
-from .checks import check_params, check_window, check_windows, warn_about_input
+from .checks import (NonFiniteResultError, check_params, check_window, check_windows,
+                     warn_about_input)
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
 from .fast_numpy import BLOCK_POINTS, NumpyFeatures
 from .heads import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
 from .native import default_weights_path, read_native, write_native
-
-#: up to this many points the canonical order is one lexsort (measured 120 points: 19 -> 5 us);
-#: above it, row-wise stable argsorts (1,024 frames of 30 points: 1.5 ms instead of 7 ms)
-SMALL_SORT = 512
-
+from .point_order import SMALL_SORT, canonical_order  # noqa: F401  (re-exported)
 
 class TPNet:
     """A TP-Net with its parameters in one dtype. Build it with :func:`init_random`,
@@ -185,9 +171,12 @@ class TPNet:
             pts = self.normalize(pts)
         else:
             pts = pts + self.dtype.type(0.0)  # a copy, and -0.0 -> +0.0 for a canonical order
-        if not self.sort_points:
-            return pts, counts
-        return pts[canonical_order(pts, counts)], counts
+        return self.sorted_points(pts, counts), counts
+
+    def sorted_points(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
+        """``points (P, dim)`` of frames of ``counts`` points, each frame in canonical order
+        (:func:`tpnet_ref.point_order.canonical_order`; as given when ``sort_points`` is off)."""
+        return points[canonical_order(points, counts)] if self.sort_points else points
 
     def frame_features(self, points: np.ndarray, counts: np.ndarray,
                        batch: int | None = None) -> np.ndarray:
@@ -243,13 +232,19 @@ class TPNet:
         a one-line warning for input outside the training range or not one body, then run in
         chunks that depend on the batch size alone (:func:`tpnet_ref.blas.split_batch`)."""
         c = self.config
-        if one:
-            frames, batch = check_window(windows, c.m, c.dim, self.dtype), 1
-        else:
-            frames, batch = check_windows(windows, c.m, c.dim, self.dtype)
+        try:    # the user's error: its traceback ends here, not deep in the checks or heads
+            if one:
+                frames, batch = check_window(windows, c.m, c.dim, self.dtype), 1
+            else:
+                frames, batch = check_windows(windows, c.m, c.dim, self.dtype)
+        except (ValueError, TypeError) as exc:
+            raise exc.with_traceback(None) from None
         warn_about_input(frames, c.norm_lo, c.norm_hi, normalized,
                          "window" if one else "windows", one)
-        return split_batch(fn, frames, batch, c.m, self.threads, normalized, *args)
+        try:
+            return split_batch(fn, frames, batch, c.m, self.threads, normalized, *args)
+        except NonFiniteResultError as exc:
+            raise exc.with_traceback(None) from None
 
     # ------------------------------------------------------------ public API
     def predict(self, window: Any, normalized: bool = False) -> np.ndarray:
@@ -282,42 +277,9 @@ class TPNet:
 
     def _rollout(self, frames: list[np.ndarray], batch: int, normalized: bool,
                  steps: Any) -> np.ndarray:
-        """``batch * m`` checked frames -> ``(batch, steps, n_out, dim)``."""
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise ValueError(f"steps: expected a positive integer, got {steps!r}")
-        c, steps = self.config, int(steps)
-        m = c.m
-        try:
-            feats = np.empty((batch, m + steps, c.global_features), dtype=self.dtype)
-            out = np.empty((batch, steps, c.n_out, c.dim), dtype=self.dtype)
-        except MemoryError:
-            raise ValueError(f"steps: {steps} steps do not fit in memory") from None
-        # BiLSTM 1's input projection of each frame, also computed once per frame (when the
-        # head takes it: a specialised one projects its kept units itself); the last m kept.
-        # One one-thread BLAS block around all the steps, the thread plan still chosen per step
-        # (unless the rollout is itself nested in a block: a chunk of a split batch)
-        held = not in_one_thread()
-        with one_thread():
-            with self._threads("features", batch, sum(f.shape[0] for f in frames), held):
-                feats[:, :m] = self.frame_features(
-                    *self.canonical_points(frames, normalized), batch).reshape(batch, m, -1)
-                proj = self.project_frames(feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1),
-                                           batch)
-                proj = None if proj is None else list(proj.reshape(m, batch, -1))
-            counts = np.full(batch, c.n_out)
-            for s in range(steps):
-                with self._threads("rollout step", batch, c.n_out, held):   # follows the load
-                    y = self.sequence_head(feats[:, s:s + m],             # (batch, n_out, dim)
-                                           None if proj is None else np.stack(proj[-m:]))
-                    out[:, s] = y
-                    flat = y.reshape(-1, c.dim)
-                    if self.sort_points:
-                        flat = flat[canonical_order(flat, counts)]
-                    feats[:, m + s] = self.frame_features(flat, counts, batch)
-                    if proj is not None and s + 1 < steps:
-                        proj = proj[len(proj) - m + 1:] + [self.project_frames(feats[:, m + s],
-                                                                               batch)]
-        return out if normalized else self.denormalize(out)
+        """``batch * m`` checked frames -> ``(batch, steps, n_out, dim)``
+        (:func:`tpnet_ref.recursive.rollout`)."""
+        return R.rollout(self, frames, batch, normalized, steps)
 
 
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
@@ -337,33 +299,6 @@ def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
                      used=used)       # specialised if the file says so
     except ValueError as exc:         # what the file holds does not fit together
         raise ValueError(f"{path}: {exc}") from None
-
-
-def canonical_order(points: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Indices that sort each frame's points by x, then y (then the remaining coordinates).
-
-    ``points (P, dim)``, ``counts (F,)`` -> ``(P,)`` indices into ``points``. Points that tie
-    on every coordinate are identical rows, so the sorted matrix does not depend on the input
-    order at all.
-    """
-    counts = np.asarray(counts)
-    dim = points.shape[1]
-    if points.shape[0] <= SMALL_SORT:
-        # few points (a window, a rollout's new frame): one lexsort is cheapest (same indices)
-        frame_id = np.repeat(np.arange(len(counts)), counts)
-        return np.lexsort([points[:, d] for d in range(dim - 1, -1, -1)] + [frame_id])
-    if counts.size and np.all(counts == counts[0]):
-        # equal frames: stable sorts within each row, least significant coordinate first
-        a = points.reshape(counts.size, int(counts[0]), dim)
-        idx = np.argsort(a[..., dim - 1], axis=1, kind="stable")
-        for d in range(dim - 2, -1, -1):
-            key = np.take_along_axis(a[..., d], idx, axis=1)
-            idx = np.take_along_axis(idx, np.argsort(key, axis=1, kind="stable"), axis=1)
-        idx += (np.arange(counts.size) * int(counts[0]))[:, None]
-        return idx.ravel()
-    frame_id = np.repeat(np.arange(len(counts)), counts)
-    keys = [points[:, d] for d in range(dim - 1, -1, -1)] + [frame_id]
-    return np.lexsort(keys)
 
 
 def init_random(config: TPNetConfig | None = None, seed: int = 0, dtype: Any = "float32",

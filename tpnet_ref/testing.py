@@ -15,7 +15,10 @@ reads; a window is a list of ``m`` float64 arrays) and test it with hypothesis:
 
 On a failure each raises :class:`PropertyFailure` with a one-line report of the minimal failing
 window hypothesis shrank to (fewest frames and points, the first scale, seed 0, the smallest
-permutation). On success each returns the largest difference it saw. The strategies
+permutation). On success each returns the largest difference it saw, a :class:`CheckResult`
+whose ``report`` is one line saying what was checked on which windows. tpnet_ref's input
+warnings are silenced while a check calls the function: its windows leave the training range on
+purpose. The strategies
 :func:`windows` and :func:`permutations` are public for tests of one's own.
 
 hypothesis (the ``test`` extra) is imported when a function here is called, not on import.
@@ -38,7 +41,7 @@ SCALES = (1e-3, 1.0, 45.0, 1e3)
 #: the rounding bound the project's tests allow a per-frame permutation, in world units, per
 #: dtype: the bound the project already states for where a row sits in a BLAS product (a window
 #: inside a batch against it alone, README). Measured with the canonical sort off:
-#: ``python bench/permutation_rounding.py`` (docs/testing.md)
+#: ``PYTHONPATH=bench python bench/probes/permutation_rounding.py`` (docs/testing.md)
 TOLERANCE = {"float32": 5e-4, "float64": 1e-11}
 
 Window = list  # m arrays (N_t, dim), float64
@@ -46,6 +49,53 @@ Window = list  # m arrays (N_t, dim), float64
 
 class PropertyFailure(AssertionError):
     """A property does not hold; the message is one line naming the minimal failing window."""
+
+
+class CheckResult(float):
+    """What a check returns: the difference it reports (a float, as before) with ``report``, one
+    line saying what was checked on which windows, e.g. ``permutation_invariant: my_predict
+    passed on 20 windows (m=4, N=1..64, coordinates in [-1.2, 1.3]): largest change 0
+    (tolerance 1e-05)``."""
+
+    report: str
+
+    def __new__(cls, value: float, report: str) -> "CheckResult":
+        out = super().__new__(cls, value)
+        out.report = report
+        return out
+
+
+class _Seen:
+    """The windows a check ran on: how many, their frames, points and coordinates."""
+
+    def __init__(self) -> None:
+        self.count, self.ms, self.ns = 0, set(), set()
+        self.lo, self.hi = np.inf, -np.inf
+
+    def add(self, window: Sequence[np.ndarray]) -> None:
+        self.count += 1
+        self.ms.add(len(window))
+        self.ns.update(len(f) for f in window)
+        self.lo = min(self.lo, min(float(np.min(f)) for f in window))
+        self.hi = max(self.hi, max(float(np.max(f)) for f in window))
+
+    def text(self) -> str:
+        def span(v: set) -> str:
+            return str(min(v)) if len(v) == 1 else f"{min(v)}..{max(v)}"
+        if not self.count:
+            return "no windows"
+        return (f"{self.count} windows (m={span(self.ms)}, N={span(self.ns)}, coordinates in "
+                f"[{self.lo:.3g}, {self.hi:.3g}])")
+
+
+def _call(fn: Callable[[Window], Any], window: Window) -> np.ndarray:
+    """``fn(window)`` as a float64 array, tpnet_ref's input warnings silenced: the checks draw
+    windows outside the training range on purpose (the properties hold on any input)."""
+    import warnings
+    from .checks import OutsideTrainingRangeWarning           # NotOneBodyWarning too
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutsideTrainingRangeWarning)
+        return _as_array(fn(window))
 
 
 def _hypothesis() -> Any:
@@ -197,20 +247,23 @@ def permutation_invariant(fn: Callable[[Window], Any], windows: Any = None, tol:
     hyp = _hypothesis()
     strategy = (windows if windows is not None else _window_strategy()).flatmap(
         lambda w: hyp.strategies.tuples(hyp.strategies.just(w), permutations(w)))
-    worst = [0.0]
+    worst, seen = [0.0], _Seen()
 
     def prop(case: tuple[Window, list[np.ndarray]]) -> None:
         w, perms = case
-        a = _as_array(fn(w))
-        d = _diff(a, _as_array(fn(permuted(w, perms))), "permutation_invariant")
+        a = _call(fn, w)
+        d = _diff(a, _call(fn, permuted(w, perms)), "permutation_invariant")
         if not d <= tol:
             raise PropertyFailure(
                 f"permutation_invariant: {_name(fn)} changed by {d:.3g} (tolerance {tol:.3g}) "
                 f"when each frame's points were permuted; minimal window: {_describe(w, perms)}")
         worst[0] = max(worst[0], d)
+        seen.add(w)
 
     _run(prop, strategy, max_examples, seed)
-    return worst[0]
+    return CheckResult(worst[0], f"permutation_invariant: {_name(fn)} passed on {seen.text()}, "
+                                 f"each with its frames' points permuted: largest change "
+                                 f"{worst[0]:.3g} (tolerance {tol:.3g})")
 
 
 def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float,
@@ -227,19 +280,23 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float,
     config = model.config
     strategy = windows if windows is not None else _window_strategy(
         m=config.m, normalized=normalized)
-    worst = [0.0]
+    worst, seen = [0.0], _Seen()
 
     def prop(w: Window) -> None:
         want = reference.forward(config, params, w, normalized=normalized)
-        d = _diff(_as_array(fn(w)), want, "agrees_with_reference")
+        d = _diff(_call(fn, w), want, "agrees_with_reference")
         if not d <= tol:
             raise PropertyFailure(
                 f"agrees_with_reference: {_name(fn)} is {d:.3g} from the float64 reference "
                 f"(tolerance {tol:.3g}); minimal window: {_describe(w)}")
         worst[0] = max(worst[0], d)
+        seen.add(w)
 
     _run(prop, strategy, max_examples, seed)
-    return worst[0]
+    units = "model coordinates" if normalized else "world units"
+    return CheckResult(worst[0], f"agrees_with_reference: {_name(fn)} passed on {seen.text()}: "
+                                 f"at most {worst[0]:.3g} {units} from the float64 reference "
+                                 f"(tolerance {tol:.3g})")
 
 
 def frame_order_matters(fn: Callable[[Window], Any], windows: Any = None, tol: float = 0.0,
@@ -249,15 +306,16 @@ def frame_order_matters(fn: Callable[[Window], Any], windows: Any = None, tol: f
     2 frames that move in time (default: m = 4 frames, each 0.5..2 world units from the one
     before). Returns the smallest change seen; raises :class:`PropertyFailure` otherwise."""
     strategy = windows if windows is not None else _window_strategy(step=(0.5, 2.0))
-    least = [float("inf")]
+    least, seen = [float("inf")], _Seen()
 
     def prop(w: Window) -> None:
         if len(w) < 2:
             raise PropertyFailure(f"frame_order_matters: needs windows of 2 frames or more, "
                                   f"got {_describe(w)}")
-        a = _as_array(fn(w))
+        a = _call(fn, w)
+        seen.add(w)
         for name, other in (("reversing", w[::-1]), ("rotating", w[1:] + w[:1])):
-            d = _diff(a, _as_array(fn(list(other))), "frame_order_matters")
+            d = _diff(a, _call(fn, list(other)), "frame_order_matters")
             if not d > tol:
                 raise PropertyFailure(
                     f"frame_order_matters: {_name(fn)} changed by only {d:.3g} (needs more than "
@@ -265,7 +323,9 @@ def frame_order_matters(fn: Callable[[Window], Any], windows: Any = None, tol: f
             least[0] = min(least[0], d)
 
     _run(prop, strategy, max_examples, seed)
-    return least[0]
+    return CheckResult(least[0], f"frame_order_matters: {_name(fn)} passed on {seen.text()}, "
+                                 f"their frames reversed and rotated: smallest change "
+                                 f"{least[0]:.3g} (needs more than {tol:.3g})")
 
 
 def one_point_matters(fn: Callable[[Window], Any], windows: Any = None, tol: float = 0.0,
@@ -281,7 +341,7 @@ def one_point_matters(fn: Callable[[Window], Any], windows: Any = None, tol: flo
     strategy = base.flatmap(lambda w: st.tuples(
         st.just(w), st.integers(0, len(w) - 1).flatmap(
             lambda t: st.tuples(st.just(t), st.integers(0, len(w[t]) - 1)))))
-    least = [float("inf")]
+    least, seen = [float("inf")], _Seen()
 
     def prop(case: tuple[Window, tuple[int, int]]) -> None:
         w, (t, i) = case
@@ -293,18 +353,21 @@ def one_point_matters(fn: Callable[[Window], Any], windows: Any = None, tol: flo
         u = away / norm if norm > 0 else np.array([1.0, 0.0])
         moved = [g.copy() for g in w]
         moved[t][i] = centroid + (2 * reach + distance) * u
-        d = _diff(_as_array(fn(w)), _as_array(fn(moved)), "one_point_matters")
+        d = _diff(_call(fn, w), _call(fn, moved), "one_point_matters")
         if not d > tol:
             raise PropertyFailure(
                 f"one_point_matters: {_name(fn)} changed by only {d:.3g} (needs more than "
                 f"{tol:.3g}) when point {i} of frame {t} moved to {2 * reach + distance:.3g} from the "
                 f"centroid; minimal window: {_describe(w)}")
         least[0] = min(least[0], d)
+        seen.add(w)
 
     _run(prop, strategy, max_examples, seed)
-    return least[0]
+    return CheckResult(least[0], f"one_point_matters: {_name(fn)} passed on {seen.text()}, "
+                                 f"one point of each moved outward: smallest change "
+                                 f"{least[0]:.3g} (needs more than {tol:.3g})")
 
 
-__all__ = ["SCALES", "TOLERANCE", "PropertyFailure", "windows", "permutations", "permuted",
+__all__ = ["SCALES", "TOLERANCE", "PropertyFailure", "CheckResult", "windows", "permutations", "permuted",
            "permutation_invariant", "agrees_with_reference", "frame_order_matters",
            "one_point_matters"]

@@ -29,8 +29,34 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+def _shown(value: object) -> str:
+    """A default as it is typed on the command line (lists space-separated)."""
+    if isinstance(value, (list, tuple)):
+        return " ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+class _Formatter(argparse.HelpFormatter):
+    """Every option's help ends with its default (unless the help already says it; flags and
+    options without a default show none): ``tests/test_cli_help.py`` walks every parser."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (default is None or default is False or default is argparse.SUPPRESS
+                or default == [] or "(default" in text or "default:" in text
+                or isinstance(action, (argparse._HelpAction, argparse._VersionAction))):
+            return text
+        return f"{text} (default: {_shown(default).replace('%', '%%')})"
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line usage errors (``tpnet predict: error: ...``), for every sub-parser."""
+    """argparse with one-line usage errors (``tpnet predict: error: ...``) and every default in
+    the help (:class:`_Formatter`), for every sub-parser."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

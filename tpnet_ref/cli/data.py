@@ -13,12 +13,14 @@ def add_cli(sub: Any) -> None:
     dsub.required = True
     q = dsub.add_parser("generate", help="simulate the training grid and the 60 test cases")
     q.add_argument("-o", "--output", required=True, help="HDF5 file (resumed if it exists)")
-    q.add_argument("--forces", type=float, nargs="+", default=list(TRAIN_FORCES))
+    q.add_argument("--forces", type=float, nargs="+", default=list(TRAIN_FORCES),
+                   help="impulses per particle of the training grid")
     q.add_argument("--angles", type=float, nargs="+", default=list(TRAIN_ANGLES_DEG),
-                   help="degrees")
+                   help="impulse directions of the training grid, degrees")
     q.add_argument("--positions", type=int, default=None,
-                   help="use the first N of the 75 start positions")
-    q.add_argument("--limit", type=int, default=None, help="only the first N trajectories")
+                   help="use the first N of the 75 start positions (default: all 75)")
+    q.add_argument("--limit", type=int, default=None,
+                   help="only the first N trajectories (default: all)")
     q.add_argument("--m", type=int, default=4, help="input frames per window (3, 4, 5)")
     q.add_argument("--steps", type=int, default=600, help="simulation steps per trajectory")
     q.add_argument("--seed", type=int, default=0, help="window sampling seed")
@@ -28,7 +30,7 @@ def add_cli(sub: Any) -> None:
                    help="model: windows start at model frames; released: also keep every "
                         "simulator row (~1 GB for the grid) and the authors' preprocessing's "
                         "windows, for `tpnet train run --windows released` (default: %(default)s)")
-    q.add_argument("--workers", type=int, default=1, help="processes")
+    q.add_argument("--workers", type=int, default=1, help="processes simulating in parallel")
     q.add_argument("--no-test", action="store_true", help="skip the 60 test cases")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
     _scene_flags(q)

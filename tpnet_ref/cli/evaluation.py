@@ -18,7 +18,8 @@ def add_cli(sub: Any) -> None:
                                     "write a PNG")
     p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
     p.add_argument("--case", type=float, nargs=4, default=None,
-                   metavar=("FORCE", "ANGLE", "X", "Y"), help="scene (default: test case 1)")
+                   metavar=("FORCE", "ANGLE", "X", "Y"), help="scene: impulse per particle, direction in degrees, start centre x, y "
+                        "(default: test case 1)")
     p.add_argument("--steps", type=int, default=None,
                    help="predictions (default: to the end of the 600-step trajectory)")
     p.add_argument("--horizons", type=int, nargs="+", default=list(_DEMO_HORIZONS),
@@ -26,7 +27,8 @@ def add_cli(sub: Any) -> None:
     p.add_argument("-o", "--output", default="tpnet_demo.png", help="PNG to write")
     p.add_argument("--no-png", action="store_true", help="do not write a PNG")
     p.add_argument("--seed", type=int, default=0, help="point shuffling seed")
-    p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
+    p.add_argument("--dtype", default="float32", choices=("float32", "float64"),
+                   help="precision of the rollout")
     p.set_defaults(func=_cli_demo)
 
     p = sub.add_parser("animate", help="a GIF of a held-out case: the simulator's ring and "
@@ -47,7 +49,8 @@ def add_cli(sub: Any) -> None:
                                     "the squared reading, the other readings, orderings, "
                                     "timings, plots -> results.md")
     p.add_argument("--weights", action="append", default=[],
-                   help="native weights file; repeat for several models (m = 3/4/5)")
+                   help="native weights file; repeat for several models (m = 3/4/5); one at "
+                        "least, unless --baselines-only")
     p.add_argument("--baselines-only", action="store_true",
                    help="no model: baselines and simulator rows only")
     p.add_argument("--m", type=int, nargs="+", default=None,
@@ -60,7 +63,9 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--cases", type=int, default=None, help="only the first N cases")
     p.add_argument("--horizon", type=int, default=None,
                    help="predictions per case (default: to the end of the trajectories)")
-    p.add_argument("--orderings", nargs="+", default=list(_ORDERINGS), choices=_ORDERINGS)
+    p.add_argument("--orderings", nargs="+", default=list(_ORDERINGS), choices=_ORDERINGS,
+                   help="orders the input points are given in, one table row each: as "
+                        "simulated, sorted by x, sorted by y descending, shuffled")
     p.add_argument("--no-timing", action="store_true", help="skip the error-vs-time table")
     p.add_argument("--no-peers", action="store_true", help="timing without PyTorch/onnxruntime")
     p.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")
@@ -78,7 +83,8 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--out", default=None,
                    help="directory for results.md, eval_curves.csv and the PNGs (default: a new "
                         "./tpnet-eval-<timestamp>/; give --out docs to update the repository's)")
-    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--no-plots", action="store_true",
+                   help="write results.md and the CSVs only, no PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cli_eval)
 

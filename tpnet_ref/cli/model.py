@@ -28,9 +28,10 @@ def add_cli(sub: Any) -> None:
     p.add_argument("window", help=".npy file holding an (m, N, 2) window in world units: m frames "
                                   "4 simulation steps apart (every 4th row of `tpnet sim run`)")
     p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
-    p.add_argument("--steps", type=int, default=1, help="frames to roll out (default 1)")
+    p.add_argument("--steps", type=int, default=1, help="frames to roll out")
     p.add_argument("--normalized", action="store_true", help="window is in model coordinates")
-    p.add_argument("--dtype", default="float32", choices=("float32", "float64"))
+    p.add_argument("--dtype", default="float32", choices=("float32", "float64"),
+                   help="precision of the computation; float64 where float32 overflows")
     p.add_argument("--engine", default=None, choices=("numpy", "numba", "auto"),
                    help="inference engine (default: the faster for this call from a fresh "
                         f"process: numba, where installed, from {NUMBA_MIN_STEPS} steps on; "

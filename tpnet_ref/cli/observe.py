@@ -36,8 +36,8 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--frames", type=int, default=4,
                    help="model frames to extract, 4/45 s apart (4: one m = 4 window; more for a "
                         "longer record)")
-    p.add_argument("--start", type=float, default=0.0, help="time of the first frame, s (0)")
-    p.add_argument("--points", type=int, default=30, help="points per frame (30)")
+    p.add_argument("--start", type=float, default=0.0, help="time of the first frame, s")
+    p.add_argument("--points", type=int, default=30, help="points per frame")
     p.add_argument("--threshold", type=float, default=None,
                    help="difference from the background that counts as the body, grey levels "
                         "(default: half the body's contrast, found per frame)")

@@ -16,14 +16,14 @@ def add_cli(sub: Any) -> None:
                            ("render", "film one trajectory with a synthetic camera: a video "
                                       "(.mp4/.avi) or PNG frames, with its calibration (JSON)")):
         q = ssub.add_parser(name, help=helptext)
-        q.add_argument("--force", type=float, default=1.3, help="impulse per particle (1.3)")
-        q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees (225)")
-        q.add_argument("--x", type=float, default=30.0, help="start centre x (30)")
-        q.add_argument("--y", type=float, default=35.0, help="start centre y (35)")
-        q.add_argument("--steps", type=int, default=600, help="simulation steps (600)")
-        q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz (1)")
-        q.add_argument("--damping-ratio", type=float, default=0.0, help="spring damping ratio (0)")
-        q.add_argument("--wall-restitution", type=float, default=0.0, help="wall restitution (0)")
+        q.add_argument("--force", type=float, default=1.3, help="impulse per particle")
+        q.add_argument("--angle", type=float, default=225.0, help="impulse direction, degrees")
+        q.add_argument("--x", type=float, default=30.0, help="start centre x, world units")
+        q.add_argument("--y", type=float, default=35.0, help="start centre y, world units")
+        q.add_argument("--steps", type=int, default=600, help="simulation steps (45 a second)")
+        q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
+        q.add_argument("--damping-ratio", type=float, default=0.0, help="spring damping ratio")
+        q.add_argument("--wall-restitution", type=float, default=0.0, help="wall restitution")
         _scene_flags(q)
         if name == "show":
             q.add_argument("-o", "--output", required=True, help=".png file to write")
@@ -37,16 +37,16 @@ def add_cli(sub: Any) -> None:
                                 "and the true centres <stem>.truth.npy go next to a video "
                                 "(calibration.json, background.png, truth.npy in a directory)")
             q.add_argument("--size", type=int, default=640,
-                           help="image width = height in px, the whole 45 x 45 box (640)")
+                           help="image width = height in px, the whole 45 x 45 box")
             q.add_argument("--fps", type=float, default=45.0,
                            help="frames per second (45: one frame per simulation step)")
             q.add_argument("--noise", type=float, default=3.0,
-                           help="sensor noise, standard deviation in grey levels (3)")
+                           help="sensor noise, standard deviation in grey levels")
             q.add_argument("--texture", type=float, default=60.0,
-                           help="background texture, grey levels peak to peak (60; 0: plain)")
+                           help="background texture, grey levels peak to peak (0: plain)")
             q.add_argument("--distractors", type=int, default=0,
-                           help="stray blobs per frame, clear of the body (0)")
-            q.add_argument("--seed", type=int, default=0, help="texture, noise, distractors (0)")
+                           help="stray blobs per frame, clear of the body")
+            q.add_argument("--seed", type=int, default=0, help="random seed of the texture, noise and distractors")
             q.set_defaults(func=_cli_render)
         else:
             q.add_argument("-o", "--output", required=True,
@@ -62,7 +62,9 @@ def _scene_flags(q: Any) -> None:
                    help="where the start impulse acts: ring_centre (released code: particles "
                         "spin) or particle_centre (centre of mass)")
     q.add_argument("--sleep", action="store_true",
-                   help="allow Box2D island sleeping (the released world: off)")
+                   help="freeze the body once it has rested 0.5 s (every particle slower than "
+                        "0.01 units/s and 2 deg/s), as Box2D's island sleeping does; the "
+                        "released world, and the default, never freezes it")
 
 
 def _trajectory(args: Any, include_initial: bool = False) -> Any:

@@ -64,20 +64,33 @@ def _add_run(tsub: Any) -> None:
                    help="run directory: checkpoint.pt, checkpoint.json, log.jsonl")
     q.add_argument("--resume", action="store_true",
                    help="continue the run in --run-dir (its stored recipe is used)")
-    q.add_argument("--recipe", choices=("paper", "curriculum"), default=d.recipe)
+    q.add_argument("--recipe", choices=("paper", "curriculum"), default=d.recipe,
+                   help="paper: the published 8-step recursive loss from the first step; "
+                        "curriculum: --pretrain-epochs of the 1-step loss, then the rollout "
+                        "growing from 1 to --rollout over --ramp-epochs")
     q.add_argument("--size", choices=sorted(SIZES), default="full",
-                   help="network widths: full (released), half, quarter (every width halved, quartered), small, tiny")
-    q.add_argument("--lstm-activation", choices=("relu", "tanh"), default="relu")
+                   help="network widths: full (released), half, quarter (every width halved, "
+                        "quartered), small, tiny")
+    q.add_argument("--lstm-activation", choices=("relu", "tanh"), default="relu",
+                   help="the LSTM cell's candidate and output non-linearity (released: relu)")
     q.add_argument("--epochs", type=float, default=None,
-                   help=f"default {d.epochs}; may be fractional")
-    q.add_argument("--batch", type=int, default=d.batch)
-    q.add_argument("--lr", type=float, default=d.lr)
-    q.add_argument("--beta1", type=float, default=d.beta1)
-    q.add_argument("--beta2", type=float, default=d.beta2)
-    q.add_argument("--adam-eps", type=float, default=d.eps)
-    q.add_argument("--schedule", choices=("constant", "cosine"), default=d.schedule)
-    q.add_argument("--lr-min", type=float, default=d.lr_min)
-    q.add_argument("--warmup-steps", type=int, default=d.warmup_steps)
+                   help=f"epochs over the training windows, may be fractional (default: {d.epochs:g})")
+    q.add_argument("--batch", type=int, default=d.batch, help="windows per optimizer step")
+    q.add_argument("--lr", type=float, default=d.lr,
+                   help="Adam learning rate (the peak one with --schedule cosine)")
+    q.add_argument("--beta1", type=float, default=d.beta1,
+                   help="Adam's first-moment decay (the released code's)")
+    q.add_argument("--beta2", type=float, default=d.beta2,
+                   help="Adam's second-moment decay (the released code's)")
+    q.add_argument("--adam-eps", type=float, default=d.eps,
+                   help="Adam's epsilon (the released code's)")
+    q.add_argument("--schedule", choices=("constant", "cosine"), default=d.schedule,
+                   help="learning rate after the warm-up: constant --lr, or cosine decay "
+                        "from --lr to --lr-min at the last step")
+    q.add_argument("--lr-min", type=float, default=d.lr_min,
+                   help="learning rate the cosine schedule ends at")
+    q.add_argument("--warmup-steps", type=int, default=d.warmup_steps,
+                   help="steps of linear learning-rate warm-up from 0 (0: none)")
     q.add_argument("--clip", type=float, default=d.clip, help="max grad norm (0: off)")
     q.add_argument("--noise", type=float, default=d.noise,
                    help="std of Gaussian noise on input coordinates (normalised units)")
@@ -88,8 +101,10 @@ def _add_run(tsub: Any) -> None:
                    help="μ: add μ × the same weighted sum of matched (earth mover's) distances, "
                         "optimal one-to-one pairs (scipy); stops predicted points from "
                         "clumping on one target; 0 = published loss")
-    q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs)
-    q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs)
+    q.add_argument("--pretrain-epochs", type=float, default=d.pretrain_epochs,
+                   help="curriculum: epochs of the 1-step (teacher-forced) loss first")
+    q.add_argument("--ramp-epochs", type=float, default=d.ramp_epochs,
+                   help="curriculum: epochs over which the rollout grows from 1 to --rollout")
     q.add_argument("--rollout", type=int, default=d.rollout,
                    help=f"longest recursive loss (1..{N_ROLLOUT_MAX}; published {N_STEPS_MAX}; "
                         f"longer: only windows with that many frames after their inputs)")
@@ -118,7 +133,8 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--split-seed", type=int, default=d.split_seed,
                    help="seed of the validation split (kept apart from --seed)")
     q.add_argument("--seed", type=int, default=d.seed, help="initialisation, order and noise")
-    q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                   help="where torch trains: auto is cuda when a GPU is visible, else cpu")
     q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     q.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
     q.add_argument("--precision", choices=PRECISIONS, default="float32", help=_PRECISION_HELP)
@@ -128,13 +144,14 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--budget-minutes", type=float, default=None,
                    help="new runs: time a few steps here, then set --epochs so the run (and its "
                         "cosine schedule) fits 90%% of this many minutes; also the hard stop")
-    q.add_argument("--checkpoint-minutes", type=float, default=5.0)
+    q.add_argument("--checkpoint-minutes", type=float, default=5.0,
+                   help="write a checkpoint at least this often (and at every stop)")
     q.add_argument("--checkpoint-part-mib", type=float, default=None, metavar="MIB",
                    help="write the checkpoint as checkpoint.pt.000, .001, ... of at most MIB MiB "
                         "each (e.g. 16, for machines whose files travel in 16 MiB pieces); kept "
                         "on --resume, which reads parts or one file alike; 0: one file again")
     q.add_argument("--checkpoint-optimizer", choices=OPTIMIZER_MODES, default=None,
-                   help="Adam state in the checkpoint: full (exact resume; default), bf16 (moments "
+                   help="Adam state in the checkpoint: full (exact resume; the default), bf16 (moments "
                         "in bfloat16, 2/3 of the size) or none (model only, 1/3; resume starts a "
                         "fresh Adam); kept on --resume unless given")
     q.add_argument("--allow-other-scene", action="store_true",
@@ -156,7 +173,8 @@ def _add_export(tsub: Any) -> None:
     e = tsub.add_parser("export", help="native weights file from a checkpoint (with provenance)")
     e.add_argument("checkpoint", help="run directory or checkpoint.pt")
     e.add_argument("output", help="native HDF5 weights file to write")
-    e.add_argument("--dtype", choices=("float32", "float64"), default="float32")
+    e.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                   help="dtype of the parameters in the written file")
     e.set_defaults(func=_cli_export)
 
 
@@ -172,16 +190,20 @@ def _add_average(tsub: Any) -> None:
 
 def _add_bench(tsub: Any) -> None:
     b = tsub.add_parser("bench", help="training throughput (windows/s) at a batch size")
-    b.add_argument("--size", choices=sorted(SIZES), default="full")
-    b.add_argument("--batch", type=int, default=128)
-    b.add_argument("--rollouts", type=int, nargs="+", default=[1, 8])
-    b.add_argument("--iters", type=int, default=5)
-    b.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    b.add_argument("--threads", type=int, default=2)
+    b.add_argument("--size", choices=sorted(SIZES), default="full",
+                   help="network widths, as `tpnet train run --size`")
+    b.add_argument("--batch", type=int, default=128, help="windows per timed step")
+    b.add_argument("--rollouts", type=int, nargs="+", default=[1, 8],
+                   help="recursive-loss lengths to time, one line each")
+    b.add_argument("--iters", type=int, default=5,
+                   help="timed steps per line, after a warm-up step")
+    b.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                   help="where torch runs: auto is cuda when a GPU is visible, else cpu")
+    b.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     b.add_argument("--compile", choices=COMPILE_MODES, default="off", help=_COMPILE_HELP)
     b.add_argument("--precisions", choices=PRECISIONS[1:], nargs="+",
                    default=list(PRECISIONS[1:]),
-                   help="time each of these (default both); the line marked (default) is "
+                   help="time each of these (default: both); the line marked (default) is "
                         "the one `tpnet train run` takes (float32), (auto) the one "
                         "`--precision auto` takes on this machine")
     b.add_argument("--shape-weight", type=float, default=0.0, help="λ of the timed loss")
@@ -193,14 +215,19 @@ def _add_score(tsub: Any) -> None:
     d = Recipe()
     s = tsub.add_parser("score", help="model selection on validation trajectories (the test "
                                       "protocol, never the test cases): E_p/E_s at 40/80")
-    s.add_argument("data")
+    s.add_argument("data", help="HDF5 dataset from `tpnet data generate` (its validation "
+                               "trajectories are scored)")
     s.add_argument("weights", nargs="+", help="native weights files to compare")
-    s.add_argument("--horizon", type=int, default=80)
+    s.add_argument("--horizon", type=int, default=80,
+                   help="recursive predictions per validation window")
     s.add_argument("--spacing", action="store_true",
                    help="also how evenly the one-step predictions cover the ring (world units: "
                         "nearest-neighbour distance, smallest one per set, radius spread)")
-    s.add_argument("--val-fraction", type=float, default=d.val_fraction)
-    s.add_argument("--split-seed", type=int, default=d.split_seed)
+    s.add_argument("--val-fraction", type=float, default=d.val_fraction,
+                   help="fraction of training-grid trajectories held out for validation "
+                        "(as the run's)")
+    s.add_argument("--split-seed", type=int, default=d.split_seed,
+                   help="seed of the validation split (as the run's)")
     s.add_argument("--allow-other-scene", action="store_true",
                    help="score on a dataset made with another scene convention")
     s.set_defaults(func=_cli_score)
@@ -210,9 +237,13 @@ def _add_baselines(tsub: Any) -> None:
     d = Recipe()
     c = tsub.add_parser("baselines", help="copy-last-frame and constant-velocity scores on the "
                                           "validation windows")
-    c.add_argument("data")
-    c.add_argument("--val-fraction", type=float, default=d.val_fraction)
-    c.add_argument("--split-seed", type=int, default=d.split_seed)
+    c.add_argument("data", help="HDF5 dataset from `tpnet data generate` (its validation "
+                               "trajectories are scored)")
+    c.add_argument("--val-fraction", type=float, default=d.val_fraction,
+                   help="fraction of training-grid trajectories held out for validation "
+                        "(as the run's)")
+    c.add_argument("--split-seed", type=int, default=d.split_seed,
+                   help="seed of the validation split (as the run's)")
     c.add_argument("--allow-other-scene", action="store_true",
                    help="score on a dataset made with another scene convention")
     c.set_defaults(func=_cli_baselines)

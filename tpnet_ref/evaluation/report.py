@@ -24,7 +24,7 @@ from ..protocol import FRAME_EVERY, HORIZONS, SIM_ROWS
 from . import plots as P
 from .run import HEADLINE, PAPER_TABLE, VARIANTS, Curve, table_horizons
 from .shape import reading_evidence
-from .spread import LEVEL, N_RESAMPLES, SEED, fmt_spread, spread
+from .spread import LEVEL, N_RESAMPLES, SEED, fmt_err, fmt_spread, spread  # noqa: F401  (fmt_err re-exported)
 from .timing import TimingRow
 
 #: one line on what each reading is (docs/spec.md §3)
@@ -44,20 +44,6 @@ def _fmt(x: float | None, digits: int = 3) -> str:
     if x != 0 and abs(x) < 10 ** -digits:
         return f"{x:.1e}"
     return f"{x:.{digits}f}"
-
-
-def fmt_err(x: float | None) -> str:
-    """An error for a table: two significant digits below 0.1 (in decimals down to 1e-4),
-    three decimals up to 10, two above; '–' if missing."""
-    if x is None or not np.isfinite(x):
-        return "–"
-    if x == 0:
-        return "0"
-    if abs(x) < 1e-4:
-        return f"{x:.1e}"
-    if abs(x) < 0.1:
-        return f"{x:.{1 - math.floor(math.log10(abs(x)))}f}"
-    return f"{x:.3f}" if abs(x) < 10 else f"{x:.2f}"
 
 
 def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:

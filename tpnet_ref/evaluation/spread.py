@@ -10,6 +10,7 @@ apart by these cases.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -74,15 +75,28 @@ def spread(x: object, **kw: object) -> Spread:
     return Spread(float(a.mean()), lo, hi, float(np.median(a)), int(a.size))
 
 
+def fmt_err(x: float | None) -> str:
+    """An error for a table: two significant digits below 0.1 (in decimals down to 1e-4),
+    three decimals up to 10, two above; '–' if missing."""
+    if x is None or not np.isfinite(x):
+        return "–"
+    if x == 0:
+        return "0"
+    if abs(x) < 1e-4:
+        return f"{x:.1e}"
+    if abs(x) < 0.1:
+        return f"{x:.{1 - math.floor(math.log10(abs(x)))}f}"
+    return f"{x:.3f}" if abs(x) < 10 else f"{x:.2f}"
+
+
 def fmt_spread(s: Spread, fmt: object = None) -> str:
     """``mean [lo, hi] med median`` with each number formatted by ``fmt`` (default: the tables'
-    :func:`tpnet_ref.evaluation.report.fmt_err`); the mean alone for a single case."""
-    if fmt is None:
-        from .report import fmt_err as fmt
-    f = fmt  # type: ignore[assignment]
+    :func:`fmt_err`); the mean alone for a single case."""
+    f = fmt_err if fmt is None else fmt
     if s.n == 1:
         return f(s.mean)  # type: ignore[operator]
     return f"{f(s.mean)} [{f(s.lo)}, {f(s.hi)}] med {f(s.median)}"  # type: ignore[operator]
 
 
-__all__ = ["N_RESAMPLES", "SEED", "LEVEL", "Spread", "bootstrap_ci", "spread", "fmt_spread"]
+__all__ = ["N_RESAMPLES", "SEED", "LEVEL", "Spread", "bootstrap_ci", "spread", "fmt_spread",
+           "fmt_err"]

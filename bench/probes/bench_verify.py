@@ -1,6 +1,6 @@
 """What checking a weights file's content digest costs at load (docs/weights.md, "Integrity").
 
-    python bench/bench_verify.py [WEIGHTS.h5 ...]     # default: the shipped m = 4 file and the
+    PYTHONPATH=bench python bench/probes/bench_verify.py [WEIGHTS.h5 ...]     # default: the shipped m = 4 file and the
                                                       # half and quarter sizes
 
 For each file: the median time of ``tpnet_ref.load`` (read, digest check, model build), of

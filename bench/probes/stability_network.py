@@ -1,6 +1,6 @@
 """Numerical stability of the network (docs/spec.md §6): float32 overflow and float32/float64 divergence.
 
-    PYTHONPATH=. nice -n 19 python bench/stability_network.py [--frames 10000] [--seed 0]
+    nice -n 19 python bench/probes/stability_network.py [--frames 10000] [--seed 0]
 
 1. Input scale: a window of the scene (world units) is scaled about the box centre by ``s``;
    for each ``s`` the float32 and float64 predictions, the largest ReLU-LSTM output reaching

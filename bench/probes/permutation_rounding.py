@@ -1,6 +1,6 @@
 """How much a per-frame permutation changes TP-Net's output with the canonical sort OFF.
 
-    python bench/permutation_rounding.py [--examples 50]
+    PYTHONPATH=bench python bench/probes/permutation_rounding.py [--examples 50]
 
 At the released shape (``init_random(seed=21)``, m = 4), for the implementations the property
 tests check at a quarter of every width (tests/test_invariance.py): ``reference.forward``, the

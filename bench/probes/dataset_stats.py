@@ -1,6 +1,6 @@
 """Figures of a generated dataset quoted in docs/dataset.md.
 
-    PYTHONPATH=. python bench/dataset_stats.py data/tpnet.h5
+    python bench/probes/dataset_stats.py data/tpnet.h5
 """
 from __future__ import annotations
 

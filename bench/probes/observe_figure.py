@@ -1,6 +1,6 @@
 """The README's picture of the camera path: render a video, observe the window, predict, draw.
 
-    python bench/observe_figure.py -o docs/observe_example.png
+    python bench/probes/observe_figure.py -o docs/observe_example.png
 
 Runs the three commands of the README (`tpnet sim render`, `tpnet observe`, `tpnet predict`) in a
 temporary directory, then draws the four input frames (crops) with the points `tpnet observe`
