@@ -144,3 +144,75 @@ def test_a_wrong_output_shape_is_named(impl):
                                               r"\(29, 2\) against \(30, 2\)$"):
         testing.agrees_with_reference(lambda w: model.predict(w)[1:], model, tol=1.0,
                                       max_examples=5)
+
+
+# ------------------------------------------------------------------ the checkers pinned
+# Windows of several frames and changes to single points: a checker that looked at frame 0
+# only, or at the first output point only, or skipped one of its frame orders, must fail here.
+def test_permuted_permutes_every_frame():
+    rng = np.random.default_rng(0)
+    window = [rng.normal(size=(k, 2)) for k in (5, 3, 6, 4)]
+    perms = [rng.permutation(len(f)) for f in window]
+    assert all((p != np.arange(len(p))).any() for p in perms)
+    out = testing.permuted(window, perms)
+    assert len(out) == len(window)
+    for f, p, g in zip(window, perms, out):
+        assert np.array_equal(g, f[p])
+
+
+@pytest.mark.parametrize("frame", [1, -1])
+def test_permutation_invariant_sees_every_frame(frame):
+    """A function that depends on the order of one later frame's points only."""
+    def one_frames_first_point(window):
+        return np.asarray(window[frame][0])
+
+    with pytest.raises(PropertyFailure, match=r"^permutation_invariant: one_frames_first_point "
+                                              r"changed by .* minimal window: m=3, N=\("):
+        testing.permutation_invariant(one_frames_first_point,
+                                      testing.windows(m=3, n=(2, 6)), max_examples=50, seed=0)
+
+
+@pytest.mark.parametrize("point", [1, 17, 29])
+def test_agreement_sees_every_output_point(impl, point):
+    """Off at one output point only: the comparison must cover every point, not the first."""
+    model = impl.base["float64"]
+
+    def off_at_one_point(window):
+        y = model.predict(window).copy()
+        y[point, 1] += 1e-3
+        return y
+
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: off_at_one_point is "
+                                              r"0.001 from the float64 reference"):
+        testing.agrees_with_reference(off_at_one_point, model, tol=1e-4,
+                                      windows=testing.windows(m=4, n=(3, 8)), max_examples=5)
+
+
+def test_frame_order_matters_rotates_as_well_as_reverses():
+    """A function of the window's frames taken cyclically -- each frame's centre paired with
+    the next one's, the last with the first, the pairs sorted -- is unchanged, bit for bit, by a
+    rotation and changed by a reversal: only the rotation check catches it."""
+    def cyclic_pairs(window):
+        c = np.stack([f.mean(0) for f in window])
+        pairs = np.concatenate([c, np.roll(c, -1, axis=0)], axis=1)
+        return pairs[np.lexsort(pairs.T[::-1])]
+
+    moving = testing.windows(m=[3, 4], n=(2, 6), step=(0.5, 2.0))
+    w = [np.full((2, 2), float(t)) for t in range(3)]
+    assert np.array_equal(cyclic_pairs(w), cyclic_pairs(w[1:] + w[:1]))   # rotation: the same
+    assert not np.array_equal(cyclic_pairs(w), cyclic_pairs(w[::-1]))      # reversal: not
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: cyclic_pairs changed by "
+                                              r"only 0 \(needs more than 0\) on rotating the "
+                                              r"frames in time; minimal window: m=3, "):
+        testing.frame_order_matters(cyclic_pairs, moving, max_examples=20, seed=0)
+
+
+def test_one_point_matters_moves_a_point_of_any_frame():
+    """A function of the last frame alone: moving a point of another frame changes nothing."""
+    def last_frame_only(window):
+        return np.stack([window[-1].mean(0)] * 3)
+
+    with pytest.raises(PropertyFailure, match=r"^one_point_matters: last_frame_only changed by "
+                                              r"only 0 .* point \d+ of frame [0-2] "):
+        testing.one_point_matters(last_frame_only, testing.windows(m=4, n=(2, 6)),
+                                  max_examples=50, seed=0)
