@@ -105,3 +105,56 @@ def test_the_one_body_test_is_bounded_in_memory():
         body_outliers(big[0])
     # at the limit the test still runs (and finds the scattered points are no body)
     assert body_outliers(big[0, :BODY_MAX_POINTS]).shape == (BODY_MAX_POINTS,)
+
+
+# ------------------------------------------------------------------ pinned by mutation testing
+# (tools/mutation.py: each of these was a surviving mutant of checks.py)
+def test_an_empty_batch_of_point_sets_is_named():
+    from tpnet_ref.checks import as_point_sets
+    with pytest.raises(ValueError, match=r"^P: is empty \(0 points per set, shape \(3, 0, 2\)\)$"):
+        as_point_sets(np.zeros((3, 0, 2)), "P")
+    assert as_point_sets(np.zeros((3, 1, 2)), "P").shape == (3, 1, 2)
+
+
+def test_a_sparse_ring_is_one_body_by_its_pairwise_links():
+    """8 points on a ring of radius 2: the path around the centre has steps of 1.53 (more than
+    BODY_LINK_MIN), so the pairwise test decides -- one body, no warning."""
+    from tpnet_ref.checks import _all_one_body, body_outliers, window_body_problem
+    w = np.stack([_ring(n=8) + [0.3 * i, 0.0] for i in range(4)])
+    assert _all_one_body(w)
+    assert window_body_problem(w) is None and window_body_problem(list(w)) is None
+    assert not body_outliers(w[0]).any()
+
+
+def test_two_arcs_of_a_broken_outline_are_one_body_and_a_far_blob_is_not():
+    from tpnet_ref.checks import body_outliers
+    ring = _ring(n=30)
+    arcs = np.concatenate([ring[1:12], ring[16:27]])        # two gaps of 5 points
+    assert not body_outliers(arcs, link=1.0).any()             # two groups, one body
+    blob = np.array([[30.0, 20.0], [30.3, 20.0], [30.0, 20.3]])   # 3 points, 10 away
+    out = body_outliers(np.concatenate([arcs, blob]), link=1.0)
+    assert out[-3:].all() and not out[:-3].any()
+
+
+def test_spurs_are_points_off_the_outline_with_both_neighbours_on_one_side():
+    from tpnet_ref.checks import body_outliers
+    ring = _ring(n=30)
+    spur = 20.0 + 3.0 * np.array([np.sin(0.1), np.cos(0.1)])   # 1 world unit outside
+    out = body_outliers(np.concatenate([ring, [spur]]), spur_factor=2.0)
+    assert out[-1] and not out[:-1].any()
+    # a point far from both neighbours but between them (a thinly sampled stretch of the
+    # outline) is no spur
+    thin = np.delete(ring, [13, 14, 16, 17], axis=0)
+    assert not body_outliers(thin, spur_factor=2.0).any()
+
+
+def test_a_frame_of_mostly_scattered_points_is_left_to_the_range_check():
+    """More points apart from the body than in it: not judged as "not one body" (no body of
+    the scene's size; training_range_problem says what is wrong)."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    body = _ring(r=1.0, n=6)
+    apart = [[60.0, 60.0], [60.3, 60.0], [-40.0, 60.0], [-40.3, 60.0], [60.0, -40.0],
+             [60.3, -40.0], [-40.0, -40.0]]
+    frame = np.concatenate([body, apart])
+    assert body_outliers(frame).sum() == 7
+    assert window_body_problem([frame] * 4) is None

@@ -10,6 +10,7 @@ mutant is killed when the tests fail or time out, survives when they pass.
     python tools/mutation.py                         # every module, every mutant (hours)
     python tools/mutation.py layers checks --sample 60 --seed 1   # 60 mutants of each
     python tools/mutation.py --report                # the score so far, from the saved sessions
+    python tools/mutation.py layers --rerun-survivors    # after new tests: the survivors again
 
 The work happens in a copy of the repository per module (``--workdir``, default
 ``$TMPDIR/tpnet-mutation``), never in the working tree: cosmic-ray edits the module in place. A
@@ -120,6 +121,17 @@ def prepare(module: str, work: Path, timeout: float, sample: int | None, seed: i
     return session
 
 
+def forget_survivors(module: str, work: Path) -> int:
+    """Make the survivors of ``module``'s session pending again (after new tests: the next run
+    re-runs them against the freshly copied tree). Returns how many."""
+    import sqlite3
+    session = work / module / "session.sqlite"
+    with sqlite3.connect(session) as con:
+        n = con.execute("DELETE FROM work_results WHERE test_outcome = 'SURVIVED'").rowcount
+    print(f"{module}: {n} survivors to run again", flush=True)
+    return n
+
+
 def run(module: str, work: Path) -> None:
     home = work / module
     _cr("exec", str(home / "config.toml"), str(home / "session.sqlite"), cwd=home / "tree")
@@ -217,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
                     default=Path(tempfile.gettempdir()) / "tpnet-mutation",
                     help="where the copies and sessions live")
     ap.add_argument("--fresh", action="store_true", help="start the modules' sessions over")
+    ap.add_argument("--rerun-survivors", action="store_true",
+                    help="run the surviving mutants again (after adding tests)")
     ap.add_argument("--report", action="store_true", help="only print the score so far")
     ap.add_argument("--nice", type=int, default=10, help="niceness of the runs (default 10)")
     args = ap.parse_args(argv)
@@ -232,6 +246,8 @@ def main(argv: list[str] | None = None) -> int:
         for module in args.modules:
             t0 = time.time()
             prepare(module, args.workdir, args.timeout, args.sample, args.seed, args.fresh)
+            if args.rerun_survivors:
+                forget_survivors(module, args.workdir)
             run(module, args.workdir)
             print(f"{module}: {time.time() - t0:.0f} s", flush=True)
     scores = report(args.modules, args.workdir)
