@@ -131,6 +131,12 @@ def test_two_arcs_of_a_broken_outline_are_one_body_and_a_far_blob_is_not():
     ring = _ring(n=30)
     arcs = np.concatenate([ring[1:12], ring[16:27]])        # two gaps of 5 points
     assert not body_outliers(arcs, link=1.0).any()             # two groups, one body
+    # a piece of only 3 points still counts (the smallest piece that does), after the body
+    assert not body_outliers(np.concatenate([ring[2:25], ring[27:30]]), link=1.0).any()
+    # a tail linked to the body but reaching past max_radius: its far end is apart
+    tail = np.repeat(np.linspace(21.7, 25.0, 10)[:, None], 2, axis=1)     # along the diagonal
+    out = body_outliers(np.concatenate([ring, tail]))
+    assert out[-1] and not body_outliers(np.concatenate([ring, tail[:3]])).any()
     blob = np.array([[30.0, 20.0], [30.3, 20.0], [30.0, 20.3]])   # 3 points, 10 away
     out = body_outliers(np.concatenate([arcs, blob]), link=1.0)
     assert out[-3:].all() and not out[:-3].any()
@@ -158,3 +164,27 @@ def test_a_frame_of_mostly_scattered_points_is_left_to_the_range_check():
     frame = np.concatenate([body, apart])
     assert body_outliers(frame).sum() == 7
     assert window_body_problem([frame] * 4) is None
+
+
+def test_a_ragged_window_moving_steadily_is_one_body():
+    """Frames of different sizes are judged one by one; the steps between neighbouring frames
+    (3 world units each), not between the first and the last (9), are what is judged."""
+    from tpnet_ref.checks import window_body_problem
+    frames = [_ring(cx=20.0 + 3.0 * i, n=30 - i) for i in range(4)]
+    assert window_body_problem(frames) is None
+    far = frames[:3] + [_ring(cx=35.0, n=27)]
+    assert window_body_problem(far).startswith("frame 3's body is 9 world units from frame 2's")
+
+
+def test_the_out_of_range_message_gives_the_span():
+    w = _window(cx=120.0)
+    lo, hi = w.min(), w.max()
+    assert _problem(w, False).startswith(f"coordinates span [{lo:.3g}, {hi:.3g}] world units, "
+                                         f"outside the training box [{NORM_LO:g}, {NORM_HI:g}]")
+    model = np.full((4, 30, 2), 0.5)
+    model[0, 0, 0] = 2.0                                  # model units: the hint starts above 2
+    assert _problem(model, True) == ("coordinates span [0.5, 2] in model units, outside the "
+                                     "training box [0, 1]")
+    model[0, 0, 0] = 2.5
+    assert _problem(model, True).endswith("(world units passed as normalized=True / --normalized?)")
+

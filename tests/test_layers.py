@@ -152,3 +152,18 @@ def test_bilstm_steps_defaults_to_relu_and_every_step():
     default = L.bilstm_steps(xp, rec, bias, steps, bsz)
     assert default.shape == (steps, bsz, 2 * u)
     assert np.array_equal(default, L.bilstm_steps(xp, rec, bias, steps, bsz, "relu", True))
+
+
+def test_column_blocks_are_the_widest_that_fit():
+    """fuse_bilstm's blocks: the largest divisor nb of the columns with nb <= BLOCK_COLUMNS and
+    block_rows * C * nb <= SMALL_PRODUCT (here the product bound binds)."""
+    rng = np.random.default_rng(0)
+    c, u = 600, 64
+    d = [(rng.normal(size=(c, 4 * u)), rng.normal(size=(u, 4 * u)), rng.normal(size=4 * u))
+         for _ in range(2)]
+    for rows in (4, 40, 400):
+        fused = L.fuse_bilstm(*d, block_rows=rows)
+        want = max((nb for nb in range(1, BLOCK_COLUMNS + 1)
+                    if (8 * u) % nb == 0 and rows * c * nb <= SMALL_PRODUCT), default=None)
+        got = None if fused.blocks is None else fused.blocks.shape[2]
+        assert got == want, (rows, got, want)
