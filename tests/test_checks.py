@@ -188,3 +188,33 @@ def test_the_out_of_range_message_gives_the_span():
     model[0, 0, 0] = 2.5
     assert _problem(model, True).endswith("(world units passed as normalized=True / --normalized?)")
 
+
+
+def test_point_sets_check_their_last_axis():
+    from tpnet_ref.checks import as_point_sets
+    with pytest.raises(ValueError, match=r"^Q: expected shape \(\.\.\., N, 2\), got \(3, 2, 5\)$"):
+        as_point_sets(np.zeros((3, 2, 5)), "Q")
+    with pytest.raises(ValueError, match=r"^Q: expected shape"):
+        as_point_sets(np.zeros(4), "Q")
+
+
+def test_the_radius_is_judged_from_20_points_on():
+    from tpnet_ref.checks import RADIUS_MIN_POINTS
+    assert RADIUS_MIN_POINTS == 20
+    assert "mean radius is 0.3" in _problem(_window(r=0.3, n=20))
+    assert _problem(_window(r=0.3, n=19)) is None                # too few points to judge
+
+
+@pytest.mark.parametrize("step, warns", [(3.0, False), (5.0, True)])
+def test_model_coordinates_are_judged_in_world_units(step, warns):
+    """warn_about_input with normalized=True maps the frames back to world units before the
+    one-body test: a ring moving 3 world units a frame is one body, 5 is not."""
+    from tpnet_ref.checks import NotOneBodyWarning, warn_about_input
+    w = np.stack([_ring() + [step * i, 0.0] for i in range(4)])
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        warn_about_input(list(normalize(w)), NORM_LO, NORM_HI, True, "window", True)
+    body = [str(x.message) for x in got if issubclass(x.category, NotOneBodyWarning)]
+    assert bool(body) == warns, body
+    if warns:
+        assert f"frame 1's body is {step:.3g} world units from frame 0's" in body[0]
