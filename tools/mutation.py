@@ -122,14 +122,19 @@ def prepare(module: str, work: Path, timeout: float, sample: int | None, seed: i
 
 
 def forget_survivors(module: str, work: Path) -> int:
-    """Make the survivors of ``module``'s session pending again (after new tests: the next run
-    re-runs them against the freshly copied tree). Returns how many."""
+    """Make the survivors of ``module``'s session that are not triaged equivalent pending again
+    (after new tests: the next run re-runs them against the freshly copied tree). Returns how
+    many."""
     import sqlite3
-    session = work / module / "session.sqlite"
+    session, triage = work / module / "session.sqlite", load_triage()
     with sqlite3.connect(session) as con:
-        n = con.execute("DELETE FROM work_results WHERE test_outcome = 'SURVIVED'").rowcount
-    print(f"{module}: {n} survivors to run again", flush=True)
-    return n
+        rows = con.execute("SELECT job_id, diff FROM work_results "
+                           "WHERE test_outcome = 'SURVIVED'").fetchall()
+        again = [job for job, diff in rows
+                 if triaged(module, *_changed_lines(diff or ""), triage) is None]
+        con.executemany("DELETE FROM work_results WHERE job_id = ?", [(j,) for j in again])
+    print(f"{module}: {len(again)} survivors to run again", flush=True)
+    return len(again)
 
 
 def run(module: str, work: Path) -> None:
