@@ -152,3 +152,32 @@ def test_compressed_datasets_gzip_and_shuffle_only_and_bounded(tmp_path):
         with pytest.raises(ValueError, match="^bomb: a compressed chunk holds more than its "
                                              "declared 32 bytes; refused"):
             hdf5.read(f["bomb"], "bomb")
+
+
+# ------------------------------------------------------------------ pinned by mutation testing
+# (tools/mutation.py: each of these was a surviving mutant of hdf5.py)
+def test_chunks_that_store_too_much_skip_a_filter_or_end_early(tmp_path):
+    """A chunk that stores more than twice its size is refused before inflating; a chunk whose
+    writer skipped the gzip filter (its filter mask) is read without it; a deflate stream that
+    holds the chunk's bytes but never ends is refused."""
+    import zlib
+
+    data = np.arange(8, dtype="<f4")
+    shuffled = data.view(np.uint8).reshape(-1, 4).T.tobytes()           # shuffle's byte planes
+    p = tmp_path / "c.h5"
+    with h5py.File(p, "w") as f:
+        d = f.create_dataset("big", shape=(8,), dtype="<f4", chunks=(8,), compression="gzip")
+        d.id.write_direct_chunk((0,), np.random.default_rng(0).bytes(2 * 32 + 1025))
+        d = f.create_dataset("raw", shape=(8,), dtype="<f4", chunks=(8,), compression="gzip",
+                             shuffle=True)
+        d.id.write_direct_chunk((0,), shuffled, filter_mask=0b10)     # gzip (filter 1) skipped
+        d = f.create_dataset("open", shape=(8,), dtype="<f4", chunks=(8,), compression="gzip")
+        z = zlib.compressobj()
+        d.id.write_direct_chunk((0,), z.compress(data.tobytes()) + z.flush(zlib.Z_SYNC_FLUSH))
+    with hdf5.open_h5(p) as f:
+        assert [code for code, _ in hdf5.filters(f["raw"])] == [2, 1]    # shuffle, then gzip
+        with pytest.raises(ValueError, match=r"^big: a chunk stores 1,089 bytes for 32$"):
+            hdf5.read(f["big"], "big")
+        np.testing.assert_array_equal(hdf5.read(f["raw"], "raw"), data)
+        with pytest.raises(ValueError, match="^open: a compressed chunk holds more than"):
+            hdf5.read(f["open"], "open")
