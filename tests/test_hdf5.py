@@ -174,6 +174,8 @@ def test_chunks_that_store_too_much_skip_a_filter_or_end_early(tmp_path):
         d = f.create_dataset("open", shape=(8,), dtype="<f4", chunks=(8,), compression="gzip")
         z = zlib.compressobj()
         d.id.write_direct_chunk((0,), z.compress(data.tobytes()) + z.flush(zlib.Z_SYNC_FLUSH))
+        d = f.create_dataset("short", shape=(8,), dtype="<f4", chunks=(8,), shuffle=True)
+        d.id.write_direct_chunk((0,), shuffled[:5])                    # 5 bytes for 32
     with hdf5.open_h5(p) as f:
         assert [code for code, _ in hdf5.filters(f["raw"])] == [2, 1]    # shuffle, then gzip
         with pytest.raises(ValueError, match=r"^big: a chunk stores 1,089 bytes for 32$"):
@@ -181,3 +183,5 @@ def test_chunks_that_store_too_much_skip_a_filter_or_end_early(tmp_path):
         np.testing.assert_array_equal(hdf5.read(f["raw"], "raw"), data)
         with pytest.raises(ValueError, match="^open: a compressed chunk holds more than"):
             hdf5.read(f["open"], "open")
+        with pytest.raises(ValueError, match=r"^short: a chunk holds 5 bytes, expected 32$"):
+            hdf5.read(f["short"], "short")

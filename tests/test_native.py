@@ -249,3 +249,5 @@ def test_describe_names_an_average_and_a_file_started_from_one(tmp_path):
 def test_the_digest_reads_a_string_the_same_whatever_type_h5py_gives():
     assert native._canon(b"abc") == native._canon(np.bytes_(b"abc")) == b"Babc"
     assert native._canon("abc") == b"sabc" != native._canon(b"abc")
+    listed = native._canon(np.array([b"a", b"b"]))                     # a list of strings
+    assert listed == b"l" + b"".join(len(x).to_bytes(8, "little") + x for x in (b"Ba", b"Bb"))

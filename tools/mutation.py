@@ -20,7 +20,9 @@ module's mutants and marks the others skipped.
 
 The report prints, per module, the mutants run, killed, survived, the equivalent survivors
 (:data:`TRIAGE` file ``tools/mutation_triage.json``: the mutated line before and after, and why
-the change cannot be seen -- inside a stated tolerance, dead code, the same function) and the
+the change cannot be seen -- inside a stated tolerance, dead code, the same function; and,
+recognised by the tool, a mutant inside a type annotation of a module with ``from __future__
+import annotations``, which Python never evaluates) and the
 score, killed / (run - equivalent), then every survivor not triaged with its diff. docs/testing.md
 ("Mutation score") has the measured scores and the triage. Not part of CI: it takes hours for
 all mutants on two cores.
@@ -158,6 +160,33 @@ def _line_no(diff: str) -> int:
     return 0
 
 
+def annotation_spans(module: str) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """The source spans of ``module``'s annotations, if the module has ``from __future__ import
+    annotations`` (PEP 563: annotations are kept as strings, never evaluated, so a mutant inside
+    one is equivalent)."""
+    import ast
+    tree = ast.parse((ROOT / "tpnet_ref" / f"{module}.py").read_text())
+    if not any(isinstance(n, ast.ImportFrom) and n.module == "__future__"
+               and any(a.name == "annotations" for a in n.names) for n in tree.body):
+        return []
+    spans = []
+    for node in ast.walk(tree):
+        found = []
+        if isinstance(node, ast.arg) and node.annotation is not None:
+            found.append(node.annotation)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.returns:
+            found.append(node.returns)
+        elif isinstance(node, ast.AnnAssign):
+            found.append(node.annotation)
+        spans += [((a.lineno, a.col_offset), (a.end_lineno, a.end_col_offset)) for a in found]
+    return spans
+
+
+def in_annotation(mutation, spans) -> bool:
+    start, end = tuple(mutation.start_pos), tuple(mutation.end_pos)
+    return any(a <= start and end <= b for a, b in spans)
+
+
 def load_triage() -> list[dict]:
     return json.loads(TRIAGE.read_text()) if TRIAGE.exists() else []
 
@@ -178,6 +207,7 @@ def report(modules: list[str], work: Path, verbose: bool = True) -> dict:
             continue
         c = dict(total=0, run=0, killed=0, timeout=0, survived=0, equivalent=0, incompetent=0,
                  pending=0)
+        spans = annotation_spans(module)
         with use_db(str(session), WorkDB.Mode.open) as db:
             results = dict(db.results)
             items = {w.job_id: w for w in db.work_items}
@@ -200,11 +230,11 @@ def report(modules: list[str], work: Path, verbose: bool = True) -> dict:
             c["survived"] += 1
             before, after = _changed_lines(r.diff or "")
             t = triaged(module, before, after, triage)
-            if t is not None:
+            if t is not None or in_annotation(item.mutations[0], spans):
                 c["equivalent"] += 1
             else:
                 mut = item.mutations[0]
-                untriaged.append((module, _line_no(r.diff or ""), mut.operator_name, before, after))
+                untriaged.append((module, mut.start_pos[0], mut.operator_name, before, after))
         live = c["run"] - c["equivalent"]
         c["score"] = c["killed"] / live if live else float("nan")
         scores[module] = c
