@@ -22,8 +22,8 @@ The report prints, per module, the mutants run, killed, survived, the equivalent
 (:data:`TRIAGE` file ``tools/mutation_triage.json``: the mutated line before and after, and why
 the change cannot be seen -- inside a stated tolerance, dead code, the same function; and,
 recognised by the tool, a mutant inside a type annotation of a module with ``from __future__
-import annotations``, which Python never evaluates) and the
-score, killed / (run - equivalent), then every survivor not triaged with its diff. docs/testing.md
+import annotations``, which Python never evaluates; "accepted": not equivalent, not killed, and
+why) and the score, killed / (run - equivalent), then every survivor not triaged with its diff. docs/testing.md
 ("Mutation score") has the measured scores and the triage. Not part of CI: it takes hours for
 all mutants on two cores.
 """
@@ -205,8 +205,8 @@ def report(modules: list[str], work: Path, verbose: bool = True) -> dict:
         session = work / module / "session.sqlite"
         if not session.exists():
             continue
-        c = dict(total=0, run=0, killed=0, timeout=0, survived=0, equivalent=0, incompetent=0,
-                 pending=0)
+        c = dict(total=0, run=0, killed=0, timeout=0, survived=0, equivalent=0, accepted=0,
+                 incompetent=0, pending=0)
         spans = annotation_spans(module)
         with use_db(str(session), WorkDB.Mode.open) as db:
             results = dict(db.results)
@@ -230,19 +230,23 @@ def report(modules: list[str], work: Path, verbose: bool = True) -> dict:
             c["survived"] += 1
             before, after = _changed_lines(r.diff or "")
             t = triaged(module, before, after, triage)
-            if t is not None or in_annotation(item.mutations[0], spans):
+            mut = item.mutations[0]
+            if (t is not None and t.get("kind") != "accepted") or in_annotation(mut, spans):
                 c["equivalent"] += 1
+            elif t is not None:
+                c["accepted"] += 1             # not equivalent, not killed: why, in the triage
             else:
-                mut = item.mutations[0]
                 untriaged.append((module, mut.start_pos[0], mut.operator_name, before, after))
         live = c["run"] - c["equivalent"]
         c["score"] = c["killed"] / live if live else float("nan")
         scores[module] = c
     print(f"{'module':<11} {'mutants':>7} {'run':>4} {'killed':>6} {'(timeout)':>9} "
-          f"{'survived':>8} {'equiv.':>6} {'pending':>7}  score (killed / non-equivalent)")
+          f"{'survived':>8} {'equiv.':>6} {'accepted':>8} {'pending':>7}  "
+          "score (killed / non-equivalent)")
     for module, c in scores.items():
         print(f"{module:<11} {c['total']:>7} {c['run']:>4} {c['killed']:>6} {c['timeout']:>9} "
-              f"{c['survived']:>8} {c['equivalent']:>6} {c['pending']:>7}  {100 * c['score']:.1f} %")
+              f"{c['survived']:>8} {c['equivalent']:>6} {c['accepted']:>8} {c['pending']:>7}  "
+              f"{100 * c['score']:.1f} %")
     if verbose and untriaged:
         print(f"\n{len(untriaged)} surviving mutants not triaged (tools/mutation_triage.json):")
         for module, line, op, before, after in sorted(untriaged):
