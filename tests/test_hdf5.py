@@ -185,3 +185,24 @@ def test_chunks_that_store_too_much_skip_a_filter_or_end_early(tmp_path):
             hdf5.read(f["open"], "open")
         with pytest.raises(ValueError, match=r"^short: a chunk holds 5 bytes, expected 32$"):
             hdf5.read(f["short"], "short")
+
+
+def test_a_chunk_missing_from_a_compressed_dataset_is_refused(tmp_path):
+    """A chunk never written reads as uninitialised memory in the decoder: refused by count."""
+    p = tmp_path / "c.h5"
+    with h5py.File(p, "w") as f:
+        d = f.create_dataset("holes", shape=(16,), dtype="<f4", chunks=(8,), compression="gzip")
+        import zlib
+        d.id.write_direct_chunk((0,), zlib.compress(np.ones(8, "<f4").tobytes()))
+    with hdf5.open_h5(p) as f:
+        with pytest.raises(ValueError, match=r"^holes: 1 chunks stored, the shape needs 2$"):
+            hdf5.read(f["holes"], "holes")
+
+
+def test_vectors_hold_up_to_2_to_the_20_values(h5):
+    n = 1 << 20
+    hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"a": np.arange(n)}, np.int32)
+    assert hdf5.read_vectors(h5, "masks", "tpnet-masks-1", "mask set")["a"].size == n
+    hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"a": np.arange(n + 1)}, np.int32)
+    with pytest.raises(ValueError, match="masks/a is not a mask set"):
+        hdf5.read_vectors(h5, "masks", "tpnet-masks-1", "mask set")
