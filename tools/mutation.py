@@ -50,7 +50,8 @@ MODULES = {
     "checks": ["tests/test_checks.py", "tests/test_model.py"],
     "native": ["tests/test_native.py", "tests/test_integrity.py"],
     "hdf5": ["tests/test_hdf5.py", "tests/test_untrusted_files.py", "tests/test_native.py"],
-    "testing": ["tests/test_testing_kit.py", "tests/test_invariance.py"],
+    # (tests/test_invariance.py runs the same checkers on more networks: 70 s more a mutant)
+    "testing": ["tests/test_testing_kit.py"],
     "onnx_peer": ["tests/test_onnx_export.py", "tests/test_crosscheck_onnx.py"],
 }
 #: what the copy of the repository leaves out
