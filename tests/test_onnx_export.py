@@ -73,7 +73,9 @@ def test_export_declares_one_input_and_one_output_with_dynamic_batch_and_points(
     TPNetConfig(m=3, lstm_activation="tanh", layer_norm_eps=1e-5, lstm_units=(64, 32, 16)),
     # bounds other than the shipped 1.1438 / 43.8562: the export must read the config's
     TPNetConfig(norm_lo=-20.0, norm_hi=75.0, lstm_units=(64, 32, 16)),
-], ids=["trained-transforms", "tanh-small", "other-bounds"])
+    # per-point layers of different widths, three of them, with a trained feature transform
+    TPNetConfig(mlp1=(16, 24, 32), feature_transform_trained=True, lstm_units=(32, 16, 16)),
+], ids=["trained-transforms", "tanh-small", "other-bounds", "uneven-widths"])
 def test_export_of_a_weights_file(tmp_path, cfg):
     weights, path = tmp_path / "net.h5", tmp_path / "net.onnx"
     init_random(cfg, seed=3).save(str(weights))
