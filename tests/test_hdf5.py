@@ -206,3 +206,13 @@ def test_vectors_hold_up_to_2_to_the_20_values(h5):
     hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"a": np.arange(n + 1)}, np.int32)
     with pytest.raises(ValueError, match="masks/a is not a mask set"):
         hdf5.read_vectors(h5, "masks", "tpnet-masks-1", "mask set")
+
+
+def test_the_size_limits_are_the_ones_the_docs_state():
+    """docs/reliability.md, "Untrusted weight files", states the limits; these are they."""
+    from pathlib import Path
+    text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "reliability.md")
+                    .read_text().split())
+    assert hdf5.MAX_TENSOR == 2 ** 25 and "tensors above 2^25 elements" in text
+    assert hdf5.MAX_MEMBER_BYTES == 2 ** 30 and "archive members above 1 GiB" in text
+    assert hdf5.MAX_CONFIG_BYTES == 16 * 2 ** 20 and "`config.json` above 16 MiB" in text
