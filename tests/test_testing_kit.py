@@ -72,6 +72,14 @@ def test_strategies_draw_what_they_say():
 
     check()
 
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=2, n=(4, 9), ties=True, scales=[1.0], centre=(50.0, 60.0)))
+    def tied_around_the_centre(w):            # the tied x take c - scale, c, c + scale
+        x = w[0][:, 0]
+        assert 49.0 <= x.min() and x.max() <= 61.0 and x.max() - x.min() <= 2.0 + 1e-9
+
+    tied_around_the_centre()
+
 
 # ------------------------------------------------------------------ three implementations
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
