@@ -224,3 +224,27 @@ def test_one_point_matters_moves_a_point_of_any_frame():
                                               r"only 0 .* point \d+ of frame [0-2] "):
         testing.one_point_matters(last_frame_only, testing.windows(m=4, n=(2, 6)),
                                   max_examples=50, seed=0)
+
+
+def test_a_report_lists_the_points_of_windows_of_up_to_12_points():
+    rng = np.random.default_rng(0)
+    twelve = [rng.normal(size=(4, 2)) for _ in range(3)]
+    thirteen = twelve[:2] + [rng.normal(size=(5, 2))]
+    assert "frames: " in testing._describe(twelve)
+    assert "frames: " not in testing._describe(thirteen)
+
+
+def test_one_point_matters_moves_a_point_by_the_distance_asked():
+    """The moved point goes to twice the frame's reach from its centroid plus ``distance``: a
+    frame of one point (reach 0, the point is the centroid) moves by ``distance`` exactly."""
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return np.concatenate(window)
+
+    testing.one_point_matters(record, testing.windows(m=2, n=1), distance=2.0, max_examples=5)
+    assert len(seen) >= 2 and len(seen) % 2 == 0
+    for before, after in zip(seen[::2], seen[1::2]):
+        moved = [np.linalg.norm(a - b) for a, b in zip(after, before)]
+        assert sorted(moved) == pytest.approx([0.0, 2.0], abs=1e-9), moved
