@@ -248,3 +248,26 @@ def test_one_point_matters_moves_a_point_by_the_distance_asked():
     for before, after in zip(seen[::2], seen[1::2]):
         moved = [np.linalg.norm(a - b) for a, b in zip(after, before)]
         assert sorted(moved) == pytest.approx([0.0, 2.0], abs=1e-9), moved
+
+
+def test_one_point_matters_moves_the_point_straight_outward():
+    """Along the line from the frame's centroid through the point, to twice the frame's reach
+    plus ``distance`` from the centroid."""
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return np.concatenate(window)
+
+    testing.one_point_matters(record, testing.windows(m=2, n=(3, 6), centre=(10.0, 20.0)),
+                              distance=2.0, max_examples=10)
+    for before, after in zip(seen[::2], seen[1::2]):
+        [(t, i)] = [(t, i) for t, (a, b) in enumerate(zip(after, before))
+                    for i in np.nonzero((a != b).any(axis=1))[0]]
+        f = before[t]
+        c = f.mean(axis=0)
+        reach = np.linalg.norm(f - c, axis=1).max()
+        out, was = after[t][i] - c, f[i] - c
+        assert np.linalg.norm(out) == pytest.approx(2 * reach + 2.0, rel=1e-9)
+        assert np.dot(out, was) == pytest.approx(np.linalg.norm(out) * np.linalg.norm(was),
+                                                 rel=1e-9)          # the same direction
