@@ -80,6 +80,14 @@ def test_strategies_draw_what_they_say():
 
     tied_around_the_centre()
 
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=3, n=(8, 12), scales=[1e-3], centre=(5.0, 6.0)))
+    def spread_by_the_scale(w):              # normal around the centre, spread 1e-3
+        for f in w:
+            assert np.abs(f - 5.5).max() <= 0.5 + 0.01 and 1e-5 < f.std(axis=0).min() < 1e-2
+
+    spread_by_the_scale()
+
 
 # ------------------------------------------------------------------ three implementations
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
@@ -259,8 +267,12 @@ def test_one_point_matters_moves_the_point_straight_outward():
         seen.append([np.array(f) for f in window])
         return np.concatenate(window)
 
-    testing.one_point_matters(record, testing.windows(m=2, n=(3, 6), centre=(10.0, 20.0)),
-                              distance=2.0, max_examples=10)
+    least = testing.one_point_matters(record, testing.windows(m=2, n=(3, 6),
+                                                             centre=(10.0, 20.0)),
+                                      distance=2.0, max_examples=10)
+    changes = [max(np.abs(a - b).max() for a, b in zip(after, before))
+               for before, after in zip(seen[::2], seen[1::2])]
+    assert least == min(changes) > 0                       # the smallest change it saw
     for before, after in zip(seen[::2], seen[1::2]):
         [(t, i)] = [(t, i) for t, (a, b) in enumerate(zip(after, before))
                     for i in np.nonzero((a != b).any(axis=1))[0]]
