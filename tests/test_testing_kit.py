@@ -283,3 +283,30 @@ def test_one_point_matters_moves_the_point_straight_outward():
         assert np.linalg.norm(out) == pytest.approx(2 * reach + 2.0, rel=1e-9)
         assert np.dot(out, was) == pytest.approx(np.linalg.norm(out) * np.linalg.norm(was),
                                                  rel=1e-9)          # the same direction
+
+
+def test_normalized_windows_are_in_model_coordinates():
+    hyp = pytest.importorskip("hypothesis")
+
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=2, n=(3, 6), scales=[1.0], centre=(20.0, 25.0),
+                                 normalized=True))
+    def in_model_units(w):                   # (x - 1.1438) / 42.7124 of world units 10..35
+        for f in w:
+            assert 0.2 < f.min() and f.max() < 0.8
+
+    in_model_units()
+
+
+def test_the_reports_of_one_point_matters_and_of_an_empty_output():
+    def constant(window):
+        return np.zeros((30, 2))
+
+    with pytest.raises(PropertyFailure, match=r"^one_point_matters: constant changed by only 0 "
+                                              r"\(needs more than 0\) when point 0 of frame 0 "
+                                              r"moved to 2 from the centroid; minimal window: "):
+        testing.one_point_matters(constant, testing.windows(m=1, n=1), max_examples=5)
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: <lambda> changed by only 0 "
+                                              r"\(needs more than 0\) on reversing"):
+        testing.frame_order_matters(lambda w: np.zeros((0, 2)), testing.windows(m=2, n=2),
+                                    max_examples=3)
