@@ -129,12 +129,17 @@ def forget_survivors(module: str, work: Path) -> int:
     (after new tests: the next run re-runs them against the freshly copied tree). Returns how
     many."""
     import sqlite3
-    session, triage = work / module / "session.sqlite", load_triage()
+
+    from cosmic_ray.work_db import WorkDB, use_db
+    session, triage, spans = work / module / "session.sqlite", load_triage(), annotation_spans(module)
+    with use_db(str(session), WorkDB.Mode.open) as db:
+        items = {w.job_id: w for w in db.work_items}
     with sqlite3.connect(session) as con:
         rows = con.execute("SELECT job_id, diff FROM work_results "
                            "WHERE test_outcome = 'SURVIVED'").fetchall()
         again = [job for job, diff in rows
-                 if triaged(module, *_changed_lines(diff or ""), triage) is None]
+                 if triaged(module, *_changed_lines(diff or ""), triage) is None
+                 and not in_annotation(items[job].mutations[0], spans)]
         con.executemany("DELETE FROM work_results WHERE job_id = ?", [(j,) for j in again])
     print(f"{module}: {len(again)} survivors to run again", flush=True)
     return len(again)
