@@ -105,3 +105,116 @@ def test_the_one_body_test_is_bounded_in_memory():
         body_outliers(big[0])
     # at the limit the test still runs (and finds the scattered points are no body)
     assert body_outliers(big[0, :BODY_MAX_POINTS]).shape == (BODY_MAX_POINTS,)
+
+
+# ------------------------------------------------------------------ pinned by mutation testing
+# (tools/mutation.py: each of these was a surviving mutant of checks.py)
+def test_an_empty_batch_of_point_sets_is_named():
+    from tpnet_ref.checks import as_point_sets
+    with pytest.raises(ValueError, match=r"^P: is empty \(0 points per set, shape \(3, 0, 2\)\)$"):
+        as_point_sets(np.zeros((3, 0, 2)), "P")
+    assert as_point_sets(np.zeros((3, 1, 2)), "P").shape == (3, 1, 2)
+
+
+def test_a_sparse_ring_is_one_body_by_its_pairwise_links():
+    """8 points on a ring of radius 2: the path around the centre has steps of 1.53 (more than
+    BODY_LINK_MIN), so the pairwise test decides -- one body, no warning."""
+    from tpnet_ref.checks import _all_one_body, body_outliers, window_body_problem
+    w = np.stack([_ring(n=8) + [0.3 * i, 0.0] for i in range(4)])
+    assert _all_one_body(w)
+    assert window_body_problem(w) is None and window_body_problem(list(w)) is None
+    assert not body_outliers(w[0]).any()
+
+
+def test_two_arcs_of_a_broken_outline_are_one_body_and_a_far_blob_is_not():
+    from tpnet_ref.checks import body_outliers
+    ring = _ring(n=30)
+    arcs = np.concatenate([ring[1:12], ring[16:27]])        # two gaps of 5 points
+    assert not body_outliers(arcs, link=1.0).any()             # two groups, one body
+    # a piece of only 3 points still counts (the smallest piece that does), after the body
+    assert not body_outliers(np.concatenate([ring[2:25], ring[27:30]]), link=1.0).any()
+    # a tail linked to the body but reaching past max_radius: its far end is apart
+    tail = np.repeat(np.linspace(21.7, 25.0, 10)[:, None], 2, axis=1)     # along the diagonal
+    out = body_outliers(np.concatenate([ring, tail]))
+    assert out[-1] and not body_outliers(np.concatenate([ring, tail[:3]])).any()
+    blob = np.array([[30.0, 20.0], [30.3, 20.0], [30.0, 20.3]])   # 3 points, 10 away
+    out = body_outliers(np.concatenate([arcs, blob]), link=1.0)
+    assert out[-3:].all() and not out[:-3].any()
+
+
+def test_spurs_are_points_off_the_outline_with_both_neighbours_on_one_side():
+    from tpnet_ref.checks import body_outliers
+    ring = _ring(n=30)
+    spur = 20.0 + 3.0 * np.array([np.sin(0.1), np.cos(0.1)])   # 1 world unit outside
+    out = body_outliers(np.concatenate([ring, [spur]]), spur_factor=2.0)
+    assert out[-1] and not out[:-1].any()
+    # a point far from both neighbours but between them (a thinly sampled stretch of the
+    # outline) is no spur
+    thin = np.delete(ring, [13, 14, 16, 17], axis=0)
+    assert not body_outliers(thin, spur_factor=2.0).any()
+
+
+def test_a_frame_of_mostly_scattered_points_is_left_to_the_range_check():
+    """More points apart from the body than in it: not judged as "not one body" (no body of
+    the scene's size; training_range_problem says what is wrong)."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    body = _ring(r=1.0, n=6)
+    apart = [[60.0, 60.0], [60.3, 60.0], [-40.0, 60.0], [-40.3, 60.0], [60.0, -40.0],
+             [60.3, -40.0], [-40.0, -40.0]]
+    frame = np.concatenate([body, apart])
+    assert body_outliers(frame).sum() == 7
+    assert window_body_problem([frame] * 4) is None
+
+
+def test_a_ragged_window_moving_steadily_is_one_body():
+    """Frames of different sizes are judged one by one; the steps between neighbouring frames
+    (3 world units each), not between the first and the last (9), are what is judged."""
+    from tpnet_ref.checks import window_body_problem
+    frames = [_ring(cx=20.0 + 3.0 * i, n=30 - i) for i in range(4)]
+    assert window_body_problem(frames) is None
+    far = frames[:3] + [_ring(cx=35.0, n=27)]
+    assert window_body_problem(far).startswith("frame 3's body is 9 world units from frame 2's")
+
+
+def test_the_out_of_range_message_gives_the_span():
+    w = _window(cx=120.0)
+    lo, hi = w.min(), w.max()
+    assert _problem(w, False).startswith(f"coordinates span [{lo:.3g}, {hi:.3g}] world units, "
+                                         f"outside the training box [{NORM_LO:g}, {NORM_HI:g}]")
+    model = np.full((4, 30, 2), 0.5)
+    model[0, 0, 0] = 2.0                                  # model units: the hint starts above 2
+    assert _problem(model, True) == ("coordinates span [0.5, 2] in model units, outside the "
+                                     "training box [0, 1]")
+    model[0, 0, 0] = 2.5
+    assert _problem(model, True).endswith("(world units passed as normalized=True / --normalized?)")
+
+
+
+def test_point_sets_check_their_last_axis():
+    from tpnet_ref.checks import as_point_sets
+    with pytest.raises(ValueError, match=r"^Q: expected shape \(\.\.\., N, 2\), got \(3, 2, 5\)$"):
+        as_point_sets(np.zeros((3, 2, 5)), "Q")
+    with pytest.raises(ValueError, match=r"^Q: expected shape"):
+        as_point_sets(np.zeros(4), "Q")
+
+
+def test_the_radius_is_judged_from_20_points_on():
+    from tpnet_ref.checks import RADIUS_MIN_POINTS
+    assert RADIUS_MIN_POINTS == 20
+    assert "mean radius is 0.3" in _problem(_window(r=0.3, n=20))
+    assert _problem(_window(r=0.3, n=19)) is None                # too few points to judge
+
+
+@pytest.mark.parametrize("step, warns", [(3.0, False), (5.0, True)])
+def test_model_coordinates_are_judged_in_world_units(step, warns):
+    """warn_about_input with normalized=True maps the frames back to world units before the
+    one-body test: a ring moving 3 world units a frame is one body, 5 is not."""
+    from tpnet_ref.checks import NotOneBodyWarning, warn_about_input
+    w = np.stack([_ring() + [step * i, 0.0] for i in range(4)])
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        warn_about_input(list(normalize(w)), NORM_LO, NORM_HI, True, "window", True)
+    body = [str(x.message) for x in got if issubclass(x.category, NotOneBodyWarning)]
+    assert bool(body) == warns, body
+    if warns:
+        assert f"frame 1's body is {step:.3g} world units from frame 0's" in body[0]

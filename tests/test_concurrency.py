@@ -1,7 +1,8 @@
 """One model serves many threads: ``predict``, ``predict_batch`` (small, and large enough to be
 split across threads itself) and ``rollout`` called concurrently from 8 threads on one model
 give the same bits as the same calls made one after another, on both engines (README, "Same
-bits on every call"; docs/tolerances.md)."""
+bits on every call"; docs/tolerances.md); and a split batch gives, window by window and in its
+order, what each window gives alone (within the stated per-prediction bound)."""
 from __future__ import annotations
 
 import threading
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 import tpnet_ref
+from tolerance_bounds import BOUNDS
 
 THREADS = 8
 CALLS = 6            # per thread
@@ -57,6 +59,10 @@ def test_concurrent_calls_give_the_serial_bits(engine):
         model = tpnet_ref.load(engine=engine)
     calls = _work(model, np.random.default_rng(0))
     serial = [_run(model, c) for c in calls]
+    for (kind, x), y in zip(calls[:BIG], serial[:BIG]):          # the split batches
+        alone = np.stack([model.predict(w) for w in x])
+        gap = np.abs(y - alone).max()
+        assert gap <= BOUNDS["float32"]["predict"], f"split batch vs its windows alone: {gap}"
     got: list = [None] * len(calls)
     errors: list = []
     start = threading.Barrier(THREADS)

@@ -152,3 +152,67 @@ def test_compressed_datasets_gzip_and_shuffle_only_and_bounded(tmp_path):
         with pytest.raises(ValueError, match="^bomb: a compressed chunk holds more than its "
                                              "declared 32 bytes; refused"):
             hdf5.read(f["bomb"], "bomb")
+
+
+# ------------------------------------------------------------------ pinned by mutation testing
+# (tools/mutation.py: each of these was a surviving mutant of hdf5.py)
+def test_chunks_that_store_too_much_skip_a_filter_or_end_early(tmp_path):
+    """A chunk that stores more than twice its size is refused before inflating; a chunk whose
+    writer skipped the gzip filter (its filter mask) is read without it; a deflate stream that
+    holds the chunk's bytes but never ends is refused."""
+    import zlib
+
+    data = np.arange(8, dtype="<f4")
+    shuffled = data.view(np.uint8).reshape(-1, 4).T.tobytes()           # shuffle's byte planes
+    p = tmp_path / "c.h5"
+    with h5py.File(p, "w") as f:
+        d = f.create_dataset("big", shape=(8,), dtype="<f4", chunks=(8,), compression="gzip")
+        d.id.write_direct_chunk((0,), np.random.default_rng(0).bytes(2 * 32 + 1025))
+        d = f.create_dataset("raw", shape=(8,), dtype="<f4", chunks=(8,), compression="gzip",
+                             shuffle=True)
+        d.id.write_direct_chunk((0,), shuffled, filter_mask=0b10)     # gzip (filter 1) skipped
+        d = f.create_dataset("open", shape=(8,), dtype="<f4", chunks=(8,), compression="gzip")
+        z = zlib.compressobj()
+        d.id.write_direct_chunk((0,), z.compress(data.tobytes()) + z.flush(zlib.Z_SYNC_FLUSH))
+        d = f.create_dataset("short", shape=(8,), dtype="<f4", chunks=(8,), shuffle=True)
+        d.id.write_direct_chunk((0,), shuffled[:5])                    # 5 bytes for 32
+    with hdf5.open_h5(p) as f:
+        assert [code for code, _ in hdf5.filters(f["raw"])] == [2, 1]    # shuffle, then gzip
+        with pytest.raises(ValueError, match=r"^big: a chunk stores 1,089 bytes for 32$"):
+            hdf5.read(f["big"], "big")
+        np.testing.assert_array_equal(hdf5.read(f["raw"], "raw"), data)
+        with pytest.raises(ValueError, match="^open: a compressed chunk holds more than"):
+            hdf5.read(f["open"], "open")
+        with pytest.raises(ValueError, match=r"^short: a chunk holds 5 bytes, expected 32$"):
+            hdf5.read(f["short"], "short")
+
+
+def test_a_chunk_missing_from_a_compressed_dataset_is_refused(tmp_path):
+    """A chunk never written reads as uninitialised memory in the decoder: refused by count."""
+    p = tmp_path / "c.h5"
+    with h5py.File(p, "w") as f:
+        d = f.create_dataset("holes", shape=(16,), dtype="<f4", chunks=(8,), compression="gzip")
+        import zlib
+        d.id.write_direct_chunk((0,), zlib.compress(np.ones(8, "<f4").tobytes()))
+    with hdf5.open_h5(p) as f:
+        with pytest.raises(ValueError, match=r"^holes: 1 chunks stored, the shape needs 2$"):
+            hdf5.read(f["holes"], "holes")
+
+
+def test_vectors_hold_up_to_2_to_the_20_values(h5):
+    n = 1 << 20
+    hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"a": np.arange(n)}, np.int32)
+    assert hdf5.read_vectors(h5, "masks", "tpnet-masks-1", "mask set")["a"].size == n
+    hdf5.write_vectors(h5, "masks", "tpnet-masks-1", {"a": np.arange(n + 1)}, np.int32)
+    with pytest.raises(ValueError, match="masks/a is not a mask set"):
+        hdf5.read_vectors(h5, "masks", "tpnet-masks-1", "mask set")
+
+
+def test_the_size_limits_are_the_ones_the_docs_state():
+    """docs/reliability.md, "Untrusted weight files", states the limits; these are they."""
+    from pathlib import Path
+    text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "reliability.md")
+                    .read_text().split())
+    assert hdf5.MAX_TENSOR == 2 ** 25 and "tensors above 2^25 elements" in text
+    assert hdf5.MAX_MEMBER_BYTES == 2 ** 30 and "archive members above 1 GiB" in text
+    assert hdf5.MAX_CONFIG_BYTES == 16 * 2 ** 20 and "`config.json` above 16 MiB" in text

@@ -125,3 +125,45 @@ def test_layer_norm_uses_biased_variance_and_eps_inside_the_sqrt():
     want = d / np.sqrt((d * d).mean() + eps) * 2.0 + 1.0
     np.testing.assert_allclose(L.layer_norm(x.copy(), np.full(3, 2.0), np.ones(3), eps), want,
                                rtol=0, atol=1e-15)
+
+
+# ------------------------------------------------------------------ pinned by mutation testing
+# (tools/mutation.py: each of these was a surviving mutant of layers.py)
+@pytest.mark.parametrize("counts", [[3, 1, 4, 2], [2, 2, 2], [5]])
+def test_segment_max_and_apply_transform_per_frame(counts):
+    """Ragged frames (np.maximum.reduceat, a loop over frames) and equal ones (one reshape):
+    each frame pooled and transformed on its own points alone."""
+    rng = np.random.default_rng(len(counts))
+    x = rng.normal(size=(sum(counts), 3))
+    t = rng.normal(size=(len(counts), 3, 3))
+    bounds = np.cumsum([0] + counts)
+    frames = [x[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+    assert np.array_equal(L.segment_max(x, np.array(counts)), np.stack([f.max(0) for f in frames]))
+    got = L.apply_transform(x, t, np.array(counts))
+    want = np.concatenate([f @ tf for f, tf in zip(frames, t)])
+    assert got.shape == x.shape and np.allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+def test_bilstm_steps_defaults_to_relu_and_every_step():
+    rng = np.random.default_rng(5)
+    u, steps, bsz = 4, 3, 2
+    xp = rng.normal(size=(steps * bsz, 8 * u))
+    rec, bias = rng.normal(size=(2, u, 4 * u)), rng.normal(size=8 * u)
+    default = L.bilstm_steps(xp, rec, bias, steps, bsz)
+    assert default.shape == (steps, bsz, 2 * u)
+    assert np.array_equal(default, L.bilstm_steps(xp, rec, bias, steps, bsz, "relu", True))
+
+
+def test_column_blocks_are_the_widest_that_fit():
+    """fuse_bilstm's blocks: the largest divisor nb of the columns with nb <= BLOCK_COLUMNS and
+    block_rows * C * nb <= SMALL_PRODUCT (here the product bound binds)."""
+    rng = np.random.default_rng(0)
+    c, u = 600, 64
+    d = [(rng.normal(size=(c, 4 * u)), rng.normal(size=(u, 4 * u)), rng.normal(size=4 * u))
+         for _ in range(2)]
+    for rows in (4, 40, 400):
+        fused = L.fuse_bilstm(*d, block_rows=rows)
+        want = max((nb for nb in range(1, BLOCK_COLUMNS + 1)
+                    if (8 * u) % nb == 0 and rows * c * nb <= SMALL_PRODUCT), default=None)
+        got = None if fused.blocks is None else fused.blocks.shape[2]
+        assert got == want, (rows, got, want)

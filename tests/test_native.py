@@ -224,3 +224,30 @@ def test_convert_storage_keeps_config_provenance_and_other_groups(tmp_path):
         f.attrs["storage"] = "bfloat8"                   # a newer writer's encoding
     with pytest.raises(ValueError, match="unknown storage 'bfloat8'"):
         native.read_native(tmp_path / "q.h5")
+
+
+# ------------------------------------------------------------------ pinned by mutation testing
+# (tools/mutation.py: each of these was a surviving mutant of native.py)
+def test_describe_names_an_average_and_a_file_started_from_one(tmp_path):
+    parent = [{"run": "runs/base", "steps": 10, "recipe": {
+        "weights_file": "avg.h5", "source": "tpnet train average",
+        "recipe": {"recipe": "average", "files": ["a.h5", "b.h5", "c.h5"]}, "parent_runs": []}},
+        {"run": "runs/ft", "steps": 20, "recipe": {
+            "weights_file": "ft.h5", "source": "runs/ft", "recipe": {"recipe": "curriculum",
+                                                                     "lr": 0.0005}}}]
+    meta = {"source": "runs/c", "parent_runs": json.dumps(parent),
+            "average_of": json.dumps([{"weight": 0.25, "weights_file": "a.h5"},
+                                      {"weight": 0.75, "weights_file": "b.h5"}])}
+    p = tmp_path / "w.h5"
+    native.write_native(p, TINY, _params(TINY), "float32", meta)
+    text = native.describe(p)
+    assert "written by tpnet train average (the mean of 3 files)" in text
+    assert "written by runs/ft (curriculum recipe, lr 0.0005)" in text
+    assert "  average of   0.25 x a.h5 + 0.75 x b.h5" in text.splitlines()
+
+
+def test_the_digest_reads_a_string_the_same_whatever_type_h5py_gives():
+    assert native._canon(b"abc") == native._canon(np.bytes_(b"abc")) == b"Babc"
+    assert native._canon("abc") == b"sabc" != native._canon(b"abc")
+    listed = native._canon(np.array([b"a", b"b"]))                     # a list of strings
+    assert listed == b"l" + b"".join(len(x).to_bytes(8, "little") + x for x in (b"Ba", b"Bb"))

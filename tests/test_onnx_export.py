@@ -50,7 +50,8 @@ def test_shipped_export_matches_predict_batch(shipped_onnx, batch, n):
         want = model.predict_batch(x)
     assert got.shape == want.shape == (batch, 30, 2) and got.dtype == np.float32
     assert np.abs(got - want).max() <= 1e-4
-    assert np.abs(want - x[:, -1, :30].mean(axis=1, keepdims=True)).max() < 10   # world units
+    # the export's own output lies near the window's last frame, in world units
+    assert np.abs(got - x[:, -1, :30].mean(axis=1, keepdims=True)).max() < 10
 
 
 def test_export_declares_one_input_and_one_output_with_dynamic_batch_and_points(shipped_onnx, capsys):
@@ -70,7 +71,11 @@ def test_export_declares_one_input_and_one_output_with_dynamic_batch_and_points(
 @pytest.mark.parametrize("cfg", [
     TPNetConfig(input_transform_trained=True, feature_transform_trained=True),
     TPNetConfig(m=3, lstm_activation="tanh", layer_norm_eps=1e-5, lstm_units=(64, 32, 16)),
-], ids=["trained-transforms", "tanh-small"])
+    # bounds other than the shipped 1.1438 / 43.8562: the export must read the config's
+    TPNetConfig(norm_lo=-20.0, norm_hi=75.0, lstm_units=(64, 32, 16)),
+    # per-point layers of different widths, three of them, with a trained feature transform
+    TPNetConfig(mlp1=(16, 24, 32), feature_transform_trained=True, lstm_units=(32, 16, 16)),
+], ids=["trained-transforms", "tanh-small", "other-bounds", "uneven-widths"])
 def test_export_of_a_weights_file(tmp_path, cfg):
     weights, path = tmp_path / "net.h5", tmp_path / "net.onnx"
     init_random(cfg, seed=3).save(str(weights))
@@ -82,6 +87,8 @@ def test_export_of_a_weights_file(tmp_path, cfg):
         warnings.simplefilter("ignore")
         want = model.predict_batch(x)
     assert np.abs(got - want).max() <= 1e-4
+    props = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert (float(props["norm_lo"]), float(props["norm_hi"])) == (cfg.norm_lo, cfg.norm_hi)
 
 
 @pytest.mark.parametrize("argv, msg", [

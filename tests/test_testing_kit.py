@@ -72,6 +72,22 @@ def test_strategies_draw_what_they_say():
 
     check()
 
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=2, n=(4, 9), ties=True, scales=[1.0], centre=(50.0, 60.0)))
+    def tied_around_the_centre(w):            # the tied x take c - scale, c, c + scale
+        x = w[0][:, 0]
+        assert 49.0 <= x.min() and x.max() <= 61.0 and x.max() - x.min() <= 2.0 + 1e-9
+
+    tied_around_the_centre()
+
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=3, n=(8, 12), scales=[1e-3], centre=(5.0, 6.0)))
+    def spread_by_the_scale(w):              # normal around the centre, spread 1e-3
+        for f in w:
+            assert np.abs(f - 5.5).max() <= 0.5 + 0.01 and 1e-5 < f.std(axis=0).min() < 1e-2
+
+    spread_by_the_scale()
+
 
 # ------------------------------------------------------------------ three implementations
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
@@ -144,3 +160,153 @@ def test_a_wrong_output_shape_is_named(impl):
                                               r"\(29, 2\) against \(30, 2\)$"):
         testing.agrees_with_reference(lambda w: model.predict(w)[1:], model, tol=1.0,
                                       max_examples=5)
+
+
+# ------------------------------------------------------------------ the checkers pinned
+# Windows of several frames and changes to single points: a checker that looked at frame 0
+# only, or at the first output point only, or skipped one of its frame orders, must fail here.
+def test_permuted_permutes_every_frame():
+    rng = np.random.default_rng(0)
+    window = [rng.normal(size=(k, 2)) for k in (5, 3, 6, 4)]
+    perms = [rng.permutation(len(f)) for f in window]
+    assert all((p != np.arange(len(p))).any() for p in perms)
+    out = testing.permuted(window, perms)
+    assert len(out) == len(window)
+    for f, p, g in zip(window, perms, out):
+        assert np.array_equal(g, f[p])
+
+
+@pytest.mark.parametrize("frame", [1, -1])
+def test_permutation_invariant_sees_every_frame(frame):
+    """A function that depends on the order of one later frame's points only."""
+    def one_frames_first_point(window):
+        return np.asarray(window[frame][0])
+
+    with pytest.raises(PropertyFailure, match=r"^permutation_invariant: one_frames_first_point "
+                                              r"changed by .* minimal window: m=3, N=\("):
+        testing.permutation_invariant(one_frames_first_point,
+                                      testing.windows(m=3, n=(2, 6)), max_examples=50, seed=0)
+
+
+@pytest.mark.parametrize("point", [1, 17, 29])
+def test_agreement_sees_every_output_point(impl, point):
+    """Off at one output point only: the comparison must cover every point, not the first."""
+    model = impl.base["float64"]
+
+    def off_at_one_point(window):
+        y = model.predict(window).copy()
+        y[point, 1] += 1e-3
+        return y
+
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: off_at_one_point is "
+                                              r"0.001 from the float64 reference"):
+        testing.agrees_with_reference(off_at_one_point, model, tol=1e-4,
+                                      windows=testing.windows(m=4, n=(3, 8)), max_examples=5)
+
+
+def test_frame_order_matters_rotates_as_well_as_reverses():
+    """A function of the window's frames taken cyclically -- each frame's centre paired with
+    the next one's, the last with the first, the pairs sorted -- is unchanged, bit for bit, by a
+    rotation and changed by a reversal: only the rotation check catches it."""
+    def cyclic_pairs(window):
+        c = np.stack([f.mean(0) for f in window])
+        pairs = np.concatenate([c, np.roll(c, -1, axis=0)], axis=1)
+        return pairs[np.lexsort(pairs.T[::-1])]
+
+    moving = testing.windows(m=[3, 4], n=(2, 6), step=(0.5, 2.0))
+    w = [np.full((2, 2), float(t)) for t in range(3)]
+    assert np.array_equal(cyclic_pairs(w), cyclic_pairs(w[1:] + w[:1]))   # rotation: the same
+    assert not np.array_equal(cyclic_pairs(w), cyclic_pairs(w[::-1]))      # reversal: not
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: cyclic_pairs changed by "
+                                              r"only 0 \(needs more than 0\) on rotating the "
+                                              r"frames in time; minimal window: m=3, "):
+        testing.frame_order_matters(cyclic_pairs, moving, max_examples=20, seed=0)
+
+
+def test_one_point_matters_moves_a_point_of_any_frame():
+    """A function of the last frame alone: moving a point of another frame changes nothing."""
+    def last_frame_only(window):
+        return np.stack([window[-1].mean(0)] * 3)
+
+    with pytest.raises(PropertyFailure, match=r"^one_point_matters: last_frame_only changed by "
+                                              r"only 0 .* point \d+ of frame [0-2] "):
+        testing.one_point_matters(last_frame_only, testing.windows(m=4, n=(2, 6)),
+                                  max_examples=50, seed=0)
+
+
+def test_a_report_lists_the_points_of_windows_of_up_to_12_points():
+    rng = np.random.default_rng(0)
+    twelve = [rng.normal(size=(4, 2)) for _ in range(3)]
+    thirteen = twelve[:2] + [rng.normal(size=(5, 2))]
+    assert "frames: " in testing._describe(twelve)
+    assert "frames: " not in testing._describe(thirteen)
+
+
+def test_one_point_matters_moves_a_point_by_the_distance_asked():
+    """The moved point goes to twice the frame's reach from its centroid plus ``distance``: a
+    frame of one point (reach 0, the point is the centroid) moves by ``distance`` exactly."""
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return np.concatenate(window)
+
+    testing.one_point_matters(record, testing.windows(m=2, n=1), distance=2.0, max_examples=5)
+    assert len(seen) >= 2 and len(seen) % 2 == 0
+    for before, after in zip(seen[::2], seen[1::2]):
+        moved = [np.linalg.norm(a - b) for a, b in zip(after, before)]
+        assert sorted(moved) == pytest.approx([0.0, 2.0], abs=1e-9), moved
+
+
+def test_one_point_matters_moves_the_point_straight_outward():
+    """Along the line from the frame's centroid through the point, to twice the frame's reach
+    plus ``distance`` from the centroid."""
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return np.concatenate(window)
+
+    least = testing.one_point_matters(record, testing.windows(m=2, n=(3, 6),
+                                                             centre=(10.0, 20.0)),
+                                      distance=2.0, max_examples=10)
+    changes = [max(np.abs(a - b).max() for a, b in zip(after, before))
+               for before, after in zip(seen[::2], seen[1::2])]
+    assert least == min(changes) > 0                       # the smallest change it saw
+    for before, after in zip(seen[::2], seen[1::2]):
+        [(t, i)] = [(t, i) for t, (a, b) in enumerate(zip(after, before))
+                    for i in np.nonzero((a != b).any(axis=1))[0]]
+        f = before[t]
+        c = f.mean(axis=0)
+        reach = np.linalg.norm(f - c, axis=1).max()
+        out, was = after[t][i] - c, f[i] - c
+        assert np.linalg.norm(out) == pytest.approx(2 * reach + 2.0, rel=1e-9)
+        assert np.dot(out, was) == pytest.approx(np.linalg.norm(out) * np.linalg.norm(was),
+                                                 rel=1e-9)          # the same direction
+
+
+def test_normalized_windows_are_in_model_coordinates():
+    hyp = pytest.importorskip("hypothesis")
+
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=2, n=(3, 6), scales=[1.0], centre=(20.0, 25.0),
+                                 normalized=True))
+    def in_model_units(w):                   # (x - 1.1438) / 42.7124 of world units 10..35
+        for f in w:
+            assert 0.2 < f.min() and f.max() < 0.8
+
+    in_model_units()
+
+
+def test_the_reports_of_one_point_matters_and_of_an_empty_output():
+    def constant(window):
+        return np.zeros((30, 2))
+
+    with pytest.raises(PropertyFailure, match=r"^one_point_matters: constant changed by only 0 "
+                                              r"\(needs more than 0\) when point 0 of frame 0 "
+                                              r"moved to 2 from the centroid; minimal window: "):
+        testing.one_point_matters(constant, testing.windows(m=1, n=1), max_examples=5)
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: <lambda> changed by only 0 "
+                                              r"\(needs more than 0\) on reversing"):
+        testing.frame_order_matters(lambda w: np.zeros((0, 2)), testing.windows(m=2, n=2),
+                                    max_examples=3)
