@@ -310,3 +310,37 @@ def test_the_reports_of_one_point_matters_and_of_an_empty_output():
                                               r"\(needs more than 0\) on reversing"):
         testing.frame_order_matters(lambda w: np.zeros((0, 2)), testing.windows(m=2, n=2),
                                     max_examples=3)
+
+
+# --------------------------------------------------------------------------- pinned by mutation
+def test_the_report_counts_the_windows_it_saw():
+    """The report's window count and spans (a surviving mutant inverted the empty case)."""
+    seen = testing._Seen()
+    assert seen.text() == "no windows"
+    seen.add([np.zeros((3, 2)), np.ones((5, 2))])
+    assert seen.text().startswith("1 windows (m=2, N=3..5, coordinates in [0, 1])")
+
+
+def test_a_description_lists_the_permutations_up_to_64_points():
+    """A shrunk window's one-line description names its permutations while the window holds at
+    most 64 points (a surviving mutant moved the bound to 63)."""
+    perms = [np.arange(32)[::-1], np.arange(32)]
+    assert "permutations" in testing._describe([np.zeros((32, 2))] * 2, perms)
+    perms = [np.arange(32), np.arange(33)]
+    assert "permutations" not in testing._describe([np.zeros((32, 2)), np.zeros((33, 2))],
+                                                   perms)
+
+
+def test_the_default_windows_have_the_released_four_frames():
+    """``windows()`` draws m = 4 frames unless told (a surviving mutant drew 3)."""
+    from hypothesis import given, settings
+
+    seen = set()
+
+    @settings(max_examples=15, database=None, deadline=None)
+    @given(testing.windows())
+    def draw(w):
+        seen.add(len(w))
+
+    draw()
+    assert seen == {4}

@@ -45,7 +45,9 @@ TRIAGE = ROOT / "tools" / "mutation_triage.json"
 
 #: module (tpnet_ref/<name>.py) -> the test files that cover it, fastest first
 MODULES = {
-    "reference": ["tests/test_reference.py", "tests/test_layers.py"],
+    # (the trace's own test of tests/test_crosscheck.py: the rest of that file builds vectors)
+    "reference": ["tests/test_reference.py", "tests/test_layers.py",
+                  "tests/test_crosscheck.py::test_trace_names_in_order_and_result_unchanged"],
     "layers": ["tests/test_layers.py", "tests/test_reference.py"],
     "checks": ["tests/test_checks.py", "tests/test_model.py"],
     "native": ["tests/test_native.py", "tests/test_integrity.py"],
