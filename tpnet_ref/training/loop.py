@@ -195,37 +195,31 @@ def dead_units(net: Any, x: Any) -> dict[str, int]:
     layer of the feature extractor (a per-point unit counts as dead when it is <= 0 at every
     point of every frame; such a unit gets no gradient) and per BiLSTM (both directions'
     outputs; with the ReLU cell a unit whose cell state never turns positive), each
-    ``{layer: dead}`` with ``{layer + "/of": units}`` beside it."""
+    ``{layer: dead}`` with ``{layer + "/of": units}`` beside it. The network's own forward
+    pass runs; hooks read each layer's output (a ReLU's input: positive where its output is)."""
     out: dict[str, int] = {}
 
-    def count(name: str, a: Any) -> None:
-        alive = (a.reshape(-1, a.shape[-1]) > 0).any(dim=0)
-        out[name] = int((~alive).sum())
-        out[name + "/of"] = int(alive.numel())
+    def counter(name: str) -> Any:
+        def hook(_mod: Any, _inp: Any, a: Any) -> None:
+            alive = (a.reshape(-1, a.shape[-1]) > 0).any(dim=0)
+            out[name] = int((~alive).sum())
+            out[name + "/of"] = int(alive.numel())
+        return hook
 
+    layers = {**{f"mlp1.{i}": lin for i, lin in enumerate(net.mlp1)},
+              **{f"mlp2.{i}": lin for i, lin in enumerate(net.mlp2)}, "global": net.global_fc,
+              **{f"lstm{i}": getattr(net, f"lstm{i}")
+                 for i in range(1, len(net.config.lstm_units) + 1)}}
+    handles = [mod.register_forward_hook(counter(name)) for name, mod in layers.items()]
     was = net.training
     net.eval()
-    with torch.no_grad():
-        b, m = x.shape[:2]
-        h = x.reshape(b * m, *x.shape[2:])
-        if net.input_tnet is not None:
-            h = torch.bmm(h, net.input_tnet(h))
-        for i, lin in enumerate(net.mlp1):
-            h = torch.relu(lin(h))
-            count(f"mlp1.{i}", h)
-        if net.feature_tnet is not None:
-            h = torch.bmm(h, net.feature_tnet(h))
-        for i, lin in enumerate(net.mlp2):
-            h = torch.relu(lin(h))
-            count(f"mlp2.{i}", h)
-        g = torch.relu(net.global_fc(h.amax(dim=1)))
-        count("global", g)
-        s = g.reshape(b, m, -1)
-        for i in range(1, len(net.config.lstm_units) + 1):
-            s = getattr(net, f"lstm{i}")(s)
-            count(f"lstm{i}", s)
-            s = getattr(net, f"ln{i}")(s)
-    net.train(was)
+    try:
+        with torch.no_grad():
+            net(x)
+    finally:
+        for h in handles:
+            h.remove()
+        net.train(was)
     return out
 
 

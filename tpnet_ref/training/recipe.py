@@ -198,7 +198,6 @@ class WindowData:
             elif windows != "model":
                 raise ValueError(f"windows must be 'model' or 'released', got {windows!r}")
         self.path = str(path)
-        self.windows = windows
         n_traj = self.frames.shape[0]
         n_val = int(round(val_fraction * n_traj))
         if val_fraction > 0:
@@ -224,13 +223,12 @@ class WindowData:
         if limit_windows is not None:
             self.train_win = self.train_win[:limit_windows]
             self.val_win = self.val_win[:limit_windows]
-        self._offs = np.arange(self.m + self.n_targets)
+        # a window's frames: rows FRAME_EVERY apart, or consecutive model frames
+        self._src = self.frames if self.rows is None else self.rows
+        self._offs = np.arange(self.m + self.n_targets) * (1 if self.rows is None else FRAME_EVERY)
 
     def gather(self, win: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.rows is not None:
-            f = self.rows[win[:, 0:1], win[:, 1:2] + FRAME_EVERY * self._offs[None, :]]
-        else:
-            f = self.frames[win[:, 0:1], win[:, 1:2] + self._offs[None, :]]
+        f = self._src[win[:, 0:1], win[:, 1:2] + self._offs[None, :]]
         return f[:, :self.m], f[:, self.m:]
 
     def describe(self) -> str:
