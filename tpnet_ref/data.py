@@ -331,6 +331,14 @@ def _run(g: Any, cases: np.ndarray, todo: list[int], steps: int, scene: dict, wo
         bar.close()
 
 
+def _whole_trajectories(t: int, seed: int, whole: int) -> np.ndarray:
+    """The sorted indices of the ``whole`` (at most ``t``) trajectories that give every window."""
+    if not whole:
+        return np.zeros(0, dtype=np.int64)
+    return np.sort(np.random.default_rng([seed, t, 7]).choice(t, size=min(whole, t),
+                                                              replace=False))
+
+
 def _write_windows(g: Any, m: int, seed: int, whole: int) -> int:
     contact = g["contact"][...]
     t, n_frames = contact.shape[:2]
@@ -339,8 +347,7 @@ def _write_windows(g: Any, m: int, seed: int, whole: int) -> int:
         w = sample_windows(contact[i], np.random.default_rng([seed, i]), m)
         rows.append(np.column_stack([np.full(len(w), i), w]))
     if whole:
-        keep = np.sort(np.random.default_rng([seed, t, 7]).choice(t, size=min(whole, t),
-                                                                   replace=False))
+        keep = _whole_trajectories(t, seed, whole)
         starts = np.arange(n_frames - m - N_TARGETS + 1)
         for i in keep:
             rows.append(np.column_stack([np.full(len(starts), i), starts,
@@ -357,10 +364,7 @@ def _write_released_windows(g: Any, m: int, seed: int, whole: int) -> int:
     ones (the same trajectories as ``/train/windows``' whole ones) give every start only."""
     rows = g["rows"]
     t = rows.shape[0]
-    keep = set()
-    if whole:
-        keep = set(np.random.default_rng([seed, t, 7]).choice(t, size=min(whole, t),
-                                                              replace=False).tolist())
+    keep = set(_whole_trajectories(t, seed, whole).tolist())
     out = []
     for i in range(t):
         w = released_windows(rows[i], np.random.default_rng([seed, i, 11]), m, whole=i in keep)
