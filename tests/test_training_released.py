@@ -188,6 +188,13 @@ def test_a_released_run_trains_and_logs_dead_units(released, tmp_path):
     assert snaps and snaps[0] == "step-0000002.h5"
     from tpnet_ref import load
     assert load(run / "snapshots" / snaps[-1]).config.lstm_units == (8, 8, 8)
+    # --best: the snapshot of the lowest validation loss, as the released train.py ships
+    by_step = {v["step"]: v["val_loss"] for v in vals}
+    best = min((s for s in snaps), key=lambda s: by_step[int(s[5:12])])
+    assert cli.main(["train", "export", str(run), str(tmp_path / "best.h5"), "--best"]) == 0
+    assert (tmp_path / "best.h5").read_bytes() == (run / "snapshots" / best).read_bytes()
+    (run / "log.jsonl").write_text("")
+    assert cli.main(["train", "export", str(run), str(tmp_path / "b2.h5"), "--best"]) == 2
 
 
 def test_dead_units_counts_a_layer_that_is_off_everywhere():

@@ -49,6 +49,16 @@ def test_score_rollouts_on_validation_trajectories(dataset, tmp_path, capsys):
     want = position_error(f[:, 4 + 9], copy_last(f[:, :4], 10)[:, 9], variant="released").mean()
     assert res["copy last"]["Ep@10"] == pytest.approx(want, rel=1e-12)
     assert all(np.isfinite(v) for row in res.values() for v in row.values())
+    both = S.score_rollouts(data, [tmp_path / "w.h5"], horizon=10, at=(10,),
+                            readings=("released", "squared"))
+    want_sq = position_error(f[:, 4 + 9], copy_last(f[:, :4], 10)[:, 9], variant="squared").mean()
+    assert both["copy last"]["Ep@10 squared"] == pytest.approx(want_sq, rel=1e-12)
+    assert both["copy last"]["Ep@10"] == res["copy last"]["Ep@10"]
+    with pytest.raises(ValueError, match="readings"):
+        S.score_rollouts(data, [], horizon=10, at=(10,), readings=("cubed",))
+    assert cli.main(["train", "score", dataset, str(tmp_path / "w.h5"), "--horizon", "10",
+                     "--val-fraction", "0.2", "--reading", "squared"]) == 0
+    assert f"{want_sq:9.3f}" in capsys.readouterr().out
     assert cli.main(["train", "score", dataset, str(tmp_path / "w.h5"), "--horizon", "10",
                      "--val-fraction", "0.2"]) == 0
     out = capsys.readouterr().out

@@ -4,14 +4,16 @@ and the dead units per layer, against the windows seen and the wall time.
 Each RUN is a ``tpnet train run ... --snapshots`` directory (its ``snapshots/step-*.h5`` and
 ``log.jsonl``). Every snapshot is scored with the test protocol on the validation trajectories
 of DATA (:func:`tpnet_ref.training.score.score_rollouts`: frames 0..m-1 in, 80 recursive
-predictions, released reading; never the 60 test cases); scores are cached in
-``RUN/snapshots/scores.json`` so a rerun scores only new snapshots.
+predictions, both readings; never the 60 test cases); scores are cached in
+``RUN/snapshots/scores.json`` so a rerun scores only new snapshots. ``--reading`` picks the
+reading printed and plotted: ``squared`` (default: the paper comparison's, the one the sizes
+table and issue 48's goals use) or ``released``.
 
     python tools/recipe_curves.py data/grid-m4.h5 released=runs/q-released \\
         current=runs/q-current --png docs/recipe_curves.png --csv docs/recipe_curves.csv
 
 Prints one row per snapshot (run, step, windows seen, wall time, E_p@40, E_p@80, E_s@80,
-val_cd8, dead units of each layer) and the copy-last baseline.
+val_cd8, dead units of each layer) and the copy-last baseline; the CSV has both readings.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import numpy as np
 from tpnet_ref.training.recipe import WindowData
 from tpnet_ref.training.score import score_rollouts
 
+READINGS = ("released", "squared")
 LAYERS = ("mlp1.0", "mlp1.1", "mlp2.0", "mlp2.1", "mlp2.2", "global", "lstm1", "lstm2", "lstm3")
 
 
@@ -44,9 +47,9 @@ def run_rows(data: WindowData, label: str, run: Path) -> list[dict]:
     snaps = sorted((run / "snapshots").glob("step-*.h5"))
     cache_path = run / "snapshots" / "scores.json"
     cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
-    todo = [s for s in snaps if s.name not in cache]
+    todo = [s for s in snaps if "Ep@80 squared" not in cache.get(s.name, {})]
     if todo:
-        scores = score_rollouts(data, [str(s) for s in todo])
+        scores = score_rollouts(data, [str(s) for s in todo], readings=READINGS)
         for s in todo:
             cache[s.name] = scores[str(s)]
         cache["copy last"] = scores["copy last"]
@@ -65,8 +68,13 @@ def run_rows(data: WindowData, label: str, run: Path) -> list[dict]:
     return rows, cache.get("copy last")
 
 
+def column(key: str, reading: str) -> str:
+    """The cache's name of ``key`` (``Ep@80``) in ``reading``."""
+    return key if reading == "released" else f"{key} {reading}"
+
+
 def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dict]],
-         path: str) -> None:
+         path: str, reading: str = "squared") -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -78,7 +86,8 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
         rr = [r for r in rows if r["run"] == label]
         w = np.array([r["windows_seen"] / 1e6 for r in rr])
         for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
-            ax.plot(w, [r[key] for r in rr], "o-", color=colours[label], label=label)
+            ax.plot(w, [r[column(key, reading)] for r in rr], "o-", color=colours[label],
+                    label=label)
         vals = [v for _, v in sorted(logs[label].items()) if v.get("dead")]
         w = np.array([v["windows_seen"] / 1e6 for v in vals])
         fe = [sum(v["dead"].get(k, 0) for k in LAYERS[:5]) for v in vals]
@@ -89,10 +98,10 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
                      "s--", color=colours[label], label=f"{label}: global layer")
     for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
         if copy_last:
-            ax.axhline(copy_last[key], color="grey", ls=":", label="copy last")
+            ax.axhline(copy_last[column(key, reading)], color="grey", ls=":", label="copy last")
         ax.set_ylim(bottom=0)
         ax.set_xlabel("training windows seen (millions)")
-        ax.set_ylabel(f"validation {key.replace('@', ' @')} (released reading)")
+        ax.set_ylabel(f"validation {key.replace('@', ' @')} ({reading} reading)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     axes[2].set_xlabel("training windows seen (millions)")
@@ -100,8 +109,8 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
     axes[2].set_ylim(bottom=0)
     axes[2].grid(alpha=0.3)
     axes[2].legend(fontsize=7)
-    fig.suptitle("Quarter size from scratch: validation trajectories (356), 80 recursive "
-                 "predictions; dead units on 1,024 validation windows")
+    fig.suptitle("From scratch: validation trajectories (356), 80 recursive predictions; dead "
+                 "units on 1,024 validation windows")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -113,7 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR",
                     help="run directories made with --snapshots, each with a label")
     ap.add_argument("--png", default=None, help="write the curves to this PNG")
-    ap.add_argument("--csv", default=None, help="write the rows to this CSV")
+    ap.add_argument("--csv", default=None, help="write the rows (both readings) to this CSV")
+    ap.add_argument("--reading", choices=READINGS, default="squared",
+                    help="the reading printed and plotted (default: squared)")
     args = ap.parse_args(argv)
     # an early snapshot's rollouts leave the trained range on purpose: no warning per case
     warnings.filterwarnings("ignore", module="tpnet_ref")
@@ -130,20 +141,22 @@ def main(argv: list[str] | None = None) -> int:
         r, copy_last = run_rows(data, label, Path(run))
         rows += r
         logs[label] = _val_records(Path(run))
-    cols = ["run", "step", "windows_seen", "wall_s", "Ep@40", "Ep@80", "Es@80", "val_cd8",
+    cols = ["run", "step", "windows_seen", "wall_s",
+            *(column(k, args.reading) for k in ("Ep@40", "Ep@80", "Es@80")), "val_cd8",
             *(f"dead {k}" for k in LAYERS)]
     print(" | ".join(cols))
     for r in rows:
         print(" | ".join(f"{r[c]:.4g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
     if copy_last:
-        print("copy last: " + ", ".join(f"{k} {v:.4g}" for k, v in copy_last.items()))
+        print("copy last: " + ", ".join(f"{k} {copy_last[column(k, args.reading)]:.4g}"
+                                        for k in ("Ep@40", "Ep@80", "Es@80")))
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
     if args.png:
-        plot(rows, copy_last, logs, args.png)
+        plot(rows, copy_last, logs, args.png, args.reading)
     return 0
 
 

@@ -175,6 +175,9 @@ def _add_export(tsub: Any) -> None:
     e.add_argument("output", help="native HDF5 weights file to write")
     e.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                    help="dtype of the parameters in the written file")
+    e.add_argument("--best", action="store_true",
+                   help="the run's snapshot with the lowest validation loss instead of its "
+                        "last weights (the released train.py's choice; needs a --snapshots run)")
     e.set_defaults(func=_cli_export)
 
 
@@ -220,6 +223,9 @@ def _add_score(tsub: Any) -> None:
     s.add_argument("weights", nargs="+", help="native weights files to compare")
     s.add_argument("--horizon", type=int, default=80,
                    help="recursive predictions per validation window")
+    s.add_argument("--reading", choices=("released", "squared"), default="released",
+                   help="the metrics' reading: released (the authors' code) or squared (the "
+                        "paper comparison's and `tpnet eval`'s; docs/evaluation.md)")
     s.add_argument("--spacing", action="store_true",
                    help="also how evenly the one-step predictions cover the ring (world units: "
                         "nearest-neighbour distance, smallest one per set, radius spread)")
@@ -292,6 +298,18 @@ def _cli_run(args: argparse.Namespace) -> int:
 
 
 def _cli_export(args: argparse.Namespace) -> int:
+    if args.best:
+        import shutil
+
+        from ..training.score import best_snapshot
+
+        if args.dtype != "float32":
+            raise ValueError("--best copies a float32 snapshot: leave --dtype out")
+        path, rec = best_snapshot(args.checkpoint)
+        shutil.copyfile(path, args.output)
+        print(f"wrote {args.output}: {path.name}, val_loss {rec['val_loss']:.4g} (the lowest of "
+              f"the run's snapshots), {rec.get('windows_seen', '?')} windows seen")
+        return 0
     from ..training.loop import export
 
     model = export(args.checkpoint, args.output, dtype=args.dtype)
@@ -345,9 +363,11 @@ def _cli_score(args: argparse.Namespace) -> int:
     data = WindowData(args.data, args.val_fraction, args.split_seed,
                       allow_other_scene=args.allow_other_scene)
     print(f"{data.describe()}\nvalidation trajectories from frame 0, {args.horizon} recursive "
-          f"predictions, released metric, mean over {len(data.val_traj)} trajectories:")
+          f"predictions, {args.reading} reading, mean over {len(data.val_traj)} trajectories:")
     at = tuple(h for h in (1, 10, 40, 80) if h <= args.horizon)
-    res = score_rollouts(data, args.weights, args.horizon, at)
+    res = score_rollouts(data, args.weights, args.horizon, at, readings=(args.reading,))
+    suffix = "" if args.reading == "released" else " " + args.reading
+    res = {name: {k.removesuffix(suffix): v for k, v in row.items()} for name, row in res.items()}
     cols = [f"{k}@{h}" for h in at for k in ("Ep", "Es")]
     print(f"  {'':40s}" + "".join(f"{c:>9s}" for c in cols))
     for name, row in res.items():

@@ -30,7 +30,8 @@ _NAMES = {
     "chamfer_shape": "..torch_model", "matched_distance": "..torch_model",
     "train": "loop", "export": "loop", "bench": "loop", "evaluate": "loop",
     "save_checkpoint": "checkpoint", "load_checkpoint": "checkpoint", "load_parent": "checkpoint",
-    "baselines": "score", "score_rollouts": "score", "spacing_report": "score",
+    "baselines": "score", "best_snapshot": "score", "score_rollouts": "score",
+    "spacing_report": "score",
 }
 
 

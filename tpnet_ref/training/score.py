@@ -2,13 +2,16 @@
 
 :func:`baselines` scores copy-last and constant velocity (:mod:`tpnet_ref.protocol`) like the
 training validation; :func:`score_rollouts` runs the test protocol (frames ``0..m-1`` in,
-``horizon`` recursive predictions, released E_p / E_s) on the *validation trajectories* of the
-training grid for native weights files; :func:`spacing_report` says how evenly one-step
+``horizon`` recursive predictions, E_p / E_s in the released or the squared reading) on the
+*validation trajectories* of the training grid for native weights files; :func:`best_snapshot` picks a run's snapshot as the
+released ``train.py`` picks its shipped file; :func:`spacing_report` says how evenly one-step
 predictions cover the ring. NumPy only (no torch).
 """
 from __future__ import annotations
 
+import json
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -41,11 +44,17 @@ def baselines(data: WindowData, wins: np.ndarray | None = None, steps: int = N_S
 
 
 def score_rollouts(data: WindowData, weights: list[str | os.PathLike], horizon: int = 80,
-                   at: tuple[int, ...] = (40, 80)) -> dict[str, dict[str, float]]:
+                   at: tuple[int, ...] = (40, 80), readings: tuple[str, ...] = ("released",)
+                   ) -> dict[str, dict[str, float]]:
     """Model selection without the test cases: the test protocol (frames 0..m-1 in, ``horizon``
-    recursive predictions, released E_p / E_s averaged over trajectories) on the *validation*
+    recursive predictions, E_p / E_s averaged over trajectories) on the *validation*
     trajectories of the training grid, for each weights file and the two baselines.
-    Returns ``{name: {"Ep@40": ..., "Es@40": ..., ...}}``."""
+    Returns ``{name: {"Ep@40": ..., "Es@40": ..., ...}}`` in the released reading; each other
+    reading of ``readings`` (``squared``: the paper comparison's, ``docs/evaluation.md``) adds
+    its keys with the reading after a space (``"Ep@80 squared"``)."""
+    unknown = set(readings) - {"released", "squared"}
+    if unknown:
+        raise ValueError(f"readings must be 'released' or 'squared', got {sorted(unknown)}")
     frames = data.frames[data.val_traj].astype(np.float64)
     windows, truth = split_protocol(frames, data.m, horizon)
     preds = {"copy last": copy_last(windows, horizon),
@@ -58,9 +67,32 @@ def score_rollouts(data: WindowData, weights: list[str | os.PathLike], horizon: 
     out = {}
     for name, p in preds.items():
         err = errors(truth, p)
-        out[name] = {f"{k}@{h}": float(err[f"{k}_released"][:, h - 1].mean())
-                     for h in at for k in ("Ep", "Es")}
+        out[name] = {f"{k}@{h}{'' if rd == 'released' else ' ' + rd}":
+                     float(err[f"{k}_{rd}"][:, h - 1].mean())
+                     for rd in readings for h in at for k in ("Ep", "Es")}
     return out
+
+
+def best_snapshot(run_dir: str | os.PathLike, key: str = "val_loss") -> tuple[Path, dict]:
+    """The snapshot (``snapshots/step-NNNNNNN.h5`` of a ``--snapshots`` run) whose validation
+    record in ``log.jsonl`` has the lowest ``key``, and that record: the released ``train.py``
+    ships ``ModelCheckpoint(monitor="val_loss", save_best_only=True)``'s file, the epoch with
+    the lowest validation loss (docs/spec.md §5)."""
+    run = Path(run_dir)
+    if not (run / "log.jsonl").is_file():
+        raise FileNotFoundError(f"{run}: no log.jsonl (not a training run directory)")
+    vals = {}
+    for line in (run / "log.jsonl").read_text().splitlines():
+        rec = json.loads(line)
+        if rec.get("kind") == "val" and key in rec:
+            vals[int(rec["step"])] = rec
+    snaps = {int(p.stem.split("-")[1]): p for p in (run / "snapshots").glob("step-*.h5")}
+    both = sorted(set(vals) & set(snaps))
+    if not both:
+        raise ValueError(f"{run}: no snapshot with a validation record of {key!r} "
+                         "(train with --snapshots)")
+    step = min(both, key=lambda s: (vals[s][key], s))
+    return snaps[step], vals[step]
 
 
 def spacing_report(data: WindowData, weights: list[str | os.PathLike],
@@ -74,4 +106,4 @@ def spacing_report(data: WindowData, weights: list[str | os.PathLike],
     return out
 
 
-__all__ = ["baselines", "score_rollouts", "spacing_report"]
+__all__ = ["baselines", "best_snapshot", "score_rollouts", "spacing_report"]
