@@ -42,9 +42,11 @@ RECIPE_FLAGS = {
     "lr": ("--lr", 0.002), "beta1": ("--beta1", 0.9), "beta2": ("--beta2", 0.99),
     "eps": ("--adam-eps", 1e-6), "schedule": ("--schedule", "constant"),
     "lr_min": ("--lr-min", 1e-4), "warmup_steps": ("--warmup-steps", 5), "clip": ("--clip", 2.0),
-    "noise": ("--noise", 0.01), "shape_weight": ("--shape-weight", 0.5),
+    "noise": ("--noise", 0.01), "noise_kind": ("--noise-kind", "walk"),
+    "shape_weight": ("--shape-weight", 0.5),
     "match_weight": ("--match-weight", 0.25), "pretrain_epochs": ("--pretrain-epochs", 1.0),
     "ramp_epochs": ("--ramp-epochs", 1.5), "rollout": ("--rollout", 4),
+    "grad_steps": ("--grad-steps", 2),
     "head_init": ("--head-init", "template"), "val_windows": ("--val-windows", 9),
     "val_fraction": ("--val-fraction", 0.1), "split_seed": ("--split-seed", 2),
     "seed": ("--seed", 11), "init": ("--init", "keras"), "windows": ("--windows", "released"),
@@ -112,12 +114,23 @@ def test_bad_run_inputs_are_one_line_before_training(tmp_path, runs, capsys):
                         "invalid choice: 'fast'"),
                        (["train", "run", "d.h5", "-o", "r", "--checkpoint-optimizer", "half"],
                         "invalid choice: 'half'"),
+                       (["train", "run", "d.h5", "-o", "r", "--noise-kind", "pink"],
+                        "invalid choice: 'pink'"),
                        (["train", "bench", "--size", "huge"], "invalid choice: 'huge'")):
         with pytest.raises(SystemExit) as info:
             main(argv)
         assert info.value.code == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and says in err[0], err
+
+
+def test_grad_steps_past_the_rollout_is_one_line_before_training(fake_data, tmp_path, runs,
+                                                                 capsys):
+    assert main(["train", "run", fake_data, "-o", str(tmp_path / "r"), "--rollout", "4",
+                 "--grad-steps", "5", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["tpnet train: error: grad_steps must be in 0..rollout (4), got 5"]
+    assert not runs
 
 
 def test_resume_of_a_directory_without_a_run_is_one_line(tmp_path, capsys):
@@ -141,8 +154,8 @@ def test_bench_runs_a_tiny_network(capsys):
 def test_parser_defaults_are_the_recipes():
     a = build_parser().parse_args(["train", "run", "d.h5", "-o", "r"])
     d = R.Recipe()
-    assert (a.recipe, a.batch, a.lr, a.rollout, a.val_fraction) == (
-        d.recipe, d.batch, d.lr, d.rollout, d.val_fraction)
+    assert (a.recipe, a.batch, a.lr, a.rollout, a.val_fraction, a.grad_steps, a.noise_kind) == (
+        d.recipe, d.batch, d.lr, d.rollout, d.val_fraction, d.grad_steps, d.noise_kind)
     assert a.epochs is None and a.threads == 2 and a.compile == "off" and a.precision == "float32"
     assert (a.checkpoint_minutes, a.log_every) == (L.TrainSettings.checkpoint_minutes,
                                                    L.TrainSettings.log_every)

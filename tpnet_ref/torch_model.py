@@ -253,10 +253,23 @@ class TorchTPNet(nn.Module):
         g = self.frame_features(windows.reshape(b * m, n, d))
         return self.sequence_head(g.view(b, m, -1))
 
-    def rollout(self, windows: torch.Tensor, steps: int) -> torch.Tensor:
+    def rollout(self, windows: torch.Tensor, steps: int, grad_from: int = 0) -> torch.Tensor:
         """Recursive prediction (window slides by one, prediction appended), each frame's
         features computed once: ``(B, m, N, dim)`` -> ``(B, steps, n_out, dim)``.
-        Differentiable, for the 8-step training loss."""
+        Differentiable, for the 8-step training loss.
+
+        ``grad_from`` j in 1..steps-1 (the pushforward trick): the first j predictions are made
+        under ``torch.no_grad()``; the window they end in is then taken as data (its frames'
+        features computed again, with gradient, as an input window's) and the last
+        ``steps - j`` predictions are made from it with gradient, so none flows through the
+        first j."""
+        if grad_from:
+            if not 0 < grad_from < steps:
+                raise ValueError(f"grad_from must be in 0..{steps - 1}, got {grad_from}")
+            with torch.no_grad():
+                early = self.rollout(windows, grad_from)
+            window = torch.cat([windows, early], dim=1)[:, -windows.shape[1]:]
+            return torch.cat([early, self.rollout(window, steps - grad_from)], dim=1)
         b, m, n, d = windows.shape
         feats = list(self.frame_features(windows.reshape(b * m, n, d)).view(b, m, -1).unbind(1))
         outs = []
@@ -269,14 +282,23 @@ class TorchTPNet(nn.Module):
 
     def recursive_loss(self, windows: torch.Tensor, targets: torch.Tensor,
                        first_weight: float = 9.0, shape_weight: float = 0.0,
-                       match_weight: float = 0.0) -> torch.Tensor:
+                       match_weight: float = 0.0, grad_steps: int = 0) -> torch.Tensor:
         """The published loss ``9·CD(P_{t+1}) + Σ_{i=2..S} CD(P_{t+i})`` (released-code Chamfer:
         Euclidean, both directions summed, batch mean). ``targets (B, S, N, dim)``, S = 8.
 
         ``shape_weight`` λ > 0 adds ``λ·Σ_i w_i·CD(P_i − c_P, Q_i − c_Q)``: the same Chamfer on
         the sets centred on their own centroids, i.e. the released-code shape error E_s.
-        ``match_weight`` μ > 0 adds ``μ·Σ_i w_i·EMD(P_i, Q_i)`` (:func:`matched_distance`)."""
-        pred = self.rollout(windows, targets.shape[1])
+        ``match_weight`` μ > 0 adds ``μ·Σ_i w_i·EMD(P_i, Q_i)`` (:func:`matched_distance`).
+
+        ``grad_steps`` G in 1..S-1 (the pushforward trick): the first S − G predictions are
+        made without gradient (:meth:`rollout`'s ``grad_from``) and every term is summed over
+        the last G alone, each with weight 1. G = 0 or G >= S: all S, the loss above."""
+        steps = targets.shape[1]
+        skip = steps - grad_steps if 0 < grad_steps < steps else 0
+        pred = self.rollout(windows, steps, grad_from=skip)[:, skip:]
+        targets = targets[:, skip:]
+        if skip:
+            first_weight = 1.0
         dev = pred.device.type
         if torch.is_autocast_enabled(dev):     # the loss in float32 (mixed-precision training)
             with torch.autocast(dev, enabled=False):

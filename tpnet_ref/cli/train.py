@@ -11,7 +11,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..training.recipe import N_ROLLOUT_MAX, N_STEPS_MAX, OPTIMIZER_MODES, SIZES, Recipe
+from ..training.recipe import (N_ROLLOUT_MAX, N_STEPS_MAX, NOISE_KINDS, OPTIMIZER_MODES, SIZES,
+                               Recipe)
 
 #: as tpnet_ref.training.loop.COMPILE_MODES (not imported from there: that module needs torch)
 COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
@@ -94,6 +95,10 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--clip", type=float, default=d.clip, help="max grad norm (0: off)")
     q.add_argument("--noise", type=float, default=d.noise,
                    help="std of Gaussian noise on input coordinates (normalised units)")
+    q.add_argument("--noise-kind", choices=NOISE_KINDS, default=d.noise_kind,
+                   help="iid: independent noise on every input frame; walk: a random walk over "
+                        "the m input frames (increments of std --noise/sqrt(m), the last frame's "
+                        "std is --noise), so velocities are perturbed consistently")
     q.add_argument("--shape-weight", type=float, default=d.shape_weight,
                    help="λ: add λ × the same weighted sum of shape Chamfer distances (sets centred "
                         "on their centroids; the released shape error E_s); 0 = published loss")
@@ -108,6 +113,10 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--rollout", type=int, default=d.rollout,
                    help=f"longest recursive loss (1..{N_ROLLOUT_MAX}; published {N_STEPS_MAX}; "
                         f"longer: only windows with that many frames after their inputs)")
+    q.add_argument("--grad-steps", type=int, default=d.grad_steps, metavar="G",
+                   help="pushforward trick, 0 < G < K: the first K-G of the --rollout K "
+                        "predictions are made without gradient, the loss (weight 1 each) is over "
+                        "the last G alone; 0 = all K")
     q.add_argument("--head-init", choices=("default", "template"), default=d.head_init,
                    help="template: the untrained head outputs a ring of the body's size")
     q.add_argument("--init", choices=("torch", "keras"), default=d.init,
@@ -276,6 +285,7 @@ def _cli_run(args: argparse.Namespace) -> int:
                         batch=args.batch, lr=args.lr, beta1=args.beta1, beta2=args.beta2,
                         eps=args.adam_eps, schedule=args.schedule, lr_min=args.lr_min,
                         warmup_steps=args.warmup_steps, clip=args.clip, noise=args.noise,
+                        noise_kind=args.noise_kind, grad_steps=args.grad_steps,
                         shape_weight=args.shape_weight, match_weight=args.match_weight,
                         pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
                         rollout=args.rollout, head_init=args.head_init, init=args.init,

@@ -70,12 +70,33 @@ def make_optimizer(net: Any, r: Recipe) -> Any:
 
 
 def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float,
-            shape_weight: float = 0.0, match_weight: float = 0.0) -> Any:
+            shape_weight: float = 0.0, match_weight: float = 0.0, grad_steps: int = 0) -> Any:
     """The recursive loss over the first ``steps`` targets (``steps=1``: 1-step teacher forced),
     plus ``shape_weight`` times the same sum of shape Chamfer distances (centred sets) and
-    ``match_weight`` times the same sum of matched (earth mover's) distances."""
+    ``match_weight`` times the same sum of matched (earth mover's) distances; with
+    ``grad_steps`` G in 1..steps-1 over the last G predictions alone, the others made without
+    gradient (the pushforward trick, :meth:`~tpnet_ref.torch_model.TorchTPNet.recursive_loss`)."""
     return net.recursive_loss(x, y[:, :steps], first_weight=first_weight,
-                              shape_weight=shape_weight, match_weight=match_weight)
+                              shape_weight=shape_weight, match_weight=match_weight,
+                              grad_steps=grad_steps)
+
+
+def input_noise(x: Any, std: float, kind: str, seed: int, step: int) -> Any:
+    """``x`` (``(B, m, N, dim)`` input windows) plus Gaussian noise drawn from a generator
+    seeded with ``(seed, step)``; ``std`` 0: ``x`` itself. ``iid``: std ``std`` on every
+    coordinate of every frame, independently. ``walk`` (the random walk of Sanchez-Gonzalez et
+    al. 2020): per point and coordinate, increments of std ``std / √m`` summed over the frames,
+    so frame i (from 0) has std ``std·√((i+1)/m)``, the last one ``std``, and a velocity
+    between two frames is off by one increment."""
+    if std == 0:
+        return x
+    g = torch.Generator().manual_seed(seed * 1_000_003 + step)
+    eps = torch.randn(x.shape, generator=g, dtype=x.dtype)
+    if kind == "walk":
+        eps = eps.cumsum(dim=1) / math.sqrt(x.shape[1])
+    elif kind != "iid":
+        raise ValueError(f"noise kind must be 'iid' or 'walk', got {kind!r}")
+    return x + std * eps
 
 
 #: how a training step's loss is run: ``off`` (eager), ``reduce-overhead`` (``torch.compile``:
@@ -116,37 +137,40 @@ def autocast(precision: str, device: str) -> Any:
 
 
 def step_loss(net: Any, mode: str = "off", precision: str = "float32") -> Any:
-    """``f(x, y, steps, first_weight, shape_weight, match_weight)``: the training step's loss
-    (:func:`loss_fn`) at ``precision`` (:func:`autocast`), captured with ``torch.compile``
-    unless ``mode`` is ``off`` (a resolved mode, :func:`resolve_compile`). Shapes are static
-    (every step has the recipe's batch), so a run compiles once per rollout length; the matched
-    term's CPU pairing is a graph break, the graphs on either side of it are still captured."""
+    """``f(x, y, steps, first_weight, shape_weight, match_weight, grad_steps=0)``: the training
+    step's loss (:func:`loss_fn`) at ``precision`` (:func:`autocast`), captured with
+    ``torch.compile`` unless ``mode`` is ``off`` (a resolved mode, :func:`resolve_compile`).
+    Shapes are static (every step has the recipe's batch), so a run compiles once per rollout
+    length (and number of graded steps); the matched term's CPU pairing is a graph break, the
+    graphs on either side of it are still captured."""
     dev = next(net.parameters()).device.type
     if mode == "off":
-        def eager(x: Any, y: Any, k: int, fw: float, sw: float, mw: float) -> Any:
+        def eager(x: Any, y: Any, k: int, fw: float, sw: float, mw: float, gs: int = 0) -> Any:
             with autocast(precision, dev):
-                return loss_fn(net, x, y, k, fw, sw, mw)
+                return loss_fn(net, x, y, k, fw, sw, mw, gs)
         return eager
     kw: dict[str, Any] = {"backend": "eager"} if mode == "eager" else {"mode": mode}
     compiled = torch.compile(net.recursive_loss, dynamic=False, **kw)
 
-    def f(x: Any, y: Any, k: int, fw: float, sw: float, mw: float) -> Any:
+    def f(x: Any, y: Any, k: int, fw: float, sw: float, mw: float, gs: int = 0) -> Any:
         if mode == "reduce-overhead":
             torch.compiler.cudagraph_mark_step_begin()
         with autocast(precision, dev):
-            return compiled(x, y[:, :k], first_weight=fw, shape_weight=sw, match_weight=mw)
+            return compiled(x, y[:, :k], first_weight=fw, shape_weight=sw, match_weight=mw,
+                            grad_steps=gs)
     return f
 
 
 def choose_precision(precision: str, device: str, config: TPNetConfig, batch: int,
                      rollout: int, threads: int | None, shape_weight: float = 0.0,
-                     match_weight: float = 0.0, compile: str = "off") -> tuple[str, dict]:
+                     match_weight: float = 0.0, compile: str = "off",
+                     grad_steps: int = 0) -> tuple[str, dict]:
     """``(precision, timings)``: ``float32`` or ``bf16`` as asked, or for ``auto`` the faster
     on this machine. On a GPU: bf16 where ``torch.cuda.is_bf16_supported()``. On the CPU: a
     short timing of the recipe's longest step (``rollout`` predictions at ``batch``, with its
-    extra terms) in each precision; bf16 when it is at least :data:`BF16_MIN_GAIN` times
-    float32's rate (a CPU without fast bfloat16 units, AVX512_BF16 or AMX, emulates it and
-    keeps float32). ``timings`` maps each timed precision to its windows per second."""
+    extra terms and graded steps) in each precision; bf16 when it is at least
+    :data:`BF16_MIN_GAIN` times float32's rate (a CPU without fast bfloat16 units, AVX512_BF16
+    or AMX, emulates it and keeps float32). ``timings`` maps each timed precision to its windows per second."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
     if precision != "auto":
@@ -155,7 +179,8 @@ def choose_precision(precision: str, device: str, config: TPNetConfig, batch: in
         return ("bf16" if torch.cuda.is_bf16_supported() else "float32"), {}
     timings = {p: bench(config, batch=batch, rollouts=(rollout,), iters=3, warmup=2,
                         device=device, threads=threads, shape_weight=shape_weight,
-                        match_weight=match_weight, compile=compile, precision=p)[rollout]
+                        match_weight=match_weight, compile=compile, precision=p,
+                        grad_steps=grad_steps)[rollout]
                for p in ("float32", "bf16")}
     return preferred_precision(timings), timings
 
@@ -466,7 +491,7 @@ class _Run:
         self.ck = _checkpoint_settings(state, s)
         self.precision, self.precision_timing = choose_precision(
             s.precision, self.dev, r.tpnet_config, r.batch, r.rollout, s.threads,
-            r.shape_weight, r.match_weight, self.compile_mode)
+            r.shape_weight, r.match_weight, self.compile_mode, r.grad_steps)
         run_dir.mkdir(parents=True, exist_ok=True)
 
         self.n_train = len(self.data.train_win)
@@ -517,7 +542,8 @@ class _Run:
         wps = bench(r.tpnet_config, batch=r.batch, rollouts=(r.rollout,), iters=5, warmup=2,
                     device=self.dev, threads=self.s.threads, seed=r.seed,
                     shape_weight=r.shape_weight, match_weight=r.match_weight,
-                    compile=self.compile_mode, precision=self.precision)[r.rollout]
+                    compile=self.compile_mode, precision=self.precision,
+                    grad_steps=r.grad_steps)[r.rollout]
         r.epochs = max(1.0 / self.spe, 0.9 * 60.0 * minutes * wps / (self.spe * r.batch))
         self.state["budget"] = {"minutes": float(minutes), "bench_windows_per_s": float(wps),
                                 "epochs": r.epochs}
@@ -568,7 +594,7 @@ class _Run:
 
     def batch(self, step: int) -> tuple[Any, Any, int]:
         """``(x, y, windows)`` of ``step``: the epoch's permutation from ``(seed, epoch)``, the
-        input noise from a generator seeded with ``(seed, step)``."""
+        input noise (:func:`input_noise`) from a generator seeded with ``(seed, step)``."""
         r = self.r
         epoch, b = divmod(step, self.spe)
         if epoch != self._perm_epoch:
@@ -576,10 +602,7 @@ class _Run:
             self._perm_epoch = epoch
         idx = self._perm[b * r.batch:(b + 1) * r.batch]
         x, y = self.data.gather(self.data.train_win[np.sort(idx)])
-        x = torch.from_numpy(x)
-        if r.noise > 0:
-            g = torch.Generator().manual_seed(r.seed * 1_000_003 + step)
-            x = x + r.noise * torch.randn(x.shape, generator=g, dtype=x.dtype)
+        x = input_noise(torch.from_numpy(x), r.noise, r.noise_kind, r.seed, step)
         return x.to(self.dev), torch.from_numpy(y).to(self.dev), len(idx)
 
     def step(self, step_fn: Any) -> tuple[float, int, float]:
@@ -593,7 +616,8 @@ class _Run:
         for grp in self.opt.param_groups:
             grp["lr"] = lr
         self.opt.zero_grad(set_to_none=True)
-        loss = step_fn(x, y, n_steps, r.first_weight, r.shape_weight, r.match_weight)
+        loss = step_fn(x, y, n_steps, r.first_weight, r.shape_weight, r.match_weight,
+                       r.grad_steps)
         lv = float(loss.detach())
         if not math.isfinite(lv):
             state["nonfinite_skipped"] += 1
@@ -722,11 +746,12 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
 def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[int, ...] = (1, 8),
           iters: int = 5, warmup: int = 1, device: str = "auto", threads: int | None = 2,
           seed: int = 0, shape_weight: float = 0.0, match_weight: float = 0.0,
-          compile: str = "off", precision: str = "float32") -> dict[int, float]:
+          compile: str = "off", precision: str = "float32",
+          grad_steps: int = 0) -> dict[int, float]:
     """Training throughput, windows per second, of a full step (loss, backward, clip, Adam) for
-    each rollout length, on random windows; ``compile`` and ``precision`` (``float32`` or
-    ``bf16``) as in :func:`train` (the compile itself falls in the ``warmup`` steps, which are
-    not timed)."""
+    each rollout length, on random windows; ``compile``, ``precision`` (``float32`` or
+    ``bf16``) and ``grad_steps`` as in :func:`train` (the compile itself falls in the
+    ``warmup`` steps, which are not timed)."""
     if threads:
         torch.set_num_threads(int(threads))
     dev = resolve_device(device)
@@ -752,7 +777,7 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
                     torch.cuda.synchronize()
                 t0 = time.perf_counter()
             opt.zero_grad(set_to_none=True)
-            loss = step_fn(x, y, k, 9.0, shape_weight, match_weight)
+            loss = step_fn(x, y, k, 9.0, shape_weight, match_weight, grad_steps)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
             opt.step()
@@ -763,6 +788,6 @@ def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[i
 
 
 __all__ = ["train", "TrainSettings", "export", "bench", "evaluate", "loss_fn", "step_loss",
-           "PRECISIONS", "BF16_MIN_GAIN", "autocast", "choose_precision", "preferred_precision",
-           "resolve_compile", "COMPILE_MODES", "make_optimizer", "resolve_device",
-           "hardware", "init_head_template", "LOG_NAME"]
+           "input_noise", "PRECISIONS", "BF16_MIN_GAIN", "autocast", "choose_precision",
+           "preferred_precision", "resolve_compile", "COMPILE_MODES", "make_optimizer",
+           "resolve_device", "hardware", "init_head_template", "LOG_NAME"]

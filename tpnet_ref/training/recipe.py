@@ -14,9 +14,12 @@ Recipes (``Recipe.recipe``):
 
 Both: Adam with the released code's constants (lr 1e-3, beta_1 0.99, beta_2 0.999, eps 1e-7),
 optional linear warm-up and cosine decay, gradient-norm clipping, optional Gaussian noise on the
-input coordinates (never on the targets). Validation is a held-out set of whole training-grid
-*trajectories* (``val_fraction``); the 60 test cases are never read. Everything here is NumPy
-and h5py: torch is needed by :mod:`~tpnet_ref.training.loop` only.
+input coordinates (never on the targets; i.i.d. or a random walk over the input frames,
+``noise_kind``), optionally the pushforward trick (``grad_steps = G``: of a K-step loss, the
+first K − G predictions without gradient, the loss over the last G alone). Validation is a
+held-out set of whole training-grid *trajectories* (``val_fraction``), always scored over all
+``rollout`` predictions; the 60 test cases are never read. Everything here is NumPy and h5py:
+torch is needed by :mod:`~tpnet_ref.training.loop` only.
 """
 from __future__ import annotations
 
@@ -38,6 +41,8 @@ N_STEPS_MAX = N_TARGETS
 N_ROLLOUT_MAX = 32
 #: how much of Adam's state a checkpoint keeps (:mod:`~tpnet_ref.training.checkpoint`)
 OPTIMIZER_MODES = ("full", "bf16", "none")
+#: input noise: independent per frame, or a random walk over the input frames
+NOISE_KINDS = ("iid", "walk")
 
 
 @dataclass
@@ -56,10 +61,12 @@ class Recipe:
     warmup_steps: int = 200
     clip: float = 10.0                  # max gradient norm; 0 = no clipping
     noise: float = 0.0                  # std of Gaussian input noise, normalised units
+    noise_kind: str = "iid"             # "iid" or "walk" (the last input frame's std is noise)
     first_weight: float = 9.0
     shape_weight: float = 0.0           # λ of the added shape term λ·Σ w_i·CD(centred sets)
     match_weight: float = 0.0           # μ of the added term μ·Σ w_i·EMD (optimal bijection)
     rollout: int = N_STEPS_MAX          # length of the recursive loss (8 published; up to 32)
+    grad_steps: int = 0                 # pushforward: loss and gradient on the last G steps; 0: all
     pretrain_epochs: float = 2.0        # curriculum: 1-step epochs
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
     head_init: str = "default"          # "default" or "template" (output bias = a ring, see below)
@@ -89,6 +96,11 @@ class Recipe:
             raise ValueError("val_windows must be >= 0")
         if not 1 <= self.rollout <= N_ROLLOUT_MAX:
             raise ValueError(f"rollout must be in 1..{N_ROLLOUT_MAX}, got {self.rollout}")
+        if not 0 <= self.grad_steps <= self.rollout:
+            raise ValueError(f"grad_steps must be in 0..rollout ({self.rollout}), "
+                             f"got {self.grad_steps}")
+        if self.noise_kind not in NOISE_KINDS:
+            raise ValueError(f"noise_kind must be 'iid' or 'walk', got {self.noise_kind!r}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if self.noise < 0 or self.clip < 0 or self.shape_weight < 0 or self.match_weight < 0:
@@ -239,4 +251,4 @@ class WindowData:
 
 
 __all__ = ["Recipe", "WindowData", "SIZES", "size_config", "N_STEPS_MAX", "N_ROLLOUT_MAX",
-           "OPTIMIZER_MODES"]
+           "OPTIMIZER_MODES", "NOISE_KINDS"]
