@@ -170,7 +170,8 @@ def choose_precision(precision: str, device: str, config: TPNetConfig, batch: in
     short timing of the recipe's longest step (``rollout`` predictions at ``batch``, with its
     extra terms and graded steps) in each precision; bf16 when it is at least
     :data:`BF16_MIN_GAIN` times float32's rate (a CPU without fast bfloat16 units, AVX512_BF16
-    or AMX, emulates it and keeps float32). ``timings`` maps each timed precision to its windows per second."""
+    or AMX, emulates it and keeps float32). ``timings`` maps each timed precision to its
+    windows per second."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
     if precision != "auto":
