@@ -186,3 +186,39 @@ def test_a_run_with_both_ablations_is_stored_and_resumes_from_an_older_checkpoin
     res = L.train(dataset, run, resume=True, threads=1, progress=False, max_steps=21)
     assert res["step"] == 21 and res["recipe"]["grad_steps"] == 0
     assert res["recipe"]["noise_kind"] == "iid"
+
+
+# ------------------------------------------------------------------ branches keep Adam's state
+def test_init_optimizer_branches_with_the_parents_adam_state(dataset, tmp_path):
+    """``--init-from RUN --init-optimizer``: the branch starts from the parent's weights AND
+    Adam's moments and step counts (no fresh-Adam jolt), with its own recipe's constants;
+    without a run directory's optimizer state it is refused in one line."""
+    parent = tmp_path / "parent"
+    L.train(dataset, parent, tiny_recipe(epochs=1), threads=1, progress=False, max_steps=3)
+    payload, _ = C.load_checkpoint(parent)
+    r = tiny_recipe(epochs=1, init_from=str(parent), init_optimizer=True, lr=5e-4, beta1=0.9)
+    data = R.WindowData(dataset, r.val_fraction, r.split_seed)
+    net, opt = L._build_network(r, "cpu", data, None, {})
+    for name, p in net.state_dict().items():
+        if isinstance(p, torch.Tensor):          # (the network's extra state is its config)
+            assert torch.equal(p, payload["model"][name]), name
+    got, want = opt.state_dict(), payload["optimizer"]
+    assert got["state"].keys() == want["state"].keys()
+    for k, st in want["state"].items():
+        for key in ("exp_avg", "exp_avg_sq", "step"):
+            assert torch.equal(got["state"][k][key], st[key]), (k, key)
+    assert all(g["lr"] == 5e-4 and g["betas"] == (0.9, r.beta2) for g in opt.param_groups)
+    _, fresh = L._build_network(dataclasses.replace(r, init_optimizer=False), "cpu", data, None, {})
+    assert not fresh.state_dict()["state"]
+    # a branch run trains on from there
+    assert cli.main(["train", "run", dataset, "-o", str(tmp_path / "b"), "--size", "tiny",
+                     "--init-from", str(parent), "--init-optimizer", "--epochs", "1", "--batch", "16",
+                     "--max-steps", "2", "--val-fraction", "0.2", "--threads", "1",
+                     "--quiet"]) == 0
+    st = json.loads((tmp_path / "b" / "checkpoint.json").read_text())
+    assert st["recipe"]["init_optimizer"] is True and st["step"] == 2
+    with pytest.raises(ValueError, match="needs init_from"):
+        tiny_recipe(init_optimizer=True)
+    L.export(parent, tmp_path / "w.h5")
+    with pytest.raises(ValueError, match="weights file"):
+        C.load_parent_optimizer(tmp_path / "w.h5")

@@ -135,6 +135,10 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--init-from", default=d.init_from, metavar="RUN_DIR|WEIGHTS.h5",
                    help="fine-tune: start from this run's weights or a native weights file "
                         "(fresh optimizer and schedule; its network is used, --size is ignored)")
+    q.add_argument("--init-optimizer", action="store_true",
+                   help="with --init-from RUN_DIR: also take that run's Adam state (moments, "
+                        "step counts), so a branch with another recipe starts without the jolt "
+                        "of a fresh Adam; this recipe's learning rate and constants apply")
     q.add_argument("--val-windows", type=int, default=d.val_windows,
                    help="validate on this many evenly spaced validation windows (0: all)")
     q.add_argument("--val-fraction", type=float, default=d.val_fraction,
@@ -290,6 +294,7 @@ def _cli_run(args: argparse.Namespace) -> int:
                         pretrain_epochs=args.pretrain_epochs, ramp_epochs=args.ramp_epochs,
                         rollout=args.rollout, head_init=args.head_init, init=args.init,
                         windows=args.windows, init_from=args.init_from,
+                        init_optimizer=args.init_optimizer,
                         val_windows=args.val_windows, val_fraction=args.val_fraction, split_seed=args.split_seed,
                         seed=args.seed, config=cfg.to_dict())
     st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,

@@ -30,6 +30,7 @@ _NAMES = {
     "chamfer_shape": "..torch_model", "matched_distance": "..torch_model",
     "train": "loop", "export": "loop", "bench": "loop", "evaluate": "loop",
     "save_checkpoint": "checkpoint", "load_checkpoint": "checkpoint", "load_parent": "checkpoint",
+    "load_parent_optimizer": "checkpoint",
     "baselines": "score", "best_snapshot": "score", "score_rollouts": "score",
     "spacing_report": "score",
 }

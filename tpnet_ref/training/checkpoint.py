@@ -140,5 +140,19 @@ def load_parent(source: str | os.PathLike) -> tuple[dict, dict, TPNetConfig]:
     return parent["model"], pstate, Recipe.from_dict(pstate["recipe"]).tpnet_config
 
 
-__all__ = ["save_checkpoint", "load_checkpoint", "load_parent", "CKPT_NAME",
-           "SIDECAR_NAME", "OPTIMIZER_MODES"]
+def load_parent_optimizer(source: str | os.PathLike) -> dict:
+    """Adam's state (moments and step counts) in a parent run's checkpoint, for a branch that
+    keeps it (``init_optimizer``); a weights file or a checkpoint saved without it is refused."""
+    p = Path(source)
+    if p.suffix in (".h5", ".hdf5"):
+        raise ValueError(f"--init-optimizer: {source} is a weights file, it holds no optimizer "
+                         "state; give the parent's run directory")
+    parent, _ = load_checkpoint(source)
+    if "optimizer" not in parent:
+        raise ValueError(f"--init-optimizer: {source}'s checkpoint was saved without Adam's "
+                         "state (--checkpoint-optimizer none)")
+    return parent["optimizer"]
+
+
+__all__ = ["save_checkpoint", "load_checkpoint", "load_parent", "load_parent_optimizer",
+           "CKPT_NAME", "SIDECAR_NAME", "OPTIMIZER_MODES"]

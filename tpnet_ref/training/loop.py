@@ -37,6 +37,7 @@ from ..extras import require
 from ..provenance import file_sha256, portable_path, scrub_text
 from ..weights.torch import import_torch
 from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, load_checkpoint, load_parent,
+                         load_parent_optimizer,
                          save_checkpoint)
 from .lineage import inherited
 from .recipe import N_STEPS_MAX, Recipe, WindowData
@@ -411,7 +412,8 @@ def _load_data(data_path: str | os.PathLike, r: Recipe, s: TrainSettings) -> Win
 def _build_network(r: Recipe, dev: str, data: WindowData, payload: dict | None,
                    state: dict) -> tuple[Any, Any]:
     """``(net, optimizer)``: seeded initialisation, then the checkpoint's weights and Adam state
-    (resume), the parent's weights (``init_from``) or the template head."""
+    (resume), the parent's weights (``init_from``; with ``init_optimizer`` also its Adam state)
+    or the template head."""
     cfg = r.tpnet_config
     torch.manual_seed(r.seed)
     net = TorchTPNet(cfg)
@@ -432,6 +434,10 @@ def _build_network(r: Recipe, dev: str, data: WindowData, payload: dict | None,
     elif payload is None and r.head_init == "template":
         init_head_template(net, data)
     opt = make_optimizer(net, r)
+    if payload is None and r.init_optimizer:
+        opt.load_state_dict(load_parent_optimizer(r.init_from))
+        for grp in opt.param_groups:        # the moments are the parent's, the constants ours
+            grp.update(lr=r.lr, betas=(r.beta1, r.beta2), eps=r.eps)
     if payload is not None:
         net.load_state_dict(payload["model"])
         if "optimizer" in payload:

@@ -73,6 +73,7 @@ class Recipe:
     init: str = "torch"                 # "torch" (nn.Linear defaults) or "keras" (released)
     windows: str = "model"              # "model" or "released" (tpnet_ref.data.released_windows)
     init_from: str = ""                 # fine-tune: start from this run's (or .h5 file's) weights
+    init_optimizer: bool = False        # ... and from its Adam state (a branch, not a fresh Adam)
     val_windows: int = 0                # validate on this many evenly spaced windows (0: all)
     val_fraction: float = 0.05
     split_seed: int = 0                 # which trajectories are validation (independent of seed)
@@ -101,6 +102,8 @@ class Recipe:
                              f"got {self.grad_steps}")
         if self.noise_kind not in NOISE_KINDS:
             raise ValueError(f"noise_kind must be 'iid' or 'walk', got {self.noise_kind!r}")
+        if self.init_optimizer and not self.init_from:
+            raise ValueError("init_optimizer needs init_from (the run whose Adam state to take)")
         if not 0 <= self.val_fraction < 1:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if self.noise < 0 or self.clip < 0 or self.shape_weight < 0 or self.match_weight < 0:
