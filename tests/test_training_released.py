@@ -165,6 +165,11 @@ def test_the_released_preset_fills_the_options_left_at_their_defaults():
     assert (b.lr, b.clip, b.init) == (5e-4, 3.0, "keras")
     c = parse()
     assert (c.init, c.windows, c.schedule) == ("torch", "model", "cosine")
+    # a value given explicitly wins also when it equals the parser's default (200, 10, 'cosine')
+    d = parse("--preset", "released", "--warmup-steps", "200", "--clip", "10",
+              "--schedule", "cosine", "--init", "torch")
+    assert (d.warmup_steps, d.clip, d.schedule, d.init, d.lr) == (200, 10.0, "cosine", "torch",
+                                                                  1e-3)
     assert isinstance(a, argparse.Namespace)
 
 

@@ -37,10 +37,22 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
+def _recorded(action_cls: type) -> type:
+    """``action_cls`` that also adds its dest to ``namespace._given`` when the command line
+    names it, so a preset can tell ``--warmup-steps 200`` from the default 200."""
+    class Recorded(action_cls):  # type: ignore[misc, valid-type]
+        def __call__(self, parser, namespace, values, option_string=None):  # noqa: ANN001
+            super().__call__(parser, namespace, values, option_string)
+            namespace._given = getattr(namespace, "_given", frozenset()) | {self.dest}
+    return Recorded
+
+
 def apply_preset(args: argparse.Namespace, parser_defaults: dict[str, Any]) -> None:
-    """Set the preset's fields on ``args`` where they still hold the parser's default."""
+    """Set the preset's fields on ``args`` that the command line did not give (a value given
+    explicitly wins, also when it equals the parser's default)."""
+    given = getattr(args, "_given", frozenset())
     for k, v in PRESETS.get(getattr(args, "preset", None) or "", {}).items():
-        if getattr(args, k) == parser_defaults.get(k):
+        if k not in given:
             setattr(args, k, v)
 
 
@@ -179,6 +191,9 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--export", default=None, metavar="OUT.h5",
                    help="when the run completes, write the native weights file")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
+    for a in q._actions:
+        if a.dest in PRESETS["released"]:
+            a.__class__ = _recorded(type(a))
     q.set_defaults(func=_cli_run, _run_defaults={a.dest: a.default for a in q._actions})
 
 
