@@ -81,7 +81,8 @@ def test_strategies_draw_what_they_say():
     tied_around_the_centre()
 
     @hyp.settings(max_examples=20, deadline=None)
-    @hyp.given(w=testing.windows(m=3, n=(8, 12), scales=[1e-3], centre=(5.0, 6.0)))
+    # ties=False: a tied first frame may put every x on one value (std 0; found by hypothesis)
+    @hyp.given(w=testing.windows(m=3, n=(8, 12), scales=[1e-3], centre=(5.0, 6.0), ties=False))
     def spread_by_the_scale(w):              # normal around the centre, spread 1e-3
         for f in w:
             assert np.abs(f - 5.5).max() <= 0.5 + 0.01 and 1e-5 < f.std(axis=0).min() < 1e-2

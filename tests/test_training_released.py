@@ -173,7 +173,16 @@ def test_the_released_preset_fills_the_options_left_at_their_defaults():
     assert isinstance(a, argparse.Namespace)
 
 
-def test_a_released_run_trains_and_logs_dead_units(released, tmp_path):
+@pytest.fixture(scope="module")
+def long_grid(tmp_path_factory):
+    """4 trajectories of 344 rows (86 frames: the protocol's 4 + 80 fit) to score snapshots on."""
+    path = tmp_path_factory.mktemp("data") / "long.h5"
+    D.generate(str(path), D.train_grid([1.3], [200.0, 245.0], positions=2), None, m=4,
+               steps=344, seed=1, whole=1, progress=False)
+    return str(path)
+
+
+def test_a_released_run_trains_and_logs_dead_units(released, long_grid, tmp_path):
     from tpnet_ref import cli
 
     run = tmp_path / "run"
@@ -198,6 +207,19 @@ def test_a_released_run_trains_and_logs_dead_units(released, tmp_path):
     best = min((s for s in snaps), key=lambda s: by_step[int(s[5:12])])
     assert cli.main(["train", "export", str(run), str(tmp_path / "best.h5"), "--best"]) == 0
     assert (tmp_path / "best.h5").read_bytes() == (run / "snapshots" / best).read_bytes()
+    # --monitor ep80: the snapshot of the lowest validation E_p@80 (squared), scores cached
+    from tpnet_ref.training.recipe import WindowData
+    from tpnet_ref.training.score import score_rollouts
+    direct = score_rollouts(WindowData(long_grid, 0.05, 0),
+                            [run / "snapshots" / s for s in snaps], readings=("squared",))
+    ep80 = min(snaps, key=lambda s: (direct[str(run / "snapshots" / s)]["Ep@80 squared"], s))
+    assert cli.main(["train", "export", str(run), str(tmp_path / "e.h5"), "--best", "--monitor",
+                     "ep80", "--data", long_grid]) == 0
+    assert (tmp_path / "e.h5").read_bytes() == (run / "snapshots" / ep80).read_bytes()
+    cache = json.loads((run / "snapshots" / "scores.json").read_text())
+    assert set(snaps) | {"copy last"} == set(cache)
+    assert cli.main(["train", "export", str(run), str(tmp_path / "e2.h5"), "--best", "--monitor",
+                     "ep80"]) == 2                       # a rollout score needs --data
     (run / "log.jsonl").write_text("")
     assert cli.main(["train", "export", str(run), str(tmp_path / "b2.h5"), "--best"]) == 2
 

@@ -27,9 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from tpnet_ref.training.recipe import WindowData
-from tpnet_ref.training.score import score_rollouts
+from tpnet_ref.training.score import SNAPSHOT_READINGS as READINGS, score_snapshots
 
-READINGS = ("released", "squared")
 LAYERS = ("mlp1.0", "mlp1.1", "mlp2.0", "mlp2.1", "mlp2.2", "global", "lstm1", "lstm2", "lstm3")
 
 
@@ -45,15 +44,7 @@ def _val_records(run: Path) -> dict[int, dict]:
 def run_rows(data: WindowData, label: str, run: Path) -> list[dict]:
     """One row per snapshot of ``run`` (scored now or read from its cache)."""
     snaps = sorted((run / "snapshots").glob("step-*.h5"))
-    cache_path = run / "snapshots" / "scores.json"
-    cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
-    todo = [s for s in snaps if "Ep@80 squared" not in cache.get(s.name, {})]
-    if todo:
-        scores = score_rollouts(data, [str(s) for s in todo], readings=READINGS)
-        for s in todo:
-            cache[s.name] = scores[str(s)]
-        cache["copy last"] = scores["copy last"]
-        cache_path.write_text(json.dumps(cache, indent=1, sort_keys=True))
+    cache = score_snapshots(data, run)
     vals = _val_records(run)
     rows = []
     for s in snaps:

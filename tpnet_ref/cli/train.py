@@ -28,6 +28,9 @@ _COMPILE_HELP = ("capture the step's loss with torch.compile: auto (reduce-overh
                  "TorchDynamo, eager kernels: proves on the CPU that the step traces), off")
 
 
+#: ``train export --best --monitor``: the name of each choice in the validation records
+MONITORS = {"val_loss": "val_loss", "ep80": "Ep@80 squared"}
+
 #: ``--preset NAME``: recipe fields set unless the option is given explicitly
 PRESETS: dict[str, dict[str, Any]] = {
     "released": dict(recipe="paper", init="keras", windows="released", schedule="constant",
@@ -204,8 +207,16 @@ def _add_export(tsub: Any) -> None:
     e.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                    help="dtype of the parameters in the written file")
     e.add_argument("--best", action="store_true",
-                   help="the run's snapshot with the lowest validation loss instead of its "
-                        "last weights (the released train.py's choice; needs a --snapshots run)")
+                   help="the run's snapshot with the lowest --monitor instead of its last "
+                        "weights (needs a --snapshots run)")
+    e.add_argument("--monitor", choices=sorted(MONITORS), default="val_loss",
+                   help="with --best: val_loss (the 8-step validation loss in log.jsonl: the "
+                        "released train.py's choice) or ep80 (validation E_p@80, squared "
+                        "reading: the test protocol on --data's validation trajectories, "
+                        "cached in RUN/snapshots/scores.json)")
+    e.add_argument("--data", default=None,
+                   help="with --monitor ep80: the grid whose validation trajectories score "
+                        "the snapshots (never the test cases)")
     e.set_defaults(func=_cli_export)
 
 
@@ -335,10 +346,19 @@ def _cli_export(args: argparse.Namespace) -> int:
 
         if args.dtype != "float32":
             raise ValueError("--best copies a float32 snapshot: leave --dtype out")
-        path, rec = best_snapshot(args.checkpoint)
+        key = MONITORS[args.monitor]
+        data = None
+        if args.monitor != "val_loss":
+            if not args.data:
+                raise ValueError(f"--monitor {args.monitor} scores rollouts: give --data GRID.h5")
+            from ..training.recipe import WindowData
+            data = WindowData(args.data, 0.05, 0)
+        elif args.data:
+            raise ValueError("--data is for a rollout --monitor (ep80); val_loss is in the log")
+        path, rec = best_snapshot(args.checkpoint, key=key, data=data)
         shutil.copyfile(path, args.output)
-        print(f"wrote {args.output}: {path.name}, val_loss {rec['val_loss']:.4g} (the lowest of "
-              f"the run's snapshots), {rec.get('windows_seen', '?')} windows seen")
+        print(f"wrote {args.output}: {path.name}, {key} {rec[key]:.4g} (the lowest of the run's "
+              f"snapshots), {rec.get('windows_seen', '?')} windows seen")
         return 0
     from ..training.loop import export
 

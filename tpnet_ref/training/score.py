@@ -3,9 +3,11 @@
 :func:`baselines` scores copy-last and constant velocity (:mod:`tpnet_ref.protocol`) like the
 training validation; :func:`score_rollouts` runs the test protocol (frames ``0..m-1`` in,
 ``horizon`` recursive predictions, E_p / E_s in the released or the squared reading) on the
-*validation trajectories* of the training grid for native weights files; :func:`best_snapshot` picks a run's snapshot as the
-released ``train.py`` picks its shipped file; :func:`spacing_report` says how evenly one-step
-predictions cover the ring. NumPy only (no torch).
+*validation trajectories* of the training grid for native weights files, and
+:func:`score_snapshots` for every snapshot of a run (cached); :func:`best_snapshot` picks a
+run's snapshot by its validation loss (as the released ``train.py`` picks its shipped file) or
+by a rollout score; :func:`spacing_report` says how evenly one-step predictions cover the ring.
+NumPy only (no torch).
 """
 from __future__ import annotations
 
@@ -73,20 +75,52 @@ def score_rollouts(data: WindowData, weights: list[str | os.PathLike], horizon: 
     return out
 
 
-def best_snapshot(run_dir: str | os.PathLike, key: str = "val_loss") -> tuple[Path, dict]:
-    """The snapshot (``snapshots/step-NNNNNNN.h5`` of a ``--snapshots`` run) whose validation
-    record in ``log.jsonl`` has the lowest ``key``, and that record: the released ``train.py``
-    ships ``ModelCheckpoint(monitor="val_loss", save_best_only=True)``'s file, the epoch with
-    the lowest validation loss (docs/spec.md §5)."""
+#: the readings :func:`score_snapshots` caches
+SNAPSHOT_READINGS = ("released", "squared")
+
+
+def score_snapshots(data: WindowData, run_dir: str | os.PathLike) -> dict[str, dict[str, float]]:
+    """:func:`score_rollouts` (both readings) of every snapshot of a ``--snapshots`` run, keyed
+    by file name, plus ``"copy last"``; cached in ``RUN/snapshots/scores.json``, so a second
+    call scores only the snapshots written since."""
+    run = Path(run_dir)
+    snaps = sorted((run / "snapshots").glob("step-*.h5"))
+    cache_path = run / "snapshots" / "scores.json"
+    cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
+    todo = [p for p in snaps if "Ep@80 squared" not in cache.get(p.name, {})]
+    if todo:
+        scores = score_rollouts(data, [str(p) for p in todo], readings=SNAPSHOT_READINGS)
+        for p in todo:
+            cache[p.name] = scores[str(p)]
+        cache["copy last"] = scores["copy last"]
+        cache_path.write_text(json.dumps(cache, indent=1, sort_keys=True))
+    return {k: v for k, v in cache.items() if k == "copy last" or (run / "snapshots" / k).is_file()}
+
+
+def best_snapshot(run_dir: str | os.PathLike, key: str = "val_loss",
+                  data: WindowData | None = None) -> tuple[Path, dict]:
+    """The snapshot (``snapshots/step-NNNNNNN.h5`` of a ``--snapshots`` run) with the lowest
+    ``key``, and its validation record (with the rollout scores when ``data`` is given).
+    ``val_loss`` (the default) is read from ``log.jsonl``: the released ``train.py`` ships
+    ``ModelCheckpoint(monitor="val_loss", save_best_only=True)``'s file, the epoch with the
+    lowest validation loss (docs/spec.md §5). A rollout key (``"Ep@80 squared"``) needs
+    ``data``: :func:`score_snapshots` on its validation trajectories."""
     run = Path(run_dir)
     if not (run / "log.jsonl").is_file():
         raise FileNotFoundError(f"{run}: no log.jsonl (not a training run directory)")
     vals = {}
     for line in (run / "log.jsonl").read_text().splitlines():
         rec = json.loads(line)
-        if rec.get("kind") == "val" and key in rec:
+        if rec.get("kind") == "val":
             vals[int(rec["step"])] = rec
     snaps = {int(p.stem.split("-")[1]): p for p in (run / "snapshots").glob("step-*.h5")}
+    if data is not None:
+        scores = score_snapshots(data, run)
+        for step, p in snaps.items():
+            vals.setdefault(step, {"step": step}).update(scores.get(p.name, {}))
+    elif key != "val_loss" and not key.startswith("val_"):
+        raise ValueError(f"best snapshot by {key!r}: a rollout score needs the grid (data)")
+    vals = {s: r for s, r in vals.items() if key in r}
     both = sorted(set(vals) & set(snaps))
     if not both:
         raise ValueError(f"{run}: no snapshot with a validation record of {key!r} "
@@ -106,4 +140,4 @@ def spacing_report(data: WindowData, weights: list[str | os.PathLike],
     return out
 
 
-__all__ = ["baselines", "best_snapshot", "score_rollouts", "spacing_report"]
+__all__ = ["baselines", "best_snapshot", "score_rollouts", "score_snapshots", "spacing_report"]
