@@ -89,3 +89,22 @@ def test_spacing_stats_of_the_rest_ring_and_of_a_clump():
     assert st["nn_min"] == pytest.approx(spacing / 2, rel=1e-12)        # mean of 0.418 and 0
     with pytest.raises(ValueError, match="sets"):
         spacing_stats(ring)
+
+
+def test_recipe_curves_summary_gives_each_runs_mean_and_range():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "recipe_curves.py"
+    spec = importlib.util.spec_from_file_location("recipe_curves", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rows = [{"run": "a", "step": s, "Ep@40 squared": e40, "Ep@80 squared": e80,
+             "Es@80 squared": 0.01, "val_cd8": None if s == 3 else 2.0}
+            for s, e40, e80 in ((1, 4.0, 10.0), (2, 8.0, 20.0), (3, 6.0, 3.0))]
+    rows.append({"run": "b", "step": 7, "Ep@40 squared": 1.0, "Ep@80 squared": 2.0,
+                 "Es@80 squared": 0.5, "val_cd8": 1.5})
+    lines = mod.summary(rows, "squared").splitlines()
+    assert lines[0].startswith("| run | snapshots (steps) | Ep@40 squared")
+    assert lines[2] == "| a | 3 (1-3) | 6 [4, 8] | 11 [3, 20] | 0.01 [0.01, 0.01] | 2 [2, 2] |"
+    assert lines[3] == "| b | 1 (7-7) | 1 [1, 1] | 2 [2, 2] | 0.5 [0.5, 0.5] | 1.5 [1.5, 1.5] |"

@@ -106,6 +106,22 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
     fig.savefig(path, dpi=110)
 
 
+def summary(rows: list[dict], reading: str) -> str:
+    """A Markdown table: per run, the snapshots' mean [min, max] of each figure."""
+    keys = [column(k, reading) for k in ("Ep@40", "Ep@80", "Es@80")] + ["val_cd8"]
+    lines = ["| run | snapshots (steps) | " + " | ".join(keys) + " |",
+             "|---|---|" + "---|" * len(keys)]
+    for label in dict.fromkeys(r["run"] for r in rows):
+        rr = [r for r in rows if r["run"] == label]
+        cells = []
+        for k in keys:
+            v = np.array([r[k] for r in rr if r.get(k) is not None], dtype=float)
+            cells.append(f"{v.mean():.4g} [{v.min():.4g}, {v.max():.4g}]" if v.size else "")
+        steps = f"{len(rr)} ({rr[0]['step']}-{rr[-1]['step']})"
+        lines.append(f"| {label} | {steps} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data", help="the grid file (tpnet data generate) whose validation "
@@ -116,6 +132,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--csv", default=None, help="write the rows (both readings) to this CSV")
     ap.add_argument("--reading", choices=READINGS, default="squared",
                     help="the reading printed and plotted (default: squared)")
+    ap.add_argument("--summary", action="store_true",
+                    help="also one line per run: the mean (and range) over its snapshots of "
+                         "E_p@40, E_p@80, E_s@80 and val_cd8 (ablation arms: one snapshot of "
+                         "these rollouts decides nothing)")
     args = ap.parse_args(argv)
     # an early snapshot's rollouts leave the trained range on purpose: no warning per case
     warnings.filterwarnings("ignore", module="tpnet_ref")
@@ -141,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     if copy_last:
         print("copy last: " + ", ".join(f"{k} {copy_last[column(k, args.reading)]:.4g}"
                                         for k in ("Ep@40", "Ep@80", "Es@80")))
+    if args.summary:
+        print(summary(rows, args.reading))
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
