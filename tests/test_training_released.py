@@ -238,3 +238,23 @@ def test_dead_units_counts_a_layer_that_is_off_everywhere():
     after = dead_units(net, x)
     assert after["global"] == after["global/of"] == 8
     assert after["mlp2.0"] >= 3 and after["mlp2.0"] >= before["mlp2.0"]
+
+
+def test_a_run_that_ends_between_validations_is_validated_and_snapshotted_at_its_end(released,
+                                                                                      tmp_path):
+    from tpnet_ref import cli
+
+    run = tmp_path / "run"
+    assert cli.main(["train", "run", released, "-o", str(run), "--preset", "released",
+                     "--size", "tiny", "--epochs", "0.55", "--batch", "16", "--val-fraction",
+                     "0.2", "--threads", "1", "--val-every", "4", "--snapshots", "--quiet"]) == 0
+    st = json.loads((run / "checkpoint.json").read_text())
+    last, spe = st["step"], st["steps_per_epoch"]
+    assert st["stopped"] == "done" and last % 4 and last % spe     # ends between validations
+    vals = [json.loads(s) for s in (run / "log.jsonl").read_text().splitlines()]
+    steps = [v["step"] for v in vals if v["kind"] == "val"]
+    assert steps[-1] == last and steps.count(last) == 1
+    assert (run / "snapshots" / f"step-{last:07d}.h5").is_file()
+    # resuming a finished run adds nothing
+    assert cli.main(["train", "run", released, "-o", str(run), "--resume", "--quiet"]) == 0
+    assert len((run / "log.jsonl").read_text().splitlines()) == len(vals)

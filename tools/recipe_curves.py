@@ -12,7 +12,9 @@ table and issue 48's goals use) or ``released``.
     python tools/recipe_curves.py data/grid-m4.h5 released=runs/q-released \\
         current=runs/q-current --png docs/recipe_curves.png --csv docs/recipe_curves.csv
 
-Prints one row per snapshot (run, step, windows seen, wall time, E_p@40, E_p@80, E_s@80,
+A run made with ``--init-from`` is placed after its parents: its windows seen and wall time
+count theirs (``inherited`` in its ``checkpoint.json``). Prints one row per snapshot (run,
+step, windows seen, wall time, E_p@40, E_p@80, E_s@80,
 val_cd8, dead units of each layer) and the copy-last baseline; the CSV has both readings.
 """
 from __future__ import annotations
@@ -41,18 +43,29 @@ def _val_records(run: Path) -> dict[int, dict]:
     return out
 
 
+def inherited(run: Path) -> tuple[int, float]:
+    """Windows seen and wall time of the runs ``run`` continues (``--init-from``; 0 for a run
+    from scratch): its curve is placed after theirs."""
+    ck = run / "checkpoint.json"
+    parents = json.loads(ck.read_text()).get("inherited", {}).get("runs", []) if ck.is_file() else []
+    return (sum(int(p.get("windows_seen", 0)) for p in parents),
+            sum(float(p.get("wall_s", 0.0)) for p in parents))
+
+
 def run_rows(data: WindowData, label: str, run: Path) -> list[dict]:
     """One row per snapshot of ``run`` (scored now or read from its cache)."""
     snaps = sorted((run / "snapshots").glob("step-*.h5"))
     cache = score_snapshots(data, run)
+    w0, t0 = inherited(run)
     vals = _val_records(run)
     rows = []
     for s in snaps:
         step = int(s.stem.split("-")[1])
         rec = vals.get(step, {})
         dead = rec.get("dead", {})
-        rows.append({"run": label, "step": step, "windows_seen": rec.get("windows_seen"),
-                     "wall_s": rec.get("wall_s"), **cache[s.name],
+        w, t = rec.get("windows_seen"), rec.get("wall_s")
+        rows.append({"run": label, "step": step, "windows_seen": None if w is None else w0 + w,
+                     "wall_s": None if t is None else t0 + t, **cache[s.name],
                      "val_cd8": rec.get("val_cd8"),
                      **{f"dead {k}": dead.get(k) for k in LAYERS},
                      **{f"units {k}": dead.get(k + "/of") for k in LAYERS}})
@@ -65,9 +78,10 @@ def column(key: str, reading: str) -> str:
 
 
 def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dict]],
-         path: str, reading: str = "squared") -> None:
+         path: str, reading: str = "squared", offsets: dict[str, int] | None = None) -> None:
     import matplotlib
     matplotlib.use("Agg")
+    offsets = offsets or {}
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
@@ -80,7 +94,7 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
             ax.plot(w, [r[column(key, reading)] for r in rr], "o-", color=colours[label],
                     label=label)
         vals = [v for _, v in sorted(logs[label].items()) if v.get("dead")]
-        w = np.array([v["windows_seen"] / 1e6 for v in vals])
+        w = np.array([(offsets.get(label, 0) + v["windows_seen"]) / 1e6 for v in vals])
         fe = [sum(v["dead"].get(k, 0) for k in LAYERS[:5]) for v in vals]
         fe_of = [sum(v["dead"].get(k + "/of", 0) for k in LAYERS[:5]) for v in vals]
         axes[2].plot(w, 100 * np.array(fe) / np.maximum(1, fe_of), "o-", color=colours[label],
@@ -142,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", message=".*training range.*")
     warnings.filterwarnings("ignore", message=".*one body.*")
     data = WindowData(args.data, 0.05, 0)
-    rows, copy_last, logs = [], None, {}
+    rows, copy_last, logs, offsets = [], None, {}, {}
     for spec in args.runs:
         if "=" not in spec:
             ap.error(f"{spec!r}: expected LABEL=RUN_DIR")
@@ -152,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         r, copy_last = run_rows(data, label, Path(run))
         rows += r
         logs[label] = _val_records(Path(run))
+        offsets[label] = inherited(Path(run))[0]
     cols = ["run", "step", "windows_seen", "wall_s",
             *(column(k, args.reading) for k in ("Ep@40", "Ep@80", "Es@80")), "val_cd8",
             *(f"dead {k}" for k in LAYERS)]
@@ -169,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             w.writeheader()
             w.writerows(rows)
     if args.png:
-        plot(rows, copy_last, logs, args.png, args.reading)
+        plot(rows, copy_last, logs, args.png, args.reading, offsets)
     return 0
 
 

@@ -316,7 +316,8 @@ class TrainSettings:
       validate every that many steps (None: at epoch ends only; on resume: the run's).
     - ``limit_windows``: use only that many windows of the dataset; ``progress``: a tqdm bar.
     - ``snapshots``: after every validation's checkpoint, also export the native weights file
-      ``snapshots/step-NNNNNNN.h5`` (learning curves scored later with ``tpnet train score``).
+      ``snapshots/step-NNNNNNN.h5`` (learning curves scored later with ``tpnet train score``);
+      a run that completes between validations is validated (and snapshotted) at its last step.
     - ``export_path``: when the run completes, write the native weights file (:func:`export`).
     - ``budget_minutes`` (new runs only): fit the run to a wall-clock budget on this device: a
       few steps of the longest loss (``r.rollout`` predictions, batch ``r.batch``) are timed on
@@ -369,6 +370,8 @@ def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Reci
     s = dataclasses.replace(settings or TrainSettings(), **changes)
     run = _Run(data_path, Path(run_dir), recipe, s)
     run.state["stopped"] = run.fit()
+    if run.state["stopped"] == "done":
+        run.finish()
     run.checkpoint()
     if s.export_path is not None and run.state["step"] >= run.total:
         export(run.run_dir, s.export_path)
@@ -653,14 +656,29 @@ class _Run:
                                 "loss": lv, "rollout": n_steps, "lr": lr,
                                 "windows_seen": state["windows_seen"], "wall_s": self.wall()})
         epoch_end = step % self.spe == 0
+        self._last_step_info = (n_steps, lr)
         if epoch_end or (self.val_every and step % self.val_every == 0):
-            self.validate(n_steps, lr, epoch_end, bar)
-            self.checkpoint()
-            if self.s.snapshots:
-                (self.run_dir / "snapshots").mkdir(exist_ok=True)
-                export(self.run_dir, self.run_dir / "snapshots" / f"step-{step:07d}.h5")
+            self.validate_and_snapshot(n_steps, lr, epoch_end, bar)
         elif time.perf_counter() - self.last_ckpt > 60.0 * self.s.checkpoint_minutes:
             self.checkpoint()
+
+    def validate_and_snapshot(self, n_steps: int, lr: float, epoch_end: bool, bar: Any) -> None:
+        """Validation, a checkpoint, and with ``snapshots`` the step's weights file."""
+        step = self.state["step"]
+        self.validate(n_steps, lr, epoch_end, bar)
+        self.checkpoint()
+        if self.s.snapshots:
+            (self.run_dir / "snapshots").mkdir(exist_ok=True)
+            export(self.run_dir, self.run_dir / "snapshots" / f"step-{step:07d}.h5")
+
+    def finish(self) -> None:
+        """At the run's last step: its validation (and snapshot) unless that step had one, so
+        the end of a schedule, the file a run ships, is on its learning curve."""
+        last = getattr(self, "_last_step_info", None)
+        step = self.state["step"]
+        if last is None or step % self.spe == 0 or (self.val_every and step % self.val_every == 0):
+            return
+        self.validate_and_snapshot(*last, False, None)
 
     def validate(self, n_steps: int, lr: float, epoch_end: bool, bar: Any) -> None:
         """Score the validation windows and log them with the epoch's mean training loss (reset
