@@ -163,6 +163,25 @@ def test_shipped_model_reaches_the_papers_position_error(rollouts):
         assert _at(ours, "Ep_squared", h) <= paper, f"m={m} Ep_squared@{h}"
 
 
+@pytest.mark.parametrize("size", [
+    pytest.param("half", marks=pytest.mark.xfail(
+        strict=True, reason="open goal of the training issue: the half (1.8 M parameters) "
+        "reaches E_p@80 12.4 against copy-last's 13.9 (docs/results.md, 'Network sizes'); its "
+        "from-scratch run needs far more epochs than the CPU gives; strict, so meeting it turns "
+        "this red until the marker is removed")),
+    "quarter"])
+def test_reduced_size_halves_copy_lasts_position_error_at_80(size, frames):
+    """The training issue's figure for the reduced sizes: E_p@80 (squared reading, the 60 held-out
+    cases) at most half of copying the last frame's, and E_s@80 at most the paper's 0.007."""
+    model = tpnet_ref.load(size=size, engine="numpy")
+    windows, truth = E.split_protocol(frames, 4, 80)
+    ours = E.errors(truth, E.batched_rollout(model, windows, 80, normalized=True))
+    base = E.errors(truth, E.copy_last(windows, 80))
+    a, b = _at(ours, "Ep_squared", 80), _at(base, "Ep_squared", 80)
+    assert a <= 0.5 * b, f"{size}: E_p@80 {a:.3f} > half of copy-last's {b:.3f}"
+    assert _at(ours, "Es_squared", 80) <= 0.007
+
+
 def test_shipped_rollout_stays_finite_and_in_the_box(rollouts):
     _, _, pred = rollouts
     assert np.isfinite(pred).all()
