@@ -42,8 +42,9 @@ HORIZONS = (40, 80)
 PAPER = {40: 0.071, 80: 0.164}
 #: GPU seconds inside a file's chain, by the commit that shipped it (weights/MODEL_CARD.md: runs
 #: 4-6 ran on one H100 for 392 + 319 + 386 s, run 15 on one H200 for 387 s; every other run on
-#: the 2-core CPU)
-GPU_S = {"a2e0dea": 1097.0, "09f4aac": 1097.0, "8d4bf57": 1097.0, "a91856c": 1097.0 + 387.0}
+#: the 2-core CPU; 527c0fa, run 18, averages run 17 and run 16, whose chains hold runs 4-6 and 15)
+GPU_S = {"a2e0dea": 1097.0, "09f4aac": 1097.0, "8d4bf57": 1097.0, "a91856c": 1097.0 + 387.0,
+         "527c0fa": 1097.0 + 387.0}
 #: training windows per epoch of the full grid (docs/training.md, "Throughput", "One epoch")
 WINDOWS_PER_EPOCH = 167_489
 
