@@ -155,7 +155,7 @@ def test_the_released_preset_fills_the_options_left_at_their_defaults():
     def parse(*extra):
         args = build_parser().parse_args(["train", "run", "d.h5", "-o", "r", *extra])
         from tpnet_ref.cli.train import apply_preset
-        apply_preset(args, args._run_defaults)
+        apply_preset(args)
         return args
 
     a = parse("--preset", "released")

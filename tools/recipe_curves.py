@@ -52,11 +52,13 @@ def inherited(run: Path) -> tuple[int, float]:
             sum(float(p.get("wall_s", 0.0)) for p in parents))
 
 
-def run_rows(data: WindowData, label: str, run: Path) -> list[dict]:
-    """One row per snapshot of ``run`` (scored now or read from its cache)."""
+def run_rows(data: WindowData, label: str, run: Path,
+             offset: tuple[int, float] = (0, 0.0)) -> list[dict]:
+    """One row per snapshot of ``run`` (scored now or read from its cache), its windows seen
+    and wall time counted from ``offset`` (:func:`inherited`)."""
     snaps = sorted((run / "snapshots").glob("step-*.h5"))
     cache = score_snapshots(data, run)
-    w0, t0 = inherited(run)
+    w0, t0 = offset
     vals = _val_records(run)
     rows = []
     for s in snaps:
@@ -163,10 +165,11 @@ def main(argv: list[str] | None = None) -> int:
         label, run = spec.split("=", 1)
         if not (Path(run) / "snapshots").is_dir():
             ap.error(f"{run}: no snapshots/ (train with --snapshots)")
-        r, copy_last = run_rows(data, label, Path(run))
+        off = inherited(Path(run))
+        r, copy_last = run_rows(data, label, Path(run), off)
         rows += r
         logs[label] = _val_records(Path(run))
-        offsets[label] = inherited(Path(run))[0]
+        offsets[label] = off[0]
     cols = ["run", "step", "windows_seen", "wall_s",
             *(column(k, args.reading) for k in ("Ep@40", "Ep@80", "Es@80")), "val_cd8",
             *(f"dead {k}" for k in LAYERS)]

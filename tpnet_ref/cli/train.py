@@ -50,7 +50,7 @@ def _recorded(action_cls: type) -> type:
     return Recorded
 
 
-def apply_preset(args: argparse.Namespace, parser_defaults: dict[str, Any]) -> None:
+def apply_preset(args: argparse.Namespace) -> None:
     """Set the preset's fields on ``args`` that the command line did not give (a value given
     explicitly wins, also when it equals the parser's default)."""
     given = getattr(args, "_given", frozenset())
@@ -194,10 +194,11 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--export", default=None, metavar="OUT.h5",
                    help="when the run completes, write the native weights file")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
-    for a in q._actions:
-        if a.dest in PRESETS["released"]:
+    preset_fields = {k for fields in PRESETS.values() for k in fields}
+    for a in q._actions:                 # a preset must see which of its fields were given
+        if a.dest in preset_fields:
             a.__class__ = _recorded(type(a))
-    q.set_defaults(func=_cli_run, _run_defaults={a.dest: a.default for a in q._actions})
+    q.set_defaults(func=_cli_run)
 
 
 def _add_export(tsub: Any) -> None:
@@ -302,7 +303,7 @@ def _cli_run(args: argparse.Namespace) -> int:
     from ..training.recipe import Recipe, size_config
 
     recipe = None
-    apply_preset(args, args._run_defaults)
+    apply_preset(args)
     if not args.resume:
         if not Path(args.data).is_file():
             raise FileNotFoundError(f"dataset not found: {args.data}")
@@ -351,8 +352,9 @@ def _cli_export(args: argparse.Namespace) -> int:
         if args.monitor != "val_loss":
             if not args.data:
                 raise ValueError(f"--monitor {args.monitor} scores rollouts: give --data GRID.h5")
-            from ..training.recipe import WindowData
-            data = WindowData(args.data, 0.05, 0)
+            from ..training.recipe import Recipe, WindowData
+            d = Recipe()                 # the validation split of the runs and of train score
+            data = WindowData(args.data, d.val_fraction, d.split_seed)
         elif args.data:
             raise ValueError("--data is for a rollout --monitor (ep80); val_loss is in the log")
         path, rec = best_snapshot(args.checkpoint, key=key, data=data)

@@ -535,6 +535,7 @@ class _Run:
         self.deadline = None if max_minutes is None else self.t_start + 60.0 * max_minutes
         self.wall0 = state["wall_s"]
         self.last_ckpt = time.perf_counter()
+        self._last_step_info: tuple[int, float] | None = None    # (rollout, lr) of the last step
 
     def dead(self) -> dict[str, int]:
         """:func:`dead_units` over the inputs of (at most 1,024 of) the validation windows."""
@@ -655,12 +656,15 @@ class _Run:
             _log(self.run_dir, {"kind": "train", "step": step, "epoch": step / self.spe,
                                 "loss": lv, "rollout": n_steps, "lr": lr,
                                 "windows_seen": state["windows_seen"], "wall_s": self.wall()})
-        epoch_end = step % self.spe == 0
         self._last_step_info = (n_steps, lr)
-        if epoch_end or (self.val_every and step % self.val_every == 0):
-            self.validate_and_snapshot(n_steps, lr, epoch_end, bar)
+        if self.validation_due(step):
+            self.validate_and_snapshot(n_steps, lr, step % self.spe == 0, bar)
         elif time.perf_counter() - self.last_ckpt > 60.0 * self.s.checkpoint_minutes:
             self.checkpoint()
+
+    def validation_due(self, step: int) -> bool:
+        """Whether ``step`` is validated: every epoch end and every ``val_every`` steps."""
+        return step % self.spe == 0 or bool(self.val_every and step % self.val_every == 0)
 
     def validate_and_snapshot(self, n_steps: int, lr: float, epoch_end: bool, bar: Any) -> None:
         """Validation, a checkpoint, and with ``snapshots`` the step's weights file."""
@@ -674,11 +678,8 @@ class _Run:
     def finish(self) -> None:
         """At the run's last step: its validation (and snapshot) unless that step had one, so
         the end of a schedule, the file a run ships, is on its learning curve."""
-        last = getattr(self, "_last_step_info", None)
-        step = self.state["step"]
-        if last is None or step % self.spe == 0 or (self.val_every and step % self.val_every == 0):
-            return
-        self.validate_and_snapshot(*last, False, None)
+        if self._last_step_info is not None and not self.validation_due(self.state["step"]):
+            self.validate_and_snapshot(*self._last_step_info, False, None)
 
     def validate(self, n_steps: int, lr: float, epoch_end: bool, bar: Any) -> None:
         """Score the validation windows and log them with the epoch's mean training loss (reset
