@@ -164,12 +164,7 @@ def test_shipped_model_reaches_the_papers_position_error(rollouts):
 
 
 @pytest.mark.parametrize("size", [
-    pytest.param("half", marks=pytest.mark.xfail(
-        strict=True, reason="open goal of the training issue: the half (1.8 M parameters) "
-        "reaches E_p@80 12.4 against copy-last's 13.9 (docs/results.md, 'Network sizes'); its "
-        "from-scratch run needs far more epochs than the CPU gives; strict, so meeting it turns "
-        "this red until the marker is removed")),
-    "quarter"])
+    "half", "quarter"])
 def test_reduced_size_halves_copy_lasts_position_error_at_80(size, frames):
     """The training issue's figure for the reduced sizes: E_p@80 (squared reading, the 60 held-out
     cases) at most half of copying the last frame's, and E_s@80 at most the paper's 0.007."""
