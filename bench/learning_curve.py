@@ -4,7 +4,7 @@
         [--candidate LABEL=PATH.h5 ...] [--plot docs/learning_curve.png] [--md OUT.md]
 
 Every m = 4 weights file the project has shipped is in git's history. This script takes each
-version of ``weights/tpnet-m4.h5`` and ``weights/tpnet-m4-quarter.h5`` from the commits that
+version of ``weights/tpnet-m4.h5``, ``weights/tpnet-m4-half.h5`` and ``weights/tpnet-m4-quarter.h5`` from the commits that
 changed it (``git show COMMIT:PATH``), plus the ``--candidate`` files (runs not shipped, or not
 yet), and scores them all on one yardstick: the test protocol (frames 0..3 in, 80 recursive
 predictions) on the validation trajectories of ``--data`` (``tpnet train score``'s, never the
@@ -106,7 +106,7 @@ def plot(rows: list[dict], proj: dict | None, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), constrained_layout=True)
-    colours = {"full": "C0", "quarter": "C1"}
+    colours = {"full": "C0", "half": "C2", "quarter": "C1"}
     by_size = {size: sorted((r for r in rows if r["size"] == size), key=lambda r: r["epochs"])
                for size in colours}
     # each shipped version's short label (f1, f2, ..., q1) and its key under the plots
@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default="data/grid-m4.h5")
     ap.add_argument("--candidate", action="append", default=[], metavar="LABEL=PATH",
-                    help="a weights file to add (full size unless LABEL starts with 'quarter')")
+                    help="a weights file to add (full size unless LABEL starts with 'half' or 'quarter')")
     ap.add_argument("--rate", type=float, default=None,
                     help="8-step training windows/s of this machine for the projection "
                          "(default: run tpnet train bench's timing at batch 128)")
@@ -165,19 +165,24 @@ def main(argv: list[str] | None = None) -> int:
     data = WindowData(args.data, Recipe.val_fraction, Recipe.split_seed)
     rows, files = [], {}
     with tempfile.TemporaryDirectory() as tmp:
-        for size, path in (("full", "weights/tpnet-m4.h5"),
+        for size, path in (("full", "weights/tpnet-m4.h5"), ("half", "weights/tpnet-m4-half.h5"),
                            ("quarter", "weights/tpnet-m4-quarter.h5")):
             for commit, subject in shipped_versions(path):
                 f = git_file(commit, path, Path(tmp) / f"{size}-{commit}.h5")
                 label = f"{size} {commit}"
+                try:
+                    load(f)
+                except ValueError as e:   # an early storage this reader no longer knows
+                    print(f"skipped {label}: {e}", file=sys.stderr)
+                    continue
                 files[label] = f
                 rows.append({"label": label, "size": size, "shipped": True, "commit": commit,
                              "subject": subject[:60], **compute_of(f)})
         for spec in args.candidate:
             label, _, path = spec.partition("=")
             files[label] = Path(path)
-            rows.append({"label": label, "size": "quarter" if label.startswith("quarter")
-                         else "full", "shipped": False, "commit": "", "subject": path,
+            rows.append({"label": label, "size": next((z for z in ("half", "quarter")
+                                                      if label.startswith(z)), "full"), "shipped": False, "commit": "", "subject": path,
                          **compute_of(Path(path))})
         # the same file shipped twice (re-stored, re-ordered) keeps one row; an average and
         # its longest input share their counters, not their weights
