@@ -4,14 +4,15 @@
         [--candidate LABEL=PATH.h5 ...] [--plot docs/learning_curve.png] [--md OUT.md]
 
 Every m = 4 weights file the project has shipped is in git's history. This script takes each
-version of ``weights/tpnet-m4.h5``, ``weights/tpnet-m4-half.h5`` and ``weights/tpnet-m4-quarter.h5`` from the commits that
-changed it (``git show COMMIT:PATH``), plus the ``--candidate`` files (runs not shipped, or not
-yet), and scores them all on one yardstick: the test protocol (frames 0..3 in, 80 recursive
-predictions) on the validation trajectories of ``--data`` (``tpnet train score``'s, never the
-test cases), E_p at 40 and 80 predictions in the squared reading (the paper's; docs/glossary.md).
-The compute of each file is its own provenance: cumulative epochs and wall time over the whole
-``--init-from`` chain (``tpnet info``); where a run of the chain was on a GPU, :data:`GPU_S` says
-how many of those seconds (the chain's entries do not record their device).
+version of ``weights/tpnet-m4.h5``, ``weights/tpnet-m4-half.h5`` and
+``weights/tpnet-m4-quarter.h5`` from the commits that changed it (``git show COMMIT:PATH``),
+plus the ``--candidate`` files (runs not shipped, or not yet), and scores them all on one
+yardstick: the test protocol (frames 0..3 in, 80 recursive predictions) on the validation
+trajectories of ``--data`` (``tpnet train score``'s, never the test cases), E_p at 40 and 80
+predictions in the squared reading (the paper's; docs/glossary.md). The compute of each file is
+its own provenance: cumulative epochs and wall time over the whole ``--init-from`` chain
+(``tpnet info``); where a run of the chain was on a GPU, :data:`GPU_S` says how many of those
+seconds (the chain's entries do not record their device).
 
 The projection fits ``log E_p@80 = a + b log(epochs)`` to the full size's shipped points (a
 power law, the usual shape of such curves) and solves it for the paper's E_p@80 (0.164, on the
@@ -75,12 +76,12 @@ def compute_of(path: Path) -> dict:
                 "average": str(a.get("average_of", ""))}
 
 
-def score(data: WindowData, files: dict[str, Path], horizon: int = 80) -> dict[str, dict]:
+def score(data: WindowData, models: dict, horizon: int = 80) -> dict[str, dict]:
     frames = data.frames[data.val_traj].astype(np.float64)
     windows, truth = split_protocol(frames, data.m, horizon)
     out = {}
-    for label, path in files.items():
-        pred = batched_rollout(load(path), windows, horizon)
+    for label, model in models.items():
+        pred = batched_rollout(model, windows, horizon)
         err = errors(truth, pred)["Ep_squared"]
         out[label] = {h: float(err[:, h - 1].mean()) for h in HORIZONS}
         out[label].update({f"median{h}": float(np.median(err[:, h - 1])) for h in HORIZONS})
@@ -155,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default="data/grid-m4.h5")
     ap.add_argument("--candidate", action="append", default=[], metavar="LABEL=PATH",
-                    help="a weights file to add (full size unless LABEL starts with 'half' or 'quarter')")
+                    help="a weights file to add (full size unless LABEL starts with 'half' or "
+                         "'quarter')")
     ap.add_argument("--rate", type=float, default=None,
                     help="8-step training windows/s of this machine for the projection "
                          "(default: run tpnet train bench's timing at batch 128)")
@@ -163,27 +165,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--md", default=None, help="also write the table to this Markdown file")
     args = ap.parse_args(argv)
     data = WindowData(args.data, Recipe.val_fraction, Recipe.split_seed)
-    rows, files = [], {}
+    rows, models = [], {}
+    sizes = {"full": "weights/tpnet-m4.h5", "half": "weights/tpnet-m4-half.h5",
+             "quarter": "weights/tpnet-m4-quarter.h5"}
     with tempfile.TemporaryDirectory() as tmp:
-        for size, path in (("full", "weights/tpnet-m4.h5"), ("half", "weights/tpnet-m4-half.h5"),
-                           ("quarter", "weights/tpnet-m4-quarter.h5")):
+        for size, path in sizes.items():
             for commit, subject in shipped_versions(path):
                 f = git_file(commit, path, Path(tmp) / f"{size}-{commit}.h5")
                 label = f"{size} {commit}"
                 try:
-                    load(f)
+                    models[label] = load(f)
                 except ValueError as e:   # an early storage this reader no longer knows
                     print(f"skipped {label}: {e}", file=sys.stderr)
                     continue
-                files[label] = f
                 rows.append({"label": label, "size": size, "shipped": True, "commit": commit,
                              "subject": subject[:60], **compute_of(f)})
         for spec in args.candidate:
             label, _, path = spec.partition("=")
-            files[label] = Path(path)
-            rows.append({"label": label, "size": next((z for z in ("half", "quarter")
-                                                      if label.startswith(z)), "full"), "shipped": False, "commit": "", "subject": path,
-                         **compute_of(Path(path))})
+            models[label] = load(path)
+            size = next((z for z in sizes if z != "full" and label.startswith(z)), "full")
+            rows.append({"label": label, "size": size, "shipped": False, "commit": "",
+                         "subject": path, **compute_of(Path(path))})
         # the same file shipped twice (re-stored, re-ordered) keeps one row; an average and
         # its longest input share their counters, not their weights
         seen, uniq = set(), []
@@ -193,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
                 seen.add(key)
                 uniq.append(r)
         rows = uniq
-        scores = score(data, {r["label"]: files[r["label"]] for r in rows})
+        scores = score(data, {r["label"]: models[r["label"]] for r in rows})
     for r in rows:
         r.update(scores[r["label"]])
         r["gpu_s"] = GPU_S.get(r["commit"], 0.0)
