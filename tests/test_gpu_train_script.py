@@ -109,3 +109,53 @@ def test_the_cli_lists_the_loops_compile_modes():
     assert loop.resolve_compile("auto", "cpu") == "off"
     with pytest.raises(ValueError, match="compile must be one of"):
         loop.resolve_compile("fast", "cpu")
+
+
+def test_a_state_over_the_devices_limits_goes_back_and_up_in_pieces(tmp_path):
+    """The full network's state with Adam's (85 MB) is more than one call may bring back (64
+    MiB) or carry up (64 MiB with the tree): `rest` calls return what a call could not, `collect`
+    takes them all and refuses an incomplete set, `stage` cuts the state in bundles, `receive`
+    keeps each on the machine, and the training call of a fresh machine resumes from them with
+    Adam's state. The limits are scaled down to the tiny network's 125 kB state."""
+    work = tmp_path / "repo"
+    work.mkdir()
+    lim = dict(PRESET="released", OPTIM="full", MATCH="0", COMPILE="off", PART_MIB="0.03",
+               MAX_TOTAL_MIB="0.08", UP_MIB="0.05",
+               TRAIN_ARGS="--epochs 4 --val-fraction 0.25 --val-windows 0")
+    out = _call(work, OUT=str(tmp_path / "o0"), STOP_STEP="2", **lim)
+    assert "files stay on the machine" in out
+    backs = [tmp_path / "o0"]
+    while (work / ".gpu" / "ci.rest").is_file():        # the next calls, on the warm machine
+        backs.append(tmp_path / f"o{len(backs)}")
+        _call(work, "rest", OUT=str(backs[-1]), **lim)
+        _returned(backs[-1])
+        assert sum(p.stat().st_size for p in backs[-1].rglob("*") if p.is_file()) <= 0.08 * 2**20
+    assert len(backs) >= 2
+    state = json.loads((work / ".gpu" / "ci" / "checkpoint.json").read_text())
+    shutil.rmtree(work / ".gpu")                        # the machine went back
+    e = {**os.environ, "WORK": str(work), "PY": sys.executable, "NAME": "ci"}
+    bad = subprocess.run(["bash", str(SCRIPT), "collect", str(backs[0])], env=e,
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "did not come back" in bad.stderr
+    assert not (work / ".gpu" / "ci").exists()
+    _call(work, "collect", *map(str, backs), **lim)
+    assert json.loads((work / ".gpu" / "ci" / "checkpoint.json").read_text()) == state
+
+    staged = _call(work, "stage", **lim)                 # here: bundles for a fresh machine
+    bundles = sorted((work / ".up" / "ci").iterdir(), key=lambda p: int(p.name))
+    assert len(bundles) >= 3 and f"device call {len(bundles)}" in staged
+    fresh = tmp_path / "fresh"                           # a new machine: the data, no .gpu
+    (fresh / "data").mkdir(parents=True)
+    shutil.copy(work / "data" / "grid-m4-released.h5", fresh / "data")
+    for b in bundles[:-1]:                               # one call per bundle: carry + receive
+        shutil.copytree(b, fresh / ".up" / "ci" / b.name)
+        assert "not on the machine yet" in _call(fresh, "receive", **lim)
+    stuck = subprocess.run(["bash", str(SCRIPT)], capture_output=True, text=True,
+                           env={**e, "WORK": str(fresh), "OUT": str(tmp_path / "x"), **lim})
+    assert stuck.returncode == 3 and not (fresh / ".gpu" / "ci").exists()
+    shutil.copytree(bundles[-1], fresh / ".up" / "ci" / bundles[-1].name)
+    out = _call(fresh, OUT=str(tmp_path / "last"), **lim)
+    assert "assembled from" in out and "step 4/4" in out
+    end = json.loads((fresh / ".gpu" / "ci" / "checkpoint.json").read_text())
+    assert "optimizer_resets" not in end                # Adam's state came up with the model
+    assert end["windows_seen"] > state["windows_seen"] and not (fresh / ".up" / "ci").exists()

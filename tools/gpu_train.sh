@@ -36,6 +36,8 @@
 #   loss) at batch $BATCH; INIT, SHAPE, MATCH, NOISE and BUDGET are not used (the schedule is
 #   constant: the run goes on call after call); use OPTIM=full so Adam's state travels
 #   (LR defaults to the released 1e-3 there)
+#   DEADLINE=epoch seconds (the call's end: MINUTES is fitted to it after the data and the bench,
+#   less RESERVE_S=60); BENCH_MAX_S=240 (the bench's share: a pair still compiling is cut)
 #   BENCH_BATCHES="512 1024 2048" BENCH_COMPILE="off reduce-overhead": with BENCH=1, the
 #   windows/s of every pair first (the first minute of a lease); BATCH_AUTO=1 then trains a
 #   new run with the fastest pair
@@ -59,11 +61,87 @@ elif [ -n "$PRESET" ]; then
     echo "gpu_train: PRESET must be empty or 'released', got '$PRESET'" >&2; exit 2
 fi
 RUN=.gpu/$NAME
-MAX_FILES=8; MAX_MIB=16
+# the device returns at most 8 files of at most 16 MiB, 64 MiB in all, per call; what a call
+# cannot return stays on the machine for `rest`. What travels there (tree + carry) is at most
+# 64 MiB too: a run's state goes up in bundles of UP_MIB (`stage` here, `receive` there)
+MAX_FILES=8; MAX_MIB=${PART_MIB:-16}; MAX_TOTAL_MIB=${MAX_TOTAL_MIB:-60}; UP_MIB=${UP_MIB:-24}
+UP=.up/$NAME
+bytes() { awk -v m="$1" 'BEGIN { printf "%d", m * 1048576 }'; }
 SITE=
-T() { PYTHONPATH="${SITE:+$SITE:}$REPO${PYTHONPATH:+:$PYTHONPATH}" "$PY" -m tpnet_ref.cli "$@"; }
+T() { PYTHONPATH="${SITE:+$SITE:}$REPO${PYTHONPATH:+:$PYTHONPATH}" \
+        ${T_TIMEOUT:+timeout --signal=KILL "$T_TIMEOUT"} "$PY" -m tpnet_ref.cli "$@"; }
+# DEADLINE (epoch seconds, empty: none): the call's end; MINUTES is then what is left after the
+# data and the bench, less RESERVE_S for the last checkpoint and the copy (a device call that
+# outlasts its limit brings nothing back)
+DEADLINE=${DEADLINE:-}; RESERVE_S=${RESERVE_S:-60}; BENCH_MAX_S=${BENCH_MAX_S:-240}
+fit_minutes() {
+    [ -n "$DEADLINE" ] || return 0
+    MINUTES=$(awk -v l=$(( DEADLINE - $(date +%s) - RESERVE_S )) 'BEGIN { printf "%.2f", (l > 30 ? l : 30) / 60 }')
+    echo "gpu_train: $MINUTES minutes of training left before DEADLINE"
+}
+
+# copy files (in the order given) into $OUT/$NAME while the call's total stays within
+# MAX_TOTAL_MIB; the names left over go to $RUN.rest for the next call (`rest`)
+send() {
+    local total=0 limit f sz; limit=$(bytes "$MAX_TOTAL_MIB")
+    mkdir -p "$OUT/$NAME"; : > "$RUN.rest"
+    for f in "$@"; do
+        sz=$(stat -c %s "$f")
+        if [ $((total + sz)) -le "$limit" ]; then cp "$f" "$OUT/$NAME/"; total=$((total + sz))
+        else basename "$f" >> "$RUN.rest"; fi
+    done
+    if [ -s "$RUN.rest" ]; then
+        echo "gpu_train: $(wc -l < "$RUN.rest") files stay on the machine (at most $MAX_TOTAL_MIB MiB come back a call): next, at once, a call of \`bash tools/gpu_train.sh rest\` (carry [\".whl\"] only)"
+    else
+        rm -f "$RUN.rest"
+    fi
+}
+# the run's state, brought up in bundles by earlier calls (`stage` here): once every bundle is
+# on the machine, it becomes $RUN (parts cut as the run wrote them, checked against the SHA-256
+# in checkpoint.json); returns 1 while bundles are missing
+assemble() {
+    local man=$UP/1/manifest k i
+    [ -f "$man" ] || return 0
+    k=$(awk '$1 == "bundles" {print $2}' "$man")
+    for i in $(seq 1 "$k"); do
+        [ -f "$UP/$i/chunk" ] || { echo "gpu_train: bundle $i of $k not on the machine yet ($UP/$i)"; return 1; }
+    done
+    rm -rf "$RUN.in"; mkdir -p "$RUN.in"
+    cp "$UP/1/checkpoint.json" "$UP/1/log.jsonl" "$RUN.in/"
+    for i in $(seq 1 "$k"); do cat "$UP/$i/chunk"; done \
+        | split -b "$(awk '$1 == "part_bytes" {print $2}' "$man")" -d -a 3 - "$RUN.in/checkpoint.pt."
+    "$PY" - "$RUN.in" <<'PYEOF'
+import hashlib, json, pathlib, sys
+d = pathlib.Path(sys.argv[1]); s = json.loads((d / "checkpoint.json").read_text())["checkpoint_files"]
+data = b"".join((d / n).read_bytes() for n in s["files"])
+if hashlib.sha256(data).hexdigest() != s["sha256"] or sorted(p.name for p in d.glob("checkpoint.pt.*")) != s["files"]:
+    sys.exit(f"gpu_train: the bundles in .up do not rebuild {s['files']}: incomplete or mixed stages")
+PYEOF
+    rm -rf "$RUN"; mv "$RUN.in" "$RUN"; rm -rf "$UP"
+    echo "gpu_train: $RUN assembled from $k bundles"
+}
 
 case "${1:-device}" in
+stage)     # here: the run's state -> bundles of UP_MIB for a fresh machine (one call each)
+    [ -f "$RUN/checkpoint.json" ] || { echo "no $RUN/checkpoint.json to stage" >&2; exit 1; }
+    mapfile -t parts < <("$PY" -c "import json,sys; print('\n'.join(json.load(open(sys.argv[1]))['checkpoint_files']['files']))" "$RUN/checkpoint.json")
+    part_bytes=$(stat -c %s "$RUN/${parts[0]}")
+    rm -rf "$UP"; mkdir -p "$UP/tmp"
+    for f in "${parts[@]}"; do cat "$RUN/$f"; done | split -b "$(bytes "$UP_MIB")" -d -a 2 - "$UP/tmp/c"
+    i=0
+    for c in "$UP"/tmp/c*; do i=$((i + 1)); mkdir -p "$UP/$i"; mv "$c" "$UP/$i/chunk"; done
+    rmdir "$UP/tmp"
+    cp "$RUN/checkpoint.json" "$RUN/log.jsonl" "$UP/1/"
+    printf 'bundles %s\npart_bytes %s\n' "$i" "$part_bytes" > "$UP/1/manifest"
+    tree=$(cd "$REPO" && git ls-files -co --exclude-standard -z | du --files0-from=- -cb | tail -1 | cut -f1)
+    whl=$( (du -sb .whl 2>/dev/null || true) | cut -f1); whl=${whl:-0}
+    echo "gpu_train: $RUN staged in $i bundles of at most $UP_MIB MiB; the tree $((tree >> 20)) MiB + .whl $((whl >> 20)) MiB travel with each (64 MiB a call)"
+    for j in $(seq 1 "$i"); do
+        if [ "$j" -lt "$i" ]; then cmd="bash tools/gpu_train.sh receive"; else cmd="<the training command>"; fi
+        echo "  device call $j: carry [\".whl\", \"$UP/$j\"]  command: $cmd"
+    done
+    exit 0 ;;
+
 prepare)   # here: the wheels the device image lacks (it has torch, numba, h5py, scipy, tqdm)
     mkdir -p .whl
     "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
@@ -72,19 +150,43 @@ prepare)   # here: the wheels the device image lacks (it has torch, numba, h5py,
     ls -l .whl
     du -sh .whl .gpu 2>/dev/null || true
     exit 0 ;;
-collect)   # here: the files a call returned -> .gpu/NAME, then the native weights file
-    src=${2:?usage: tools/gpu_train.sh collect FILES_AT}
-    [ -f "$src/$NAME/checkpoint.json" ] || { echo "no $src/$NAME/checkpoint.json" >&2; exit 1; }
-    mkdir -p "$RUN"
-    rm -f "$RUN"/checkpoint.pt "$RUN"/checkpoint.pt.[0-9]*
-    cp "$src/$NAME"/* "$RUN"/
+collect)   # here: the files calls returned (a call and its `rest` calls) -> .gpu/NAME, then
+           # the native weights file; .gpu/NAME is replaced only by a complete, checked state
+    shift; [ $# -ge 1 ] || { echo "usage: tools/gpu_train.sh collect FILES_AT [FILES_AT ...]" >&2; exit 2; }
+    rm -rf "$RUN.in"; mkdir -p "$RUN.in"
+    for src in "$@"; do
+        [ -d "$src/$NAME" ] || { echo "no $src/$NAME" >&2; exit 1; }
+        cp "$src/$NAME"/* "$RUN.in"/
+    done
+    [ -f "$RUN.in/checkpoint.json" ] || { echo "no checkpoint.json in $*" >&2; exit 1; }
+    "$PY" - "$RUN.in" <<'PYEOF'
+import hashlib, json, pathlib, sys
+d = pathlib.Path(sys.argv[1]); s = json.loads((d / "checkpoint.json").read_text())["checkpoint_files"]
+missing = [n for n in s["files"] if not (d / n).is_file()]
+if missing:
+    sys.exit(f"gpu_train: {missing} did not come back: a `rest` call brings them (then collect both)")
+if hashlib.sha256(b"".join((d / n).read_bytes() for n in s["files"])).hexdigest() != s["sha256"]:
+    sys.exit("gpu_train: the parts do not match checkpoint.json: mixed calls")
+PYEOF
+    rm -rf "$RUN"; mv "$RUN.in" "$RUN"
     mkdir -p runs
     T train export "$RUN" "runs/gpu-$NAME.h5"
     echo "next: tpnet train score $DATA <current weights> runs/gpu-$NAME.h5 (validation only)"
     exit 0 ;;
+receive)   # on the device: keep the bundle this call carried; assemble once all are there
+    assemble || true
+    exit 0 ;;
+rest)      # on the device, right after a call: the files it could not return
+    [ -s "$RUN.rest" ] || { echo "gpu_train: nothing left to return ($RUN.rest)" >&2; exit 1; }
+    OUT=${OUT:-out}; rm -rf "${OUT:?}/$NAME"
+    mapfile -t left < "$RUN.rest"
+    send "${left[@]/#/$RUN/}"
+    ls -l "$OUT/$NAME"
+    exit 0 ;;
 device) ;;
-*) echo "usage: tools/gpu_train.sh [prepare | collect FILES_AT]" >&2; exit 2 ;;
+*) echo "usage: tools/gpu_train.sh [prepare | stage | collect FILES_AT... | receive | rest]" >&2; exit 2 ;;
 esac
+assemble || { echo "gpu_train: bundles missing: no training on a partial state" >&2; exit 3; }
 
 # --- 1. what the machine lacks -------------------------------------------------------------
 if ! "$PY" -c "import pymunk" 2>/dev/null; then
@@ -110,11 +212,18 @@ fi
 # --- 3. train --------------------------------------------------------------------------------
 if [ "$BENCH" = 1 ]; then
     best=0; best_b=$BATCH; best_c=$COMPILE
+    bench_end=$(( $(date +%s) + BENCH_MAX_S ))
     for c in $BENCH_COMPILE; do
         for b in $BENCH_BATCHES; do
-            out=$(T train bench --size "$SIZE" --batch "$b" --rollouts 8 --iters 10 \
+            left=$(( bench_end - $(date +%s) ))
+            if [ "$left" -le 5 ]; then
+                echo "gpu_train: bench batch $b compile $c: skipped (BENCH_MAX_S=$BENCH_MAX_S spent)"
+                continue
+            fi
+            # a pair that outlasts what is left of the bench's time is cut and scores 0
+            out=$(T_TIMEOUT=$left T train bench --size "$SIZE" --batch "$b" --rollouts 8 --iters 10 \
                 --device "$DEVICE" --threads "$THREADS" --compile "$c" --precisions float32 \
-                --shape-weight "$SHAPE" --match-weight "$MATCH")
+                --shape-weight "$SHAPE" --match-weight "$MATCH") || out="(cut or failed: rc $?)"
             echo "$out"
             wps=$(echo "$out" | awk '/8-step loss, float32/ {print $4}')
             echo "gpu_train: bench batch $b compile $c: $wps windows/s"
@@ -126,6 +235,8 @@ if [ "$BENCH" = 1 ]; then
     echo "gpu_train: fastest batch $best_b compile $best_c ($best windows/s)"
     if [ "$BATCH_AUTO" = 1 ]; then BATCH=$best_b; COMPILE=$best_c; fi
 fi
+train() {
+fit_minutes
 common=(--device "$DEVICE" --threads "$THREADS" --compile "$COMPILE" --max-minutes "$MINUTES"
         --checkpoint-part-mib "$MAX_MIB" --checkpoint-optimizer "$OPTIM" --quiet)
 [ -n "$STOP_STEP" ] && common+=(--max-steps "$STOP_STEP")
@@ -143,13 +254,20 @@ else
         --lr-min 1e-6 --warmup-steps 100 --shape-weight "$SHAPE" --match-weight "$MATCH" \
         --noise "$NOISE" --val-windows 2048 "${budget[@]}" "${common[@]}" $TRAIN_ARGS
 fi
+}
+# a compiled step that fails in the run (not in the bench) falls back to eager, resuming what
+# the failed run checkpointed, rather than losing the lease
+if ! train; then
+    [ "$COMPILE" != off ] || exit 1
+    echo "gpu_train: the run failed with --compile $COMPILE; again eager" >&2
+    COMPILE=off; train
+fi
 
 # --- 4. what comes back ----------------------------------------------------------------------
 rm -f "$OUT/$NAME"/*
-cp "$RUN"/checkpoint.json "$RUN"/log.jsonl "$OUT/$NAME"/
-cp "$RUN"/checkpoint.pt* "$OUT/$NAME"/
+send "$RUN"/checkpoint.json "$RUN"/log.jsonl "$RUN"/checkpoint.pt*
 n=$(find "$OUT" -type f | wc -l)
-big=$(find "$OUT" -type f -size +$((MAX_MIB * 1024))k)
+big=$(find "$OUT" -type f -size +"$(bytes "$MAX_MIB")"c)
 if [ "$n" -gt "$MAX_FILES" ] || [ -n "$big" ]; then
     echo "gpu_train: $n files under $OUT (at most $MAX_FILES come back), over ${MAX_MIB} MiB: ${big:-none}" >&2
     exit 1
