@@ -1,19 +1,13 @@
 """The training grid and the 60 held-out test cases (tpnet_ref.sim.cases) against the CSV lists
-they were typed from (test_cases.csv, train_grid.csv: the paper's cases as the project received
-them, kept outside the repository)."""
+they were typed from (tests/fixtures/test_cases.csv and train_grid.csv: the paper's cases, 2 KB)."""
 from __future__ import annotations
 
 import csv
-import os
 from pathlib import Path
-
-import pytest
 
 from tpnet_ref.sim.cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
 
-# the folder of those CSVs: $TPNET_SHARED_DATA, else shared/data beside the repository checkout
-SHARED = os.environ.get("TPNET_SHARED_DATA",
-                        str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+FIX = Path(__file__).resolve().parent / "fixtures"
 
 
 def test_sizes_and_ranges():
@@ -27,22 +21,14 @@ def test_sizes_and_ranges():
 
 
 def test_test_cases_match_their_csv():
-    path = os.path.join(SHARED, "test_cases.csv")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} is not here (set TPNET_SHARED_DATA to the folder holding "
-                    "test_cases.csv and train_grid.csv)")
-    with open(path) as f:
+    with open(FIX / "test_cases.csv") as f:
         rows = [(float(r["force"]), float(r["angle_deg"]), float(r["x"]), float(r["y"]))
                 for r in csv.DictReader(f)]
     assert rows == list(TEST_CASES)
 
 
 def test_train_positions_match_their_csv():
-    path = os.path.join(SHARED, "train_grid.csv")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} is not here (set TPNET_SHARED_DATA to the folder holding "
-                    "test_cases.csv and train_grid.csv)")
-    with open(path) as f:
+    with open(FIX / "train_grid.csv") as f:
         lines = f.read().splitlines()
     header = {ln[2:].split(":")[0]: ln.split(":")[1].split() for ln in lines if ln.startswith("#")}
     assert tuple(float(v) for v in header["forces"]) == TRAIN_FORCES

@@ -1,6 +1,7 @@
 """The paper's training grid and held-out test cases (docs/spec.md §5), as constants.
 
-Copied from ``data/train_grid.csv`` and ``data/test_cases.csv`` of the project brief so that the
+Copied from the paper's case lists (``tests/fixtures/train_grid.csv`` and
+``tests/fixtures/test_cases.csv``, which ``tests/test_sim_cases.py`` checks them against) so that the
 package needs no data files. Units: force per particle, angle in degrees, centre in world units.
 """
 from __future__ import annotations
