@@ -262,7 +262,7 @@ def main(argv=None) -> int:
               flush=True)
     base = results.get("clean particle centres")
     if base:
-        print("\n# issue 31's targets: through drop_outliers / points_from_image at most +10 % "
+        print("\n# targets: through drop_outliers / points_from_image at most +10 % "
               "E_p@40 and +0.05 centroid error @1 over clean; raw one-stray windows warn in >= 95 %,"
               " clean and contour windows never")
         for name, res in results.items():

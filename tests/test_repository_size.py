@@ -1,7 +1,7 @@
-"""The tracked tree stays small enough to travel to a lent GPU machine with a checkpoint.
+"""The tracked tree stays small enough to travel to a remote GPU machine with a checkpoint.
 
-A device call sends the working tree (tracked files and untracked files git does not ignore)
-plus the paths it carries, 64 MiB in all (docs/training.md, "Running on a GPU session"). A call
+``tools/gpu_train.sh`` sends the working tree (tracked files and untracked files git does not
+ignore) plus the paths it carries, 64 MiB in all (docs/training.md, weights/README.md). A call
 that resumes the full network carries its model-only checkpoint (4 bytes per parameter) and the
 wheels the machine lacks (pymunk, cffi, pycparser: 1.3 MiB), so the tracked tree must leave room
 for them. This test fails when a commit would take that room (a weights file more, a data file
