@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Refresh every generated result and figure of the docs after the shipped weights change
-# (e.g. a new weights/tpnet-m4.h5): about 10-15 minutes on 2 cores, longer under load.
+# (e.g. a new weights/tpnet-m4.h5). Its tpnet eval step took 122 s on 2 CPU cores (the first line
+# of docs/results.md records each run's time and machine); the animation and the camera figure
+# come on top.
 #
 #   bash tools/refresh_docs.sh
 #
