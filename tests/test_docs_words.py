@@ -12,7 +12,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 #: pages that may speak of how the project was made
-EXEMPT = {"docs/history.md", "docs/training.md"}
+EXEMPT = {"docs/history.md"}
 
 #: words about the making, not the product ("numba issues 4807 and 10128", an upstream bug
 #: tracker's numbers, and onnxruntime's InferenceSession are not matched)

@@ -108,3 +108,23 @@ def test_recipe_curves_summary_gives_each_runs_mean_and_range():
     assert lines[0].startswith("| run | snapshots (steps) | Ep@40 squared")
     assert lines[2] == "| a | 3 (1-3) | 6 [4, 8] | 11 [3, 20] | 0.01 [0.01, 0.01] | 2 [2, 2] |"
     assert lines[3] == "| b | 1 (7-7) | 1 [1, 1] | 2 [2, 2] | 0.5 [0.5, 0.5] | 1.5 [1.5, 1.5] |"
+
+
+def test_recipe_curves_fit_finds_the_power_law_and_where_it_meets_a_target():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "recipe_curves.py"
+    spec = importlib.util.spec_from_file_location("recipe_curves", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    # E = 100 * w^-0.5: 1.0 at 10^4 windows; the first snapshot is left out by first_step
+    rows = [{"run": "a", "step": i, "windows_seen": w, "Ep@80 squared": 100 * w ** -0.5}
+            for i, w in enumerate((10.0, 100.0, 1e3, 1e4 / 4, 1e4 / 2))]
+    rows[0]["Ep@80 squared"] = 1e9
+    out = mod.fit(rows, "a", "squared", {"Ep@80": 1.0}, {"cpu": 10.0}, first_step=1)
+    assert "windows^-0.50" in out and "1.0 at 0.0 M windows" in out
+    assert "0.3 h at cpu" in out                     # 10^4 windows at 10 windows/s: 1,000 s
+    flat = [{**r, "Ep@80 squared": 5.0 + r["step"]} for r in rows]
+    assert "not falling" in mod.fit(flat, "a", "squared", {"Ep@80": 1.0}, {}, 1)
+    assert "too few" in mod.fit(rows[:2], "a", "squared", {"Ep@80": 1.0}, {}, 1)

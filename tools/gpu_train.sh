@@ -5,7 +5,7 @@
 #   bash tools/gpu_train.sh                  # ON THE DEVICE (device run, carry [".whl", ".gpu"])
 #   bash tools/gpu_train.sh collect FILES_AT # here, after each call: parts -> .gpu/NAME, export
 #
-# A device call (docs/training.md, "Running on a GPU session"):
+# A device call (tools/README.md, "Training on a GPU machine"):
 #   1. installs what the machine lacks (pymunk: from the wheels carried in .whl/, else pip);
 #   2. generates the training data on all its cores unless the (warm) machine still has it;
 #   3. trains: a new run from $INIT, or --resume of the run in .gpu/$NAME (the parts brought

@@ -43,6 +43,15 @@ def _val_records(run: Path) -> dict[int, dict]:
     return out
 
 
+def _train_records(run: Path) -> dict[int, dict]:
+    out = {}
+    for line in (run / "log.jsonl").read_text().splitlines():
+        rec = json.loads(line)
+        if rec.get("kind") == "train" and "wall_s" in rec:
+            out[int(rec["step"])] = rec
+    return out
+
+
 def inherited(run: Path) -> tuple[int, float]:
     """Windows seen and wall time of the runs ``run`` continues (``--init-from``; 0 for a run
     from scratch): its curve is placed after theirs."""
@@ -56,18 +65,28 @@ def run_rows(data: WindowData, label: str, run: Path,
              offset: tuple[int, float] = (0, 0.0)) -> list[dict]:
     """One row per snapshot of ``run`` (scored now or read from its cache), its windows seen
     and wall time counted from ``offset`` (:func:`inherited`)."""
-    snaps = sorted((run / "snapshots").glob("step-*.h5"))
     cache = score_snapshots(data, run)
+    # scores kept without their snapshot files (a run restored from a tarball of its state)
+    stored = run / "snapshots" / "scores.json"
+    cache = {**(json.loads(stored.read_text()) if stored.is_file() else {}), **cache}
+    names = sorted(k for k in cache if k.startswith("step-"))
     w0, t0 = offset
     vals = _val_records(run)
+    trained = _train_records(run)
+    ck = run / "checkpoint.json"
+    batch = json.loads(ck.read_text())["recipe"]["batch"] if ck.is_file() else None
     rows = []
-    for s in snaps:
-        step = int(s.stem.split("-")[1])
+    for name in names:
+        step = int(name[len("step-"):-len(".h5")])
         rec = vals.get(step, {})
         dead = rec.get("dead", {})
         w, t = rec.get("windows_seen"), rec.get("wall_s")
+        if w is None and batch is not None:          # a snapshot between validations
+            w = step * batch
+        if t is None:
+            t = max((r["wall_s"] for st, r in trained.items() if st <= step), default=None)
         rows.append({"run": label, "step": step, "windows_seen": None if w is None else w0 + w,
-                     "wall_s": None if t is None else t0 + t, **cache[s.name],
+                     "wall_s": None if t is None else t0 + t, **cache[name],
                      "val_cd8": rec.get("val_cd8"),
                      **{f"dead {k}": dead.get(k) for k in LAYERS},
                      **{f"units {k}": dead.get(k + "/of") for k in LAYERS}})
@@ -86,15 +105,18 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
     offsets = offsets or {}
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.4))
     runs = list(dict.fromkeys(r["run"] for r in rows))
     colours = {label: f"C{i}" for i, label in enumerate(runs)}
     for label in runs:
         rr = [r for r in rows if r["run"] == label]
         w = np.array([r["windows_seen"] / 1e6 for r in rr])
         for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
-            ax.plot(w, [r[column(key, reading)] for r in rr], "o-", color=colours[label],
-                    label=label)
+            ax.plot(w, [_num(r.get(column(key, reading))) for r in rr], "o-",
+                    color=colours[label], label=label)
+        axes[3].plot([_num(r["wall_s"]) / 3600 for r in rr],
+                     [_num(r.get(column("Ep@80", reading))) for r in rr], "o-",
+                     color=colours[label], label=label)
         vals = [v for _, v in sorted(logs[label].items()) if v.get("dead")]
         w = np.array([(offsets.get(label, 0) + v["windows_seen"]) / 1e6 for v in vals])
         fe = [sum(v["dead"].get(k, 0) for k in LAYERS[:5]) for v in vals]
@@ -111,6 +133,12 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
         ax.set_ylabel(f"validation {key.replace('@', ' @')} ({reading} reading)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    axes[3].set_xscale("log")
+    axes[3].set_yscale("log")
+    axes[3].set_xlabel("wall time (hours; the machines are in docs/training.md)")
+    axes[3].set_ylabel(f"validation Ep 80 ({reading} reading)")
+    axes[3].grid(alpha=0.3, which="both")
+    axes[3].legend(fontsize=8)
     axes[2].set_xlabel("training windows seen (millions)")
     axes[2].set_ylabel("dead ReLU units (% of the layers' units)")
     axes[2].set_ylim(bottom=0)
@@ -120,6 +148,40 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
                  "units on 1,024 validation windows")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def fit(rows: list[dict], label: str, reading: str, targets: dict[str, float],
+        rates: dict[str, float], first_step: int = 0) -> str:
+    """A power law ``E = a * windows^b`` per figure over ``label``'s snapshots from
+    ``first_step`` on, and the windows (and hours at each rate) where it meets ``targets``."""
+    rr = [r for r in rows if r["run"] == label and r["step"] >= first_step
+          and r.get("windows_seen")]
+    lines = []
+    for key, target in targets.items():
+        pts = [(r["windows_seen"], r.get(column(key, reading))) for r in rr]
+        pts = [(w, e) for w, e in pts if e is not None and e > 0]
+        if len(pts) < 3:
+            lines.append(f"fit {label} {key}: {len(pts)} snapshots, too few for a fit")
+            continue
+        x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+        b, a = np.polyfit(x, y, 1)
+        resid = y - (a + b * x)
+        span = f"{min(p[0] for p in pts) / 1e6:.2f}-{max(p[0] for p in pts) / 1e6:.2f} M windows"
+        if b >= 0:
+            lines.append(f"fit {label} {key} over {len(pts)} snapshots ({span}): exponent "
+                         f"{b:+.2f}, not falling: no projection")
+            continue
+        need = float(np.exp((np.log(target) - a) / b))
+        hours = ", ".join(f"{need / r / 3600:,.1f} h at {n} ({r:,.0f} windows/s)"
+                          for n, r in rates.items())
+        lines.append(f"fit {label} {key} over {len(pts)} snapshots ({span}): E ∝ windows^{b:.2f} "
+                     f"(rms log residual {np.sqrt(np.mean(resid ** 2)):.2f}); {target} at "
+                     f"{need / 1e6:,.1f} M windows: {hours}")
+    return "\n".join(lines)
 
 
 def summary(rows: list[dict], reading: str) -> str:
@@ -152,6 +214,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="also one line per run: the mean (and range) over its snapshots of "
                          "E_p@40, E_p@80, E_s@80 and val_cd8 (ablation arms: one snapshot of "
                          "these rollouts decides nothing)")
+    ap.add_argument("--fit", default=None, metavar="LABEL[:FIRST_STEP]",
+                    help="fit a power law in windows seen to this run's snapshots (from "
+                         "FIRST_STEP on) and say where it meets the paper's E_p@40 0.071 and "
+                         "E_p@80 0.164")
+    ap.add_argument("--rates", nargs="*", default=[], metavar="NAME=WINDOWS_PER_S",
+                    help="training rates the fit's windows are turned into hours at")
     args = ap.parse_args(argv)
     # an early snapshot's rollouts leave the trained range on purpose: no warning per case
     warnings.filterwarnings("ignore", module="tpnet_ref")
@@ -175,12 +243,18 @@ def main(argv: list[str] | None = None) -> int:
             *(f"dead {k}" for k in LAYERS)]
     print(" | ".join(cols))
     for r in rows:
-        print(" | ".join(f"{r[c]:.4g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
+        print(" | ".join(f"{r.get(c):.4g}" if isinstance(r.get(c), float) else str(r.get(c, ""))
+                         for c in cols))
     if copy_last:
         print("copy last: " + ", ".join(f"{k} {copy_last[column(k, args.reading)]:.4g}"
                                         for k in ("Ep@40", "Ep@80", "Es@80")))
     if args.summary:
         print(summary(rows, args.reading))
+    if args.fit:
+        label, _, first = args.fit.partition(":")
+        rates = {n: float(v) for n, v in (r.split("=", 1) for r in args.rates)}
+        print(fit(rows, label, args.reading, {"Ep@40": 0.071, "Ep@80": 0.164}, rates,
+                  int(first or 0)))
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
