@@ -7,7 +7,7 @@ of DATA (:func:`tpnet_ref.training.score.score_rollouts`: frames 0..m-1 in, 80 r
 predictions, both readings; never the 60 test cases); scores are cached in
 ``RUN/snapshots/scores.json`` so a rerun scores only new snapshots. ``--reading`` picks the
 reading printed and plotted: ``squared`` (default: the paper comparison's, the one the sizes
-table and issue 48's goals use) or ``released``.
+table uses) or ``released``.
 
     python tools/recipe_curves.py data/grid-m4.h5 released=runs/q-released \\
         current=runs/q-current --png docs/recipe_curves.png --csv docs/recipe_curves.csv
