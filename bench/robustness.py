@@ -219,6 +219,34 @@ def calibration(count: int = 200) -> None:
     print(f"  m = 4 windows (every 4th start) window_body_problem warns on: {windows}")
 
 
+def motion(count: int = 100) -> None:
+    """The frame-to-frame motion behind tpnet_ref.checks.MOTION_RANGE, on ``count``
+    training-grid trajectories (never the test cases): the mean move of the centroid per frame
+    of every m = 4 window (every start) at the model's spacing (every 4th simulator row), and
+    the share of windows the warning flags at that spacing and at the wrong ones."""
+    from tpnet_ref.checks import MOTION_RANGE
+    from tpnet_ref.sim import simulate
+    from tpnet_ref.sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+    grid = [(f, a, x, y) for f in TRAIN_FORCES for a in TRAIN_ANGLES_DEG
+            for (x, y) in TRAIN_POSITIONS]
+    pick = np.random.default_rng(2).choice(len(grid), count, replace=False)
+    rows = np.stack([simulate(*grid[i]) for i in pick])          # (count, 600, 30, 2)
+    centre = rows.mean(axis=2)
+    lo, hi = MOTION_RANGE
+    print(f"{count} training-grid trajectories, every start of an m = {M} window; the mean move "
+          f"of the centroid per frame (world units), accepted {lo:g}..{hi:g}:")
+    for every, what in ((4, "every 4th row (the model's spacing)"),
+                        (1, "consecutive rows"), (2, "every 2nd row"), (8, "every 8th row")):
+        c = centre[:, ::every]                 # the centroid: what checks.motion_problem takes
+        step = np.sqrt((np.diff(c, axis=1) ** 2).sum(axis=2))          # (count, frames - 1)
+        mean = np.stack([step[:, i:i + M - 1].mean(axis=1)
+                         for i in range(step.shape[1] - M + 2)], axis=1).ravel()
+        flagged = (mean < lo) | (mean > hi)
+        print(f"  {what}: {mean.size} windows, min {mean.min():.3f}, 0.3 % quantile "
+              f"{np.quantile(mean, 0.003):.3f}, median {np.median(mean):.3f}, max {mean.max():.3f}; "
+              f"flagged {100 * flagged.mean():.2f} %")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="10 cases x 1 seed")
@@ -228,7 +256,13 @@ def main(argv=None) -> int:
                     help="only the contour's geometry on the undeformed body (seconds)")
     ap.add_argument("--calibration", action="store_true",
                     help="only the training-grid body statistics behind the thresholds")
+    ap.add_argument("--motion", type=int, nargs="?", const=100, default=None, metavar="CASES",
+                    help="only the frame-to-frame motion behind the FrameSpacingWarning "
+                         "(CASES training-grid trajectories, default 100)")
     args = ap.parse_args(argv)
+    if args.motion:
+        motion(args.motion)
+        return 0
     if args.calibration:
         calibration()
         return 0

@@ -218,3 +218,109 @@ def test_model_coordinates_are_judged_in_world_units(step, warns):
     assert bool(body) == warns, body
     if warns:
         assert f"frame 1's body is {step:.3g} world units from frame 0's" in body[0]
+
+
+# --------------------------------------------------------------------------- sparse frames, motion
+def _caught(call):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = call()
+    return out, [c for c in caught if issubclass(c.category, OutsideTrainingRangeWarning)]
+
+
+def _quiet(call):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutsideTrainingRangeWarning)
+        return call()
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_frames_of_too_few_points_warn_in_one_line_and_keep_the_result(net, n):
+    from tpnet_ref.checks import TooFewPointsWarning
+    w = _window()[:, :n]
+    got, caught = _caught(lambda: tpnet_ref.predict(w, model=net))
+    assert [c.category for c in caught] == [TooFewPointsWarning]
+    msg = str(caught[0].message)
+    assert "\n" not in msg and f"frame 0 has {n} point(s)" in msg and "at least 3" in msg
+    assert caught[0].filename == __file__
+    np.testing.assert_array_equal(got, _quiet(lambda: net.predict(w)))
+    ragged = [f for f in _window()]
+    ragged[2] = ragged[2][:1]                                   # one sparse frame of four
+    _, caught = _caught(lambda: tpnet_ref.predict(ragged, model=net))
+    assert [c.category for c in caught] == [TooFewPointsWarning]
+    assert "frame 2 has 1 point(s); " in str(caught[0].message)
+
+
+def test_three_points_a_frame_are_enough(net):
+    _, caught = _caught(lambda: tpnet_ref.predict(_window()[:, ::10], model=net))
+    assert caught == []
+
+
+@pytest.mark.parametrize("step, why", [(0.02, "closer in time"), (3.0, "further apart in time")])
+def test_motion_outside_the_training_windows_warns_and_keeps_the_result(net, step, why):
+    from tpnet_ref.checks import MOTION_RANGE, FrameSpacingWarning
+    w = np.stack([_ring() + [step * i, 0.0] for i in range(4)])
+    for call in (lambda: tpnet_ref.predict(w, model=net),
+                 lambda: tpnet_ref.predict(net.normalize(w), model=net, normalized=True),
+                 lambda: net.rollout(w, 2)):
+        got, caught = _caught(call)
+        assert [c.category for c in caught] == [FrameSpacingWarning]
+        msg = str(caught[0].message)
+        assert "\n" not in msg and why in msg and caught[0].filename == __file__
+        assert f"moves {step:.3g} world units per frame" in msg
+        assert f"{MOTION_RANGE[0]:g}..{MOTION_RANGE[1]:g}" in msg
+        np.testing.assert_array_equal(got, _quiet(call))
+
+
+def test_motion_at_the_edges_of_the_range_does_not_warn(net):
+    from tpnet_ref.checks import MOTION_RANGE, motion_problem
+    lo, hi = MOTION_RANGE
+    for step in (lo * 1.001, hi * 0.999):                      # just inside (rounding aside)
+        w = np.stack([_ring() + [step * i, 0.0] for i in range(4)])
+        assert motion_problem(w) is None
+        assert motion_problem(list(w)) is None
+    assert motion_problem(np.stack([_ring() + [0.099 * i, 0.0] for i in range(4)]))
+    assert motion_problem(np.stack([_ring() + [2.51 * i, 0.0] for i in range(4)]))
+
+
+def test_consecutive_simulator_rows_warn_and_every_fourth_row_does_not(net):
+    pytest.importorskip("pymunk")
+    from tpnet_ref.checks import FrameSpacingWarning
+    from tpnet_ref.sim import simulate
+    rows = simulate(1.3, 220.0, 35.0, 33.0, steps=520)   # inside the training grid
+    w = rows[500:504]                  # consecutive rows, where the ring rolls 0.29 a model frame
+    got, caught = _caught(lambda: tpnet_ref.predict(w, model=net))
+    assert [c.category for c in caught] == [FrameSpacingWarning]
+    assert "consecutive simulator rows" in str(caught[0].message)
+    np.testing.assert_array_equal(got, _quiet(lambda: net.predict(w)))
+    _, caught = _caught(lambda: tpnet_ref.predict(rows[500:516:4], model=net))
+    assert caught == []
+
+
+def test_a_batch_is_not_judged_by_its_motion(net):
+    w = np.stack([_ring() + [0.02 * i, 0.0] for i in range(4)])
+    _, caught = _caught(lambda: tpnet_ref.predict_batch(np.stack([w, w]), model=net))
+    assert caught == []
+
+
+@pytest.mark.parametrize("window, says", [
+    (_window()[:, :1], "too few points: frame 0 has 1 point(s)"),
+    (np.stack([_ring() + [0.02 * i, 0.0] for i in range(4)]), "unusual motion: the body's centroid"),
+])
+def test_tpnet_predict_prints_the_new_warnings_in_one_line(tmp_path, capsys, window, says):
+    from tpnet_ref.cli import main
+    p = tmp_path / "w.npy"
+    np.save(p, window)
+    assert main(["predict", str(p), "--steps", "1"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("tpnet predict: warning: window: " + says), err
+
+
+def test_the_dtype_rule_of_predict_docs_api():
+    """docs/api.md, predict's docstring: the output has the model's dtype, whatever the input's;
+    a float64 window on the float32 model is the float32-rounded window's prediction."""
+    w = tpnet_ref.example_window().astype(np.float64) + 1e-9       # not a float32 value
+    got = tpnet_ref.predict(w)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, tpnet_ref.predict(w.astype(np.float32)))
+    assert tpnet_ref.predict(w, dtype="float64").dtype == np.float64

@@ -377,7 +377,8 @@ def test_bad_input_is_one_line(vectors_dir, tmp_path):
     other = init_random(TPNetConfig(m=3, lstm_units=(16, 8, 8)), seed=0)
     other.save(tmp_path / "m3.h5")
     _one_line_error(*run_cli("crosscheck", "--vectors", vectors_dir, "--model",
-                             tmp_path / "m3.h5")[::2], "another network", "m=3")
+                             tmp_path / "m3.h5")[::2], "another network than the one the vectors "
+                    "in", "were made for: m=3")
     # a vectors folder whose manifest is not one
     (tmp_path / "fake").mkdir()
     (tmp_path / "fake" / "manifest.json").write_text("{\"format\": \"other\"}")

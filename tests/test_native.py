@@ -120,6 +120,19 @@ def test_reduced_sizes_and_untracked_files_are_found_or_named(tmp_path, monkeypa
     assert "\n" not in str(exc.value)
 
 
+@pytest.mark.parametrize("name", sorted(native.UNTRACKED))
+def test_loading_a_missing_untracked_file_by_path_names_the_restore_command(tmp_path, name):
+    """``load("weights/tpnet-m3.h5")`` in a checkout without it says what ``load(m=3)`` says."""
+    import tpnet_ref
+    with pytest.raises(FileNotFoundError, match=r"weights file not found: .*tpnet-m\d\.h5 \(git "
+                       r"does not track .*`bash tools/restore_weights.sh`") as exc:
+        tpnet_ref.load(tmp_path / "weights" / name)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(FileNotFoundError) as exc:        # any other missing file: the path only
+        tpnet_ref.load(tmp_path / "weights" / "mine.h5")
+    assert str(exc.value) == f"weights file not found: {tmp_path / 'weights' / 'mine.h5'}"
+
+
 def test_load_by_size_reads_the_shipped_file(tmp_path, monkeypatch):
     import tpnet_ref
     _shipped(tmp_path, monkeypatch, wheel=[], repo=[])

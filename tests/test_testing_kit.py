@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from property_helpers import Implementations
+import tpnet_ref
 from tpnet_ref import testing
 from tpnet_ref.testing import TOLERANCE, PropertyFailure
 
@@ -128,20 +129,137 @@ def test_onnx_export(impl):
                                        tol=tol, max_examples=5) > tol
 
 
+def _docs_blocks() -> list[str]:
+    text = (ROOT / "docs" / "testing.md").read_text()
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+def test_the_kit_never_imports_torch():
+    """The kit extra has no torch: importing tpnet_ref.testing and drawing a window leave it out
+    of sys.modules (and so does the first example of docs/testing.md, below)."""
+    code = ("import sys, tpnet_ref.testing as t; t.windows(); "
+            "assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_the_docs_first_example_runs_without_torch(tmp_path):
+    pytest.importorskip("hypothesis")
+    blocks = _docs_blocks()
+    assert len(blocks) == 2 and "torch" not in blocks[0]
+    assert len(blocks[0].strip().splitlines()) <= 12
+    script = tmp_path / "example.py"
+    script.write_text("import sys\nsys.modules['torch'] = None   # as if torch were not installed\n"
+                      + blocks[0])
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                       timeout=600, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout.strip().splitlines()
+    assert out[0].startswith("permutation_invariant: my_predict passed on 20 windows")
+    assert out[1].startswith("agrees_with_reference: my_predict passed on 20 windows")
+    assert "tolerance measured from float32 rounding" in out[1]
+
+
 def test_the_docs_example_runs_as_written():
     torch = pytest.importorskip("torch")
-    text = (ROOT / "docs" / "testing.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert len(blocks) == 1
-    assert len(blocks[0].strip().splitlines()) <= 16
+    blocks = _docs_blocks()
+    assert len(blocks) == 2
+    assert len(blocks[1].strip().splitlines()) <= 16
     namespace: dict = {}
     threads = torch.get_num_threads()
     torch.set_num_threads(1)         # the suite's other tests share the cores; same results
     try:
-        exec(compile(blocks[0], "docs/testing.md", "exec"), namespace)
+        exec(compile(blocks[1], "docs/testing.md", "exec"), namespace)
     finally:
         torch.set_num_threads(threads)
     assert "my_predict" in namespace
+
+
+# ------------------------------------------------------------------ the default tolerance
+@pytest.fixture(scope="module")
+def shipped():
+    """The shipped m = 4 model (the paper's size): where a fixed 1e-4 misses the planted port."""
+    return tpnet_ref.load()
+
+
+def _torch_port(net, name):
+    import torch
+
+    def port(window):                  # TorchTPNet takes model coordinates (normalized=True)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with torch.no_grad():
+                return net(torch.as_tensor(np.stack(window), dtype=torch.float32)[None])[0]
+        finally:
+            torch.set_num_threads(threads)
+    port.__qualname__ = name
+    return port
+
+
+def test_the_default_tolerance_catches_a_layer_norm_epsilon_that_1e_4_lets_through(shipped):
+    pytest.importorskip("torch")
+    from tpnet_ref.torch_model import TorchTPNet
+    net = TorchTPNet.from_numpy(shipped).eval()
+    assert net.ln2.eps == shipped.config.layer_norm_eps == 1e-3
+    net.ln2.eps = 1e-5                                    # the planted bug
+    port = _torch_port(net, "ln2_eps")
+    frames = testing.windows(m=4, ragged=False, normalized=True)
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: ln2_eps is \S+ from the "
+                       r"float64 reference \(tolerance \S+, measured from float32 rounding on "
+                       r"this window\); minimal window: m=4"):
+        testing.agrees_with_reference(port, shipped, windows=frames, normalized=True,
+                                      max_examples=20, seed=1)
+    # what the old fixed default let through (docs/testing.md, "Choosing tol")
+    assert testing.agrees_with_reference(port, shipped, tol=1e-4, windows=frames,
+                                         normalized=True, max_examples=20, seed=1) > 1e-5
+
+
+def test_honest_ports_pass_the_default_tolerance(shipped):
+    pytest.importorskip("torch")
+    from tpnet_ref.torch_model import TorchTPNet
+    port = _torch_port(TorchTPNet.from_numpy(shipped).eval(), "honest")
+    frames = testing.windows(m=4, ragged=False, normalized=True)
+    got = testing.agrees_with_reference(port, shipped, windows=frames, normalized=True,
+                                        max_examples=15)
+    assert got < 1e-6 and "tolerance measured from float32 rounding, " in got.report
+
+
+def test_the_onnx_export_passes_the_default_tolerance(shipped):
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from property_helpers import onnx_export_session
+    sess = onnx_export_session(shipped, 30)
+
+    def onnx_export(window):            # world units in and out, as predict
+        x = shipped.normalize(np.stack(window).astype(np.float32))[None]
+        return shipped.denormalize(sess.run(None, {"window": x})[0][0])
+
+    got = testing.agrees_with_reference(onnx_export, shipped,
+                                        windows=testing.windows(m=4, n=30, ragged=False),
+                                        max_examples=15)
+    assert "world units" in got.report and "measured from float32 rounding" in got.report
+
+
+def test_the_measured_tolerance_is_the_vectors_rule_on_the_output(impl):
+    """measured_tolerance is crosscheck's rule (SAFETY x the float32 gap + FLOOR x max(1, |y|))
+    for the output: world units, or head.sigmoid in model coordinates."""
+    from tpnet_ref import crosscheck
+    model = impl.base["float32"]
+    w = [np.random.default_rng(t).normal(20.0, 2.0, (30, 2)) for t in range(4)]
+    p64 = {k: np.asarray(v, np.float64) for k, v in model.params.items()}
+    want = crosscheck.trace(model.config, p64, w)
+    gaps = crosscheck.measure_gaps(model.config, p64, w, want)
+    world = testing.measured_tolerance(model, w)
+    assert world == crosscheck.SAFETY * gaps["output"] + crosscheck.FLOOR * max(
+        1.0, float(np.abs(want["output"]).max()))
+    lo, hi = model.config.norm_lo, model.config.norm_hi
+    u = [(f - lo) / (hi - lo) for f in w]
+    back = [f * (hi - lo) + lo for f in u]     # what the check traces: u in world units again
+    gaps = crosscheck.measure_gaps(model.config, p64, back)
+    unit = testing.measured_tolerance(model, u, normalized=True)
+    assert unit == crosscheck.SAFETY * gaps["head.sigmoid"] + crosscheck.FLOOR
+    assert 0 < unit < world < 1e-3
 
 
 @pytest.mark.parametrize("kw, error", [

@@ -79,9 +79,13 @@ def predict(window: _Any, model: TPNet | None = None, normalized: bool = False,
             dtype: _Any = None) -> _np.ndarray:
     """Next point set ``(n_out, 2)`` from a window ``(m, N, 2)`` or m arrays ``(N_i, 2)``.
     Input outside the training range gives a one-line ``OutsideTrainingRangeWarning``, a window
-    that does not look like one body (stray points) a ``NotOneBodyWarning``. ``dtype``
-    ("float32" or "float64"; default: the model's): compute in this dtype (the model converted
-    once and kept)."""
+    that does not look like one body (stray points) a ``NotOneBodyWarning``, a frame of fewer
+    than 3 points a ``TooFewPointsWarning``, a window whose centroid moves outside 0.1..2.5
+    world units per frame (frames not 4/45 s apart) a ``FrameSpacingWarning``; the result is
+    computed unchanged. ``dtype`` ("float32" or "float64"; default: the model's): compute in this
+    dtype (the model converted once and kept). The output has the dtype computed in, whatever the
+    input's: with the default float32 model a float64 window is rounded to float32 and comes back
+    float32; pass ``dtype="float64"`` (or a float64 model) for float64 results."""
     return _model(model, dtype).predict(window, normalized=normalized)
 
 

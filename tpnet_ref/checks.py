@@ -216,14 +216,15 @@ def training_range_problem(frames: np.ndarray | list[np.ndarray], norm_lo: float
 
 def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: float, norm_hi: float,
                                 name: str, normalized: bool = False,
-                                stacklevel: int | None = None) -> None:
+                                stacklevel: int | None = None) -> bool:
     """One-line :class:`OutsideTrainingRangeWarning` if :func:`training_range_problem` finds one
-    (``stacklevel`` None: the first caller outside the package)."""
+    (``stacklevel`` None: the first caller outside the package); whether it warned."""
     problem = training_range_problem(frames, norm_lo, norm_hi, normalized)
     if problem:
         warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
                       "extrapolation", OutsideTrainingRangeWarning,
                       stacklevel=stacklevel or _caller_level())
+    return problem is not None
 
 
 # --------------------------------------------------------------------------- one body?
@@ -453,6 +454,61 @@ def warn_not_one_body(frames: np.ndarray | list[np.ndarray], name: str,
     return problem is not None
 
 
+# --------------------------------------------------------------------------- sparse frames, motion
+class TooFewPointsWarning(OutsideTrainingRangeWarning):
+    """A frame with fewer than :data:`MIN_FRAME_POINTS` points: too few to describe a body's
+    outline (the model was trained on 30 per frame); the result is computed unchanged."""
+
+
+class FrameSpacingWarning(OutsideTrainingRangeWarning):
+    """A window whose body moves slower or faster from frame to frame than in any training window
+    (frames not 4/45 s apart: e.g. consecutive simulator rows instead of every fourth); the
+    result is computed unchanged."""
+
+
+#: a frame needs at least this many points: fewer than 3 cannot span an area, so they cannot
+#: outline a body (the model was trained on 30 points per frame)
+MIN_FRAME_POINTS = 3
+#: the accepted mean move of a window's centroid per frame, world units: the training windows
+#: (frames 4 simulator rows = 4/45 s apart; 200 training-grid trajectories, every start) move
+#: 0.027 to 2.08, and 0.32 % of them less than 0.1 (flagged); windows of consecutive simulator
+#: rows move a quarter as far, and 36 % of them are flagged, of every 8th row 14 %: a warning, not
+#: a proof (``python bench/robustness.py --motion 200``)
+MOTION_RANGE = (0.1, 2.5)
+
+
+def sparse_frames_problem(counts: Sequence[int]) -> str | None:
+    """Why a window of frames with ``counts`` points is too sparse to be a body, or ``None``."""
+    few = [i for i, n in enumerate(counts) if n < MIN_FRAME_POINTS]
+    if not few:
+        return None
+    i = few[0]
+    return (f"frame {i} has {counts[i]} point(s){f' ({len(few)} frames have too few)' if len(few) > 1 else ''}; "
+            f"a body's outline needs at least {MIN_FRAME_POINTS} (fewer cannot span an area; the "
+            f"model was trained on 30 per frame)")
+
+
+def motion_problem(world: np.ndarray | list[np.ndarray]) -> str | None:
+    """Why the frames of one window (world units: ``(m, N, 2)`` or a list of ``(N_i, 2)``)
+    move outside the training windows' range, or ``None``: the mean distance between consecutive
+    frames' centroids outside :data:`MOTION_RANGE`."""
+    if len(world) < 2:
+        return None
+    c = (world.mean(axis=1) if isinstance(world, np.ndarray)
+         else np.array([f.mean(axis=0) for f in world]))
+    d = c[1:] - c[:-1]
+    step = float(np.sqrt(np.einsum("fk,fk->f", d, d)).mean())
+    lo, hi = MOTION_RANGE
+    if lo <= step <= hi:
+        return None
+    why = ("frames closer in time than 4/45 s, e.g. consecutive simulator rows instead of every "
+           "fourth, or a body at rest" if step < lo else
+           "frames further apart in time than 4/45 s, e.g. every 8th simulator row")
+    return (f"the body's centroid moves {step:.3g} world units per frame on average; the training "
+            f"windows move {lo:g}..{hi:g} (frames 4/45 s apart): {why}? "
+            "(tpnet_ref.observe.frames_at_model_rate picks frames at the model's rate)")
+
+
 def _caller_level() -> int:
     """The ``stacklevel`` that points a warning raised by this module's caller at the first
     frame outside the package (the user's line, however deep the call came from)."""
@@ -468,7 +524,10 @@ def warn_about_input(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
     """The input warnings of a prediction on checked ``frames``: for ``one_window`` a :class:`NotOneBodyWarning` when its frames do not look like one body (stray points,
     two blobs, a frame far from its neighbours), otherwise an
     :class:`OutsideTrainingRangeWarning` when it leaves the training range (stray points trip
-    both; one line names the likely cause)."""
+    both; one line names the likely cause); then, for input inside the training range, a
+    :class:`TooFewPointsWarning` for a frame of fewer than :data:`MIN_FRAME_POINTS` points and,
+    for ``one_window``, a :class:`FrameSpacingWarning` when its body moves outside
+    :data:`MOTION_RANGE` per frame."""
     scale = norm_hi - norm_lo
     with np.errstate(over="ignore", invalid="ignore"):      # far-out input: judged, not warned twice
         x: Any = ([np.asarray(f, dtype=np.float64) for f in frames]
@@ -479,4 +538,13 @@ def warn_about_input(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
         if one_window and warn_not_one_body(world, name):
             return
         model = x if normalized else each(lambda f: (f - norm_lo) / scale)
-        warn_outside_training_range(model, norm_lo, norm_hi, name, normalized)
+        if warn_outside_training_range(model, norm_lo, norm_hi, name, normalized):
+            return
+        sparse = sparse_frames_problem([len(f) for f in frames])
+        if sparse:
+            warnings.warn(f"{name}: too few points: {sparse}; the prediction is an "
+                          "extrapolation", TooFewPointsWarning, stacklevel=_caller_level())
+        moved = motion_problem(world) if one_window else None
+        if moved:
+            warnings.warn(f"{name}: unusual motion: {moved}; the prediction is an extrapolation",
+                          FrameSpacingWarning, stacklevel=_caller_level())

@@ -397,7 +397,8 @@ def check_same_network(vectors: Vectors, config: TPNetConfig, what: str) -> None
               "input_transform_trained", "feature_transform_trained")
     diff = [f for f in fields if getattr(a, f) != getattr(b, f)]
     if diff:
-        raise ValueError(f"{what} is another network than the vectors {vectors.path}: "
+        raise ValueError(f"{what} is another network than the one the vectors in "
+                         f"{vectors.path} were made for: "
                          + ", ".join(f"{f}={getattr(b, f)} (vectors: {getattr(a, f)})"
                                      for f in diff))
 

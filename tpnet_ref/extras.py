@@ -22,6 +22,7 @@ EXTRAS: dict[str, str] = {
     "crosscheck": "framework cross-checks (PyTorch, onnx, onnxruntime)",
     "vision": "the camera path: masks, images and videos (OpenCV headless)",
     "box2d": "the Box2D 2.3 scene that validates the simulator (tpnet_ref.sim.box2d)",
+    "kit": "the property checks of any TP-Net, tpnet_ref.testing (hypothesis)",
 }
 
 

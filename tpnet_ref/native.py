@@ -371,7 +371,15 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
     parameter) naming what is wrong for anything else.
     """
     where = str(path)
-    with hdf5.open_h5(path) as f:
+    try:
+        h = hdf5.open_h5(path)
+    except FileNotFoundError as exc:
+        name = Path(path).name
+        if name in UNTRACKED:          # weights/tpnet-m3.h5 in a checkout that lacks it
+            raise FileNotFoundError(f"{exc} (git does not track {name}: `{RESTORE_COMMAND}` in "
+                                    "the repository restores it)") from None
+        raise
+    with h as f:
         fmt = hdf5.py_value(hdf5.attr(f, "format", where, ""))
         if fmt != FORMAT:
             raise ValueError(f"{where}: not a tpnet_ref weights file (format attribute {fmt!r}); "

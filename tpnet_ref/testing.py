@@ -7,8 +7,10 @@ reads; a window is a list of ``m`` float64 arrays) and test it with hypothesis:
 
 - :func:`permutation_invariant` -- permuting each frame's points independently (the
   ``(N!)^m`` per-frame permutations) changes the output by at most ``tol``;
-- :func:`agrees_with_reference` -- the output is within ``tol`` of :func:`tpnet_ref.reference.forward`
-  of a :class:`~tpnet_ref.model.TPNet`'s parameters in float64;
+- :func:`agrees_with_reference` -- the output is within a tolerance of
+  :func:`tpnet_ref.reference.forward` of a :class:`~tpnet_ref.model.TPNet`'s parameters in
+  float64: by default measured on each window from float32 rounding
+  (:func:`measured_tolerance`, the rule of ``tpnet vectors``), or a fixed ``tol``;
 - :func:`frame_order_matters`, :func:`one_point_matters` -- the non-vacuity checks: reversing or
   rotating the frames in time, or moving one point outward, changes the output by more than
   ``tol`` (a constant, or a function that ignores time, would pass the invariance check).
@@ -21,7 +23,8 @@ warnings are silenced while a check calls the function: its windows leave the tr
 purpose. The strategies
 :func:`windows` and :func:`permutations` are public for tests of one's own.
 
-hypothesis (the ``test`` extra) is imported when a function here is called, not on import.
+hypothesis (the ``kit`` extra: ``pip install "tpnet-ref[kit]"``) is imported when a function
+here is called, not on import; nothing here imports torch.
 docs/testing.md shows a PyTorch module checked in ten lines.
 """
 from __future__ import annotations
@@ -99,7 +102,7 @@ def _call(fn: Callable[[Window], Any], window: Window) -> np.ndarray:
 
 
 def _hypothesis() -> Any:
-    return require("hypothesis", "test", "tpnet_ref.testing (property checks)")
+    return require("hypothesis", "kit", "tpnet_ref.testing (property checks)")
 
 
 def _as_array(y: Any) -> np.ndarray:
@@ -266,37 +269,86 @@ def permutation_invariant(fn: Callable[[Window], Any], windows: Any = None, tol:
                                  f"{worst[0]:.3g} (tolerance {tol:.3g})")
 
 
-def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float,
+def measured_tolerance(model: Any, window: Window, normalized: bool = False,
+                       expected: dict[str, np.ndarray] | None = None) -> float:
+    """The default tolerance of :func:`agrees_with_reference` on one window: the rule of
+    ``tpnet vectors`` (:func:`tpnet_ref.crosscheck.measure_gaps` and
+    :func:`~tpnet_ref.crosscheck.tolerances_from`) for the last layer, ``SAFETY`` (8) x the
+    largest gap between the reference in float32 and in float64 on this window (the window as
+    is, moved by one float32 ulp, its points reversed) + ``FLOOR`` (2^-20) x max(1, the
+    output's largest magnitude); in model coordinates (``head.sigmoid``) when ``normalized``,
+    else in world units (``output``). ``expected``: the window's float64 trace, if known."""
+    from . import crosscheck
+    config = model.config
+    params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
+    world = _world(window, config) if normalized else window
+    want = expected if expected is not None else crosscheck.trace(config, params, world)
+    return _measured(config, params, world, want, normalized)
+
+
+def _measured(config: Any, params: dict[str, np.ndarray], world: Window,
+              expected: dict[str, np.ndarray], normalized: bool) -> float:
+    from . import crosscheck
+    key = "head.sigmoid" if normalized else "output"
+    gaps = crosscheck.measure_gaps(config, params, world, expected)
+    return crosscheck.tolerances_from({key: gaps[key]},
+                                      {key: float(np.abs(expected[key]).max())})[key]
+
+
+def _world(window: Window, config: Any) -> Window:
+    """Model coordinates -> world units with ``config``'s bounds, in float64."""
+    scale = config.norm_hi - config.norm_lo
+    return [np.asarray(f, dtype=np.float64) * scale + config.norm_lo for f in window]
+
+
+def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | None = None,
                           windows: Any = None, normalized: bool = False,
                           max_examples: int = 50, seed: int | None = None) -> float:
-    """Check that ``fn(window)`` is within ``tol`` (max absolute difference) of
+    """Check that ``fn(window)`` is within a tolerance (max absolute difference) of
     :func:`tpnet_ref.reference.forward` with ``model``'s config and parameters in float64
     (``model``: a :class:`~tpnet_ref.model.TPNet`, e.g. :func:`tpnet_ref.load` of the weights
-    ``fn`` runs). ``normalized``: windows and outputs in model coordinates (default: world
-    units). Returns the largest difference seen; raises :class:`PropertyFailure` on the
-    minimal window beyond ``tol``."""
-    from . import reference
+    ``fn`` runs). ``tol``: a fixed tolerance; ``None`` (the default) measures one on each window
+    from float32 rounding (:func:`measured_tolerance`, the rule ``tpnet vectors`` gives each
+    layer): an honest float32 port passes, and a port off by more than rounding (a LayerNorm
+    epsilon of 1e-5 instead of 1e-3) fails where a fixed 1e-4 let it through. ``normalized``:
+    windows and outputs in model coordinates (default: world units). Returns the largest
+    difference seen; raises :class:`PropertyFailure` on the minimal window beyond the
+    tolerance."""
+    from . import crosscheck, reference
     params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
     config = model.config
     strategy = windows if windows is not None else _window_strategy(
         m=config.m, normalized=normalized)
-    worst, seen = [0.0], _Seen()
+    worst, seen, tols = [0.0], _Seen(), [np.inf, 0.0]
+    key = "head.sigmoid" if normalized else "output"
 
     def prop(w: Window) -> None:
-        want = reference.forward(config, params, w, normalized=normalized)
+        if tol is None:
+            world = _world(w, config) if normalized else w
+            expected = crosscheck.trace(config, params, world)
+            want = expected[key]
+            limit = _measured(config, params, world, expected, normalized)
+            tols[0], tols[1] = min(tols[0], limit), max(tols[1], limit)
+        else:
+            want = reference.forward(config, params, w, normalized=normalized)
+            limit = tol
         d = _diff(_call(fn, w), want, "agrees_with_reference")
-        if not d <= tol:
+        if not d <= limit:
+            how = "" if tol is not None else ", measured from float32 rounding on this window"
             raise PropertyFailure(
                 f"agrees_with_reference: {_name(fn)} is {d:.3g} from the float64 reference "
-                f"(tolerance {tol:.3g}); minimal window: {_describe(w)}")
+                f"(tolerance {limit:.3g}{how}); minimal window: {_describe(w)}")
         worst[0] = max(worst[0], d)
         seen.add(w)
 
     _run(prop, strategy, max_examples, seed)
     units = "model coordinates" if normalized else "world units"
+    told = (f"tolerance {tol:.3g}" if tol is not None else
+            "tolerance measured from float32 rounding" + (
+                f", {tols[0]:.3g}..{tols[1]:.3g}" if seen.count else ""))
     return CheckResult(worst[0], f"agrees_with_reference: {_name(fn)} passed on {seen.text()}: "
                                  f"at most {worst[0]:.3g} {units} from the float64 reference "
-                                 f"(tolerance {tol:.3g})")
+                                 f"({told})")
 
 
 def frame_order_matters(fn: Callable[[Window], Any], windows: Any = None, tol: float = 0.0,
@@ -369,5 +421,5 @@ def one_point_matters(fn: Callable[[Window], Any], windows: Any = None, tol: flo
 
 
 __all__ = ["SCALES", "TOLERANCE", "PropertyFailure", "CheckResult", "windows", "permutations", "permuted",
-           "permutation_invariant", "agrees_with_reference", "frame_order_matters",
+           "permutation_invariant", "agrees_with_reference", "measured_tolerance", "frame_order_matters",
            "one_point_matters"]

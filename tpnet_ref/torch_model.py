@@ -192,7 +192,15 @@ def init_keras(net: "TorchTPNet") -> None:
 
 class TorchTPNet(nn.Module):
     """TP-Net (docs/spec.md §2) built from a :class:`TPNetConfig`; forward ``(B, m, N, dim)`` normalised
-    windows -> ``(B, n_out, dim)``."""
+    windows -> ``(B, n_out, dim)``.
+
+    It takes **normalised** coordinates (model coordinates) and returns them, unlike
+    :func:`tpnet_ref.predict`, which takes world units: normalise a world-unit window first,
+    ``(x - norm_lo) / (norm_hi - norm_lo)`` with the config's bounds (``(x - 1.1438) / 42.7124``
+    for the shipped models; ``model.normalize(x)`` of the :class:`~tpnet_ref.model.TPNet`, or
+    :func:`tpnet_ref.config.normalize`), and map the output back with
+    ``y * (norm_hi - norm_lo) + norm_lo`` (``model.denormalize(y)``). It has no canonical sort of
+    its own: its output is permutation invariant up to rounding."""
 
     def __init__(self, config: TPNetConfig | None = None) -> None:
         super().__init__()
