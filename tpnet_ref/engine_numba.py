@@ -161,7 +161,7 @@ _KC1, _KC2, _KC3, _KC4 = _KC
 _K11, _K12, _K13, _K14 = _K1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _groups(steps, bsz, per_window):
     """Row groups ``(first, stride, count)`` of ``T*B`` time-major rows (row ``t*B + b``):
     ``per_window``: each window's steps, up to ``GROUP_ROWS`` at a time (a window's steps
@@ -172,16 +172,21 @@ def _groups(steps, bsz, per_window):
         for b in range(bsz):
             for ci in range(chunks):
                 t0 = ci * GROUP_ROWS
-                grp[b * chunks + ci] = (t0 * bsz + b, bsz, min(GROUP_ROWS, steps - t0))
+                g = b * chunks + ci
+                grp[g, 0] = t0 * bsz + b
+                grp[g, 1] = bsz
+                grp[g, 2] = min(GROUP_ROWS, steps - t0)
     else:
         rows = steps * bsz
         grp = np.empty((-(-rows // GROUP_ROWS), 3), dtype=np.intp)
         for gi in range(grp.shape[0]):
-            grp[gi] = (gi * GROUP_ROWS, 1, min(GROUP_ROWS, rows - gi * GROUP_ROWS))
+            grp[gi, 0] = gi * GROUP_ROWS
+            grp[gi, 1] = 1
+            grp[gi, 2] = min(GROUP_ROWS, rows - gi * GROUP_ROWS)
     return grp
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _active(x, grp, act, ns):
     """For each row group ``(first, stride, count)`` of ``x (R, C)``, the columns ``k``
     non-zero (or NaN) in some row of the group, in increasing order, into ``act[group]``, and
@@ -199,7 +204,7 @@ def _active(x, grp, act, ns):
         ns[gi] = n
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _chain(x, r0, rs, g, w, act, j, out):
     """:func:`_row_kernel`'s ``CHAIN`` rows ``act[j ..]`` for a group of ``g`` rows."""
     if g == 4:
@@ -212,7 +217,7 @@ def _chain(x, r0, rs, g, w, act, j, out):
         _KC1(x, r0, rs, w, act, j, out)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _single(x, r0, rs, g, w, act, j, out):
     """:func:`_row_kernel`'s single row ``act[j]`` for a group of ``g`` rows."""
     if g == 4:
@@ -252,8 +257,8 @@ def _project_dir(x, kern, out, steps, bsz):
     grp = _groups(steps, bsz, True)
     act = np.empty((grp.shape[0], x.shape[1]), dtype=np.intp)
     ns = np.empty(grp.shape[0], dtype=np.intp)
-    _active(x, grp, act, ns)
-    _product(x, kern, grp, act, ns, out)
+    _active(x[:, :], grp, act, ns)        # [:, :]: every call of _product one layout
+    _product(x[:, :], kern, grp, act, ns, out)
 
 
 @intrinsic
@@ -379,15 +384,17 @@ def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
     for s in range(steps):
         t = s if d == 0 else steps - 1 - s
         if s > 0:                             # h = 0 at the first step
-            _active(h, grp, act, ns)
-            _product(h, rec, grp, act, ns, acc)
+            _active(h[:, :], grp, act, ns)
+            _product(h[:, :], rec, grp, act, ns, acc[:, :])
         for b in range(bsz):
             row = t * bsz + b
             if relu:
                 _gates_relu(acc[b], xs[row, d], c[b], h[b], u, one)
             else:
                 _gates_tanh(acc[b], xs[row, d], c[b], h[b], u, one)
-            hs[row, d * u:(d + 1) * u] = h[b]
+            hb = h[b]
+            for k in range(u):                # a loop, not a slice copy: no shape check to
+                hs[row, d * u + k] = hb[k]    # compile (its error message costs ~1 s to build)
 
 
 @njit(cache=True, nogil=True)
@@ -444,7 +451,7 @@ def _norm_rows(src, gamma, beta, relu, li, limit, one, eps, x, rr, rmu, bad):
     return bad
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
     """Direction ``d`` of one BiLSTM: its input projection of ``x`` into ``xs[:, d]`` (unless
     ``x`` has no rows: BiLSTM 1's, computed by :meth:`NumbaHead.project`), then its
@@ -527,7 +534,7 @@ _head_serial = _head_impl(False)
 _head_parallel = _head_impl(True)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _project_one(d, x, kernel, bias, out, steps, bsz):
     empty = bias[0, :0]
     _project_dir(x, kernel[d], out[:, d], steps, bsz)
@@ -613,7 +620,8 @@ def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
             cur, nxt, cin = nxt, cur, cw
         i0 = 0
         if q0 == p0:
-            pool[0, :] = cur[0, :cl]
+            for j in range(cl):               # a loop, not a slice copy (as in _recur_dir)
+                pool[0, j] = cur[0, j]
             i0 = 1
         for i in range(i0, r):
             _max_into(pool[0], cur[i], cl)
@@ -631,8 +639,8 @@ def _finish_frame(pool, bl, gw, gb, zero, out, f):
     act = np.empty((1, cl), dtype=np.intp)
     ns = np.empty(1, dtype=np.intp)
     g = np.empty((1, gw.shape[1]), dtype=pool.dtype)
-    _active(pool, one_row, act, ns)
-    _product(pool, gw, one_row, act, ns, g)
+    _active(pool[:, :], one_row, act, ns)
+    _product(pool[:, :], gw, one_row, act, ns, g[:, :])
     for j in range(gw.shape[1]):
         v = g[0, j] + gb[j]
         out[f, j] = zero if v < zero else v
@@ -649,14 +657,9 @@ def _frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out)
         _finish_frame(pool, bs[nl - 1], gw, gb, zero, out, f)
 
 
-@njit(cache=True, nogil=True)
-def _features_serial(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
-    _frame_range(pts, starts, counts, 0, counts.shape[0], w0, b0, ws, bs, gw, gb, zero, out)
-
-
 @njit(cache=True, nogil=True, parallel=True)
 def _features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
-    """:func:`_features_serial` on two threads: two frames or more, in two halves; one frame
+    """:func:`_frame_range` of every frame on two threads: two frames or more, in two halves; one frame
     (a rollout's new frame), its points in two halves, whose maxes are then combined (exact:
     a max of the same numbers, NaN kept)."""
     nf = counts.shape[0]
@@ -718,15 +721,14 @@ class NumbaFeatures:
         starts = np.zeros(counts.shape[0], dtype=np.intp)
         np.cumsum(counts[:-1], out=starts[1:])
         out = np.empty((counts.shape[0], self.gw.shape[1]), dtype=self.dtype)
-        args = (pts, starts, counts, self.w0, self.b0, self.ws, self.bs, self.gw, self.gb,
-                self.dtype.type(0), out)
+        weights = (self.w0, self.b0, self.ws, self.bs, self.gw, self.gb, self.dtype.type(0))
         if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(parallel):
             try:
-                _features_parallel(*args)
+                _features_parallel(pts, starts, counts, *weights, out)
             finally:
                 _PARALLEL.release()
-        else:
-            _features_serial(*args)
+        else:       # called directly: a wrapper would be one more level to compile
+            _frame_range(pts, starts, counts, 0, counts.shape[0], *weights, out)
         return out if out.shape[1] == self.k else np.ascontiguousarray(out[:, :self.k])
 
 
