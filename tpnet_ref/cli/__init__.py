@@ -74,11 +74,40 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: commands that compile Numba kernels on a first run and do not report it themselves (``tpnet
+#: demo`` does, on stdout; ``tpnet predict`` where it runs the Numba engine): a line on stderr
+#: when compilation starts, and its time at the end (tpnet_ref.compile_watch)
+WATCHED_COMMANDS = ("eval", "animate")
+
+
+def _run(args: argparse.Namespace) -> int:
+    """``args.func(args)``, its Numba compilations announced and timed on stderr if it is one of
+    :data:`WATCHED_COMMANDS`."""
+    if args.command not in WATCHED_COMMANDS:
+        return args.func(args)
+    return watched(f"tpnet {args.command}", args.func, args)
+
+
+def watched(prefix: str, fn: object, *a: object) -> int:
+    """``fn(*a)`` inside a :class:`tpnet_ref.compile_watch.CompileWatch`: ``PREFIX: compiling
+    the Numba kernels ...`` on stderr when the first compilation starts, the compile time after."""
+    from ..compile_watch import COMPILING, CompileWatch
+
+    def announce() -> None:
+        print(f"{prefix}: {COMPILING}", file=sys.stderr, flush=True)
+
+    with CompileWatch(announce) as w:
+        rc = fn(*a)  # type: ignore[operator]
+    if w.count:
+        print(f"{prefix}: {w.report()}", file=sys.stderr, flush=True)
+    return rc
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        rc = args.func(args)
+        rc = _run(args)
     except BrokenPipeError:              # `tpnet ... | head`: the reader left, nothing to report
         sys.stderr.close()
         return 0

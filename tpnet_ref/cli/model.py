@@ -70,7 +70,12 @@ def _cli_predict(args: Any) -> int:
     window = load_npy(args.window)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutsideTrainingRangeWarning)
-        out = tpnet_ref.rollout(window, args.steps, model=model, normalized=args.normalized)
+        if model.engine == "numpy":
+            out = tpnet_ref.rollout(window, args.steps, model=model, normalized=args.normalized)
+        else:                   # the Numba engine: its compilation (a first run) said on stderr
+            from . import watched
+            out = watched("tpnet predict", tpnet_ref.rollout, window, args.steps, model,
+                          args.normalized)
     for w in caught:
         print(f"tpnet predict: warning: {w.message}", file=sys.stderr)
     if args.output:
