@@ -1,4 +1,5 @@
-"""The Numba compilations inside a block of code: announced when the first one starts, timed.
+"""The Numba compilations inside a block of code: announced when the first one starts, timed;
+and whether a call compiles the two-thread kernels it lacks.
 
 Numba compiles a kernel the first time it is called with new argument types, unless its cache
 (``__pycache__/*.nbi``, ``*.nbc`` beside the module, or ``NUMBA_CACHE_DIR``) holds it: the first
@@ -7,6 +8,13 @@ run after install compiles, later runs load. ``with CompileWatch(announce) as w:
 why it is silent), and ``w.seconds`` is then the wall time spent compiling (nested compilations
 counted once), ``w.count`` the kernels compiled. Loads from the cache are not compilations.
 numba is imported only if it is installed; without it the block runs unwatched (0 s).
+
+The Numba engine has each kernel in two versions, one thread and two (the same bits); the thread
+policy (:mod:`tpnet_ref.blas`) tries the two-thread plan whenever a second core looks free, in
+any run. :data:`TWO_THREAD_KERNELS_ON_DEMAND` True (the library's default: a long-lived process
+gains from them) compiles a two-thread kernel when that plan first runs; ``tpnet demo``,
+``predict`` and ``animate`` set it False: the two-thread kernels run only where numba already has
+them (compiled in the process, or in its cache), so a later run never stops to compile them.
 """
 from __future__ import annotations
 
@@ -18,6 +26,9 @@ from typing import Any
 
 #: the event numba triggers around each compilation (not around a load from its cache)
 EVENT = "numba:compile"
+#: whether a call that may run the Numba engine's two-thread kernels compiles one it lacks
+#: (the module docstring); the one-thread kernel runs otherwise
+TWO_THREAD_KERNELS_ON_DEMAND = True
 
 
 class CompileWatch:
@@ -87,4 +98,4 @@ class CompileWatch:
 COMPILING = "compiling the Numba kernels (once; cached for later runs)..."
 
 
-__all__ = ["CompileWatch", "COMPILING", "EVENT"]
+__all__ = ["CompileWatch", "COMPILING", "EVENT", "TWO_THREAD_KERNELS_ON_DEMAND"]

@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from . import compile_watch
 from .blas import in_one_thread, two_threads
 from .checks import overflow_error
 from .extras import require
@@ -708,6 +709,7 @@ class NumbaFeatures:
         self.ws, self.bs = tuple(ws[1:-1]), tuple(bs[1:-1])
         self.gw, self.gb = ws[-1], bs[-1]
         self.k = int(config.global_features)
+        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
 
     @staticmethod
     def supports(config: Any) -> bool:
@@ -722,7 +724,9 @@ class NumbaFeatures:
         np.cumsum(counts[:-1], out=starts[1:])
         out = np.empty((counts.shape[0], self.gw.shape[1]), dtype=self.dtype)
         weights = (self.w0, self.b0, self.ws, self.bs, self.gw, self.gb, self.dtype.type(0))
-        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(parallel):
+        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(
+                parallel and _available(_features_parallel, self._loaded,
+                                        (pts, starts, counts, *weights, out))):
             try:
                 _features_parallel(pts, starts, counts, *weights, out)
             finally:
@@ -734,6 +738,55 @@ class NumbaFeatures:
 
 #: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
 _PARALLEL = threading.Lock()
+
+
+def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...]) -> bool:
+    """Whether the two-thread ``kernel`` may run on ``args``: always where two-thread kernels
+    are compiled on demand (:data:`tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, the
+    library's default);
+    else (``tpnet demo``, ``predict``, ``animate``) only if numba has it for these argument
+    types, compiled in this process or in its cache (loaded then), so that a short command never
+    stops to compile it -- the one-thread kernel gives the same bits. ``memo``: the caller's
+    answers, by kernel (its argument types do not change)."""
+    if compile_watch.TWO_THREAD_KERNELS_ON_DEMAND:
+        return True
+    got = memo.get(kernel)
+    if got is None:
+        got = memo[kernel] = _compiled_or_cached(kernel, args)
+        if not got:
+            _SKIPPED.add(kernel.__name__)
+    return got
+
+
+#: the two-thread kernels that :func:`_available` found missing in this process
+_SKIPPED: set[str] = set()
+
+
+def two_thread_kernels_skipped() -> tuple[str, ...]:
+    """The two-thread kernels that ran on one thread in this process because numba did not have
+    them and they are not compiled on demand (:func:`_available`), sorted."""
+    return tuple(sorted(_SKIPPED))
+
+
+def _compiled_or_cached(kernel: Any, args: tuple[Any, ...]) -> bool:
+    """Whether ``kernel`` (a numba dispatcher) has a version for ``args``' types, compiled or
+    loaded now from numba's cache (as its ``compile`` does before compiling); never compiles.
+    False where numba's internals differ from those of numba 0.68 that this reads (then the
+    one-thread kernel runs: the same bits)."""
+    from numba.core.compiler_lock import global_compiler_lock
+    try:
+        sig = tuple(kernel.typeof_pyval(a) for a in args)
+        if sig in kernel.overloads:
+            return True
+        with global_compiler_lock:
+            cres = kernel._cache.load_overload(sig, kernel.targetctx)
+            if cres is None:
+                return False
+            kernel.targetctx.insert_user_function(cres.entry_point, cres.fndesc, [cres.library])
+            kernel.add_overload(cres)
+        return True
+    except Exception:                   # noqa: BLE001 -- numba's internals changed: one thread
+        return False
 
 
 def _two_threads(parallel: bool) -> bool:
@@ -813,6 +866,7 @@ class NumbaHead:
         self.out_shape = (config.n_out, config.dim)
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
+        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
 
     def project(self, features: np.ndarray, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection of each frame's feature ``(F, k)`` -> ``(F, 2N)``, in this
@@ -847,7 +901,8 @@ class NumbaHead:
             x = x[:, self.feature_order]
         x = np.ascontiguousarray(x, dtype=self.dtype)
         steps, bsz = (rows // batch, batch) if batch > 0 and rows % batch == 0 else (rows, 1)
-        if _two_threads(parallel):
+        if _two_threads(parallel and _available(_project_parallel, self._loaded,
+                                                (x, k, self.csts[0], out, steps, bsz))):
             try:
                 _project_parallel(x, k, self.csts[0], out, steps, bsz)
             finally:
@@ -866,7 +921,7 @@ class NumbaHead:
         args = (xp1, self.kernels, self.recs, self.gks, self.csts, self.units, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
-        if _two_threads(parallel):
+        if _two_threads(parallel and _available(_head_parallel, self._loaded, args)):
             try:
                 return _head_parallel(*args)
             finally:
@@ -874,4 +929,4 @@ class NumbaHead:
         return _head_serial(*args)
 
 
-__all__ = ["NumbaHead", "NumbaFeatures", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]
+__all__ = ["NumbaHead", "NumbaFeatures", "two_thread_kernels_skipped", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]

@@ -80,12 +80,24 @@ def build_parser() -> argparse.ArgumentParser:
 WATCHED_COMMANDS = ("eval", "animate")
 
 
+#: short commands: they run the Numba engine's two-thread kernels only where numba has them
+#: already, never stopping to compile them (tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND)
+SHORT_COMMANDS = ("demo", "predict", "animate")
+
+
 def _run(args: argparse.Namespace) -> int:
     """``args.func(args)``, its Numba compilations announced and timed on stderr if it is one of
-    :data:`WATCHED_COMMANDS`."""
-    if args.command not in WATCHED_COMMANDS:
-        return args.func(args)
-    return watched(f"tpnet {args.command}", args.func, args)
+    :data:`WATCHED_COMMANDS`; one of :data:`SHORT_COMMANDS` compiles no two-thread kernel."""
+    from .. import compile_watch
+    before = compile_watch.TWO_THREAD_KERNELS_ON_DEMAND
+    if args.command in SHORT_COMMANDS:
+        compile_watch.TWO_THREAD_KERNELS_ON_DEMAND = False
+    try:
+        if args.command not in WATCHED_COMMANDS:
+            return args.func(args)
+        return watched(f"tpnet {args.command}", args.func, args)
+    finally:                    # main() called in a process that goes on (the tests)
+        compile_watch.TWO_THREAD_KERNELS_ON_DEMAND = before
 
 
 def watched(prefix: str, fn: object, *a: object) -> int:

@@ -102,6 +102,12 @@ def _demo(weights: str | None, case: Sequence[float], steps: int | None,
         blas_inside = blas_describe()
     plan = model.preferred_threads("rollout step", 1, model.config.n_out)
     ran = ("2 threads (the Numba engine's two LSTM directions)" if plan == 0 else "1 thread")
+    if plan == 0 and model.engine == "numba":
+        from ..engine_numba import two_thread_kernels_skipped
+        if two_thread_kernels_skipped():
+            plan = 1
+            ran = ("1 thread (the two-thread plan was chosen, but numba's cache has no "
+                   "two-thread kernels and this command does not stop to compile them)")
     say(f"rollout: {H} recursive predictions in {t_roll * 1e3:.0f} ms "
         f"({t_roll * 1e3 / H:.2f} ms/frame, {model.dtype.name}); model loaded in "
         f"{t_load * 1e3:.0f} ms")
