@@ -42,10 +42,33 @@ def test_watch_announces_once_and_times_only_compilations():
     assert "none compiled" in w2.report()
 
 
-def _tpnet(args: list[str], cache: Path, cwd: Path) -> subprocess.CompletedProcess:
+def test_a_missing_two_thread_kernel_is_found_missing_not_compiled(monkeypatch):
+    from tpnet_ref import compile_watch, engine_numba as EN
+
+    @numba.njit(parallel=True)
+    def two(x):
+        return x * 2
+
+    args = (np.ones(3),)
+    memo: dict = {}
+    monkeypatch.setattr(compile_watch, "TWO_THREAD_KERNELS_ON_DEMAND", False)
+    with CompileWatch() as w:
+        assert EN._available(two, memo, args) is False          # not compiled, not cached
+    assert w.count == 0 and not two.signatures and memo == {two: False}
+    assert "two" in EN.two_thread_kernels_skipped()
+    two(*args)                                                  # compiled: available now
+    assert EN._available(two, {}, args) is True
+    monkeypatch.setattr(compile_watch, "TWO_THREAD_KERNELS_ON_DEMAND", True)
+    assert EN._available(two, {two: False}, args) is True       # the library's default
+
+
+def _tpnet(args: list[str], cache: Path, cwd: Path,
+           threads: str | None = None) -> subprocess.CompletedProcess:
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache),
                PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     env.pop("TPNET_THREADS", None)
+    if threads:
+        env["TPNET_THREADS"] = threads
     r = subprocess.run([sys.executable, "-m", "tpnet_ref.cli", *args], cwd=cwd, env=env,
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
@@ -74,8 +97,12 @@ def test_first_run_says_it_compiles_and_gives_the_bits_of_a_later_run(tmp_path):
     assert list(cache.rglob("*.nbi"))                       # the kernels were cached
     warm = _tpnet(predict + ["-o", str(tmp_path / "warm.npy")], cache, tmp_path)
     assert COMPILING not in warm.stderr and "compiled in" not in warm.stderr
-    a, b = np.load(tmp_path / "cold.npy"), np.load(tmp_path / "warm.npy")
-    assert a.shape == (5, 30, 2) and a.tobytes() == b.tobytes()      # the same bits
+    # the two-thread plan fixed: its kernels are not in the cache, and a short command does not
+    # stop to compile them (the one-thread ones run)
+    two = _tpnet(predict + ["-o", str(tmp_path / "two.npy")], cache, tmp_path, threads="2")
+    assert COMPILING not in two.stderr and "compiled in" not in two.stderr
+    a, b, c = (np.load(tmp_path / f"{n}.npy") for n in ("cold", "warm", "two"))
+    assert a.shape == (5, 30, 2) and a.tobytes() == b.tobytes() == c.tobytes()  # the same bits
 
     demo = ["demo", "--weights", str(weights), "--steps", "6", "--horizons", "1", "6",
             "--no-png"]
