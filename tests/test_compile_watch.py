@@ -92,15 +92,17 @@ def test_first_run_says_it_compiles_and_gives_the_bits_of_a_later_run(tmp_path):
     predict = ["predict", str(window), "--weights", str(weights), "--engine", "numba",
                "--steps", "5"]
     cold = _tpnet(predict + ["-o", str(tmp_path / "cold.npy")], cache, tmp_path)
-    assert f"tpnet predict: {COMPILING}" in cold.stderr
-    assert "tpnet predict: Numba kernels:" in cold.stderr and " compiled in " in cold.stderr
+    said = cold.stdout.splitlines()
+    assert said[0].startswith("tpnet predict: 5 step(s) on the Numba engine (a first run")
+    assert said[1] == f"tpnet predict: {COMPILING}"         # announced before it compiles
+    assert said[2].startswith("tpnet predict: Numba kernels:") and " compiled in " in said[2]
     assert list(cache.rglob("*.nbi"))                       # the kernels were cached
     warm = _tpnet(predict + ["-o", str(tmp_path / "warm.npy")], cache, tmp_path)
-    assert COMPILING not in warm.stderr and "compiled in" not in warm.stderr
+    assert COMPILING not in warm.stdout and "compiled in" not in warm.stdout
     # the two-thread plan fixed: its kernels are not in the cache, and a short command does not
     # stop to compile them (the one-thread ones run)
     two = _tpnet(predict + ["-o", str(tmp_path / "two.npy")], cache, tmp_path, threads="2")
-    assert COMPILING not in two.stderr and "compiled in" not in two.stderr
+    assert COMPILING not in two.stdout and "compiled in" not in two.stdout
     a, b, c = (np.load(tmp_path / f"{n}.npy") for n in ("cold", "warm", "two"))
     assert a.shape == (5, 30, 2) and a.tobytes() == b.tobytes() == c.tobytes()  # the same bits
 

@@ -13,6 +13,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 # module path -> the sub-commands it registers (for the record; each module's add_cli is called)
 COMMAND_MODULES: tuple[str, ...] = (
@@ -74,45 +75,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: commands that compile Numba kernels on a first run and do not report it themselves (``tpnet
-#: demo`` does, on stdout; ``tpnet predict`` where it runs the Numba engine): a line on stderr
-#: when compilation starts, and its time at the end (tpnet_ref.compile_watch)
-WATCHED_COMMANDS = ("eval", "animate")
-
-
 #: short commands: they run the Numba engine's two-thread kernels only where numba has them
 #: already, never stopping to compile them (tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND)
 SHORT_COMMANDS = ("demo", "predict", "animate")
 
 
 def _run(args: argparse.Namespace) -> int:
-    """``args.func(args)``, its Numba compilations announced and timed on stderr if it is one of
-    :data:`WATCHED_COMMANDS`; one of :data:`SHORT_COMMANDS` compiles no two-thread kernel."""
+    """``args.func(args)``; one of :data:`SHORT_COMMANDS` compiles no two-thread kernel."""
     from .. import compile_watch
     before = compile_watch.TWO_THREAD_KERNELS_ON_DEMAND
     if args.command in SHORT_COMMANDS:
         compile_watch.TWO_THREAD_KERNELS_ON_DEMAND = False
     try:
-        if args.command not in WATCHED_COMMANDS:
-            return args.func(args)
-        return watched(f"tpnet {args.command}", args.func, args)
+        return args.func(args)
     finally:                    # main() called in a process that goes on (the tests)
         compile_watch.TWO_THREAD_KERNELS_ON_DEMAND = before
 
 
-def watched(prefix: str, fn: object, *a: object) -> int:
-    """``fn(*a)`` inside a :class:`tpnet_ref.compile_watch.CompileWatch`: ``PREFIX: compiling
-    the Numba kernels ...`` on stderr when the first compilation starts, the compile time after."""
+def watched(prefix: str, doing: str, fn: Any, *a: Any, stream: Any = None) -> Any:
+    """``fn(*a)`` for a command that may compile Numba kernels (``tpnet eval``, ``animate``,
+    ``predict`` on the Numba engine; ``tpnet demo`` says the same itself), on ``stream`` (default
+    stdout; ``tpnet eval``'s progress goes to stderr, its stdout is its table): ``PREFIX: DOING
+    (...)`` at once, ``compiling the Numba kernels ...`` when the first compilation starts
+    (:class:`tpnet_ref.compile_watch.CompileWatch`), the compile time after. An error stays one
+    line on stderr (a command's arguments are checked inside ``fn``, after the first line)."""
     from ..compile_watch import COMPILING, CompileWatch
 
-    def announce() -> None:
-        print(f"{prefix}: {COMPILING}", file=sys.stderr, flush=True)
+    def say(text: str) -> None:
+        print(f"{prefix}: {text}", file=stream or sys.stdout, flush=True)
 
-    with CompileWatch(announce) as w:
-        rc = fn(*a)  # type: ignore[operator]
+    say(f"{doing} (a first run after install also compiles the Numba kernels, once)")
+    with CompileWatch(lambda: say(COMPILING)) as w:
+        result = fn(*a)
     if w.count:
-        print(f"{prefix}: {w.report()}", file=sys.stderr, flush=True)
-    return rc
+        say(w.report())
+    return result
 
 
 def main(argv: Sequence[str] | None = None) -> int:
