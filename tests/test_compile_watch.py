@@ -93,7 +93,7 @@ def test_first_run_says_it_compiles_and_gives_the_bits_of_a_later_run(tmp_path):
                "--steps", "5"]
     cold = _tpnet(predict + ["-o", str(tmp_path / "cold.npy")], cache, tmp_path)
     said = cold.stdout.splitlines()
-    assert said[0].startswith("tpnet predict: 5 step(s) on the Numba engine (a first run")
+    assert said[0].startswith("tpnet predict: 5 steps on the Numba engine (a first run")
     assert said[1] == f"tpnet predict: {COMPILING}"         # announced before it compiles
     assert said[2].startswith("tpnet predict: Numba kernels:") and " compiled in " in said[2]
     assert list(cache.rglob("*.nbi"))                       # the kernels were cached

@@ -82,8 +82,9 @@ def _cli_predict(args: Any) -> int:
         out, caught = _predict(args, engine)
     else:                       # the Numba engine: what it does and its compilation said
         from . import watched
-        out, caught = watched("tpnet predict", f"{args.steps} step(s) on the Numba engine",
-                              _predict, args, engine)
+        steps = f"{args.steps} step" + ("" if args.steps == 1 else "s")
+        out, caught = watched("tpnet predict", f"{steps} on the Numba engine", _predict, args,
+                              engine)
     for w in caught:
         print(f"tpnet predict: warning: {w.message}", file=sys.stderr)
     if args.output:
