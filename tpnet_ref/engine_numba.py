@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from . import compile_watch
 from .blas import in_one_thread, two_threads
 from .checks import overflow_error
 from .extras import require
@@ -161,7 +162,7 @@ _KC1, _KC2, _KC3, _KC4 = _KC
 _K11, _K12, _K13, _K14 = _K1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _groups(steps, bsz, per_window):
     """Row groups ``(first, stride, count)`` of ``T*B`` time-major rows (row ``t*B + b``):
     ``per_window``: each window's steps, up to ``GROUP_ROWS`` at a time (a window's steps
@@ -172,16 +173,21 @@ def _groups(steps, bsz, per_window):
         for b in range(bsz):
             for ci in range(chunks):
                 t0 = ci * GROUP_ROWS
-                grp[b * chunks + ci] = (t0 * bsz + b, bsz, min(GROUP_ROWS, steps - t0))
+                g = b * chunks + ci
+                grp[g, 0] = t0 * bsz + b
+                grp[g, 1] = bsz
+                grp[g, 2] = min(GROUP_ROWS, steps - t0)
     else:
         rows = steps * bsz
         grp = np.empty((-(-rows // GROUP_ROWS), 3), dtype=np.intp)
         for gi in range(grp.shape[0]):
-            grp[gi] = (gi * GROUP_ROWS, 1, min(GROUP_ROWS, rows - gi * GROUP_ROWS))
+            grp[gi, 0] = gi * GROUP_ROWS
+            grp[gi, 1] = 1
+            grp[gi, 2] = min(GROUP_ROWS, rows - gi * GROUP_ROWS)
     return grp
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _active(x, grp, act, ns):
     """For each row group ``(first, stride, count)`` of ``x (R, C)``, the columns ``k``
     non-zero (or NaN) in some row of the group, in increasing order, into ``act[group]``, and
@@ -199,7 +205,7 @@ def _active(x, grp, act, ns):
         ns[gi] = n
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _chain(x, r0, rs, g, w, act, j, out):
     """:func:`_row_kernel`'s ``CHAIN`` rows ``act[j ..]`` for a group of ``g`` rows."""
     if g == 4:
@@ -212,7 +218,7 @@ def _chain(x, r0, rs, g, w, act, j, out):
         _KC1(x, r0, rs, w, act, j, out)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _single(x, r0, rs, g, w, act, j, out):
     """:func:`_row_kernel`'s single row ``act[j]`` for a group of ``g`` rows."""
     if g == 4:
@@ -252,8 +258,8 @@ def _project_dir(x, kern, out, steps, bsz):
     grp = _groups(steps, bsz, True)
     act = np.empty((grp.shape[0], x.shape[1]), dtype=np.intp)
     ns = np.empty(grp.shape[0], dtype=np.intp)
-    _active(x, grp, act, ns)
-    _product(x, kern, grp, act, ns, out)
+    _active(x[:, :], grp, act, ns)        # [:, :]: every call of _product one layout
+    _product(x[:, :], kern, grp, act, ns, out)
 
 
 @intrinsic
@@ -379,15 +385,17 @@ def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
     for s in range(steps):
         t = s if d == 0 else steps - 1 - s
         if s > 0:                             # h = 0 at the first step
-            _active(h, grp, act, ns)
-            _product(h, rec, grp, act, ns, acc)
+            _active(h[:, :], grp, act, ns)
+            _product(h[:, :], rec, grp, act, ns, acc[:, :])
         for b in range(bsz):
             row = t * bsz + b
             if relu:
                 _gates_relu(acc[b], xs[row, d], c[b], h[b], u, one)
             else:
                 _gates_tanh(acc[b], xs[row, d], c[b], h[b], u, one)
-            hs[row, d * u:(d + 1) * u] = h[b]
+            hb = h[b]
+            for k in range(u):                # a loop, not a slice copy: no shape check to
+                hs[row, d * u + k] = hb[k]    # compile (its error message costs ~1 s to build)
 
 
 @njit(cache=True, nogil=True)
@@ -444,7 +452,7 @@ def _norm_rows(src, gamma, beta, relu, li, limit, one, eps, x, rr, rmu, bad):
     return bad
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
     """Direction ``d`` of one BiLSTM: its input projection of ``x`` into ``xs[:, d]`` (unless
     ``x`` has no rows: BiLSTM 1's, computed by :meth:`NumbaHead.project`), then its
@@ -527,7 +535,7 @@ _head_serial = _head_impl(False)
 _head_parallel = _head_impl(True)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _project_one(d, x, kernel, bias, out, steps, bsz):
     empty = bias[0, :0]
     _project_dir(x, kernel[d], out[:, d], steps, bsz)
@@ -613,7 +621,8 @@ def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
             cur, nxt, cin = nxt, cur, cw
         i0 = 0
         if q0 == p0:
-            pool[0, :] = cur[0, :cl]
+            for j in range(cl):               # a loop, not a slice copy (as in _recur_dir)
+                pool[0, j] = cur[0, j]
             i0 = 1
         for i in range(i0, r):
             _max_into(pool[0], cur[i], cl)
@@ -631,8 +640,8 @@ def _finish_frame(pool, bl, gw, gb, zero, out, f):
     act = np.empty((1, cl), dtype=np.intp)
     ns = np.empty(1, dtype=np.intp)
     g = np.empty((1, gw.shape[1]), dtype=pool.dtype)
-    _active(pool, one_row, act, ns)
-    _product(pool, gw, one_row, act, ns, g)
+    _active(pool[:, :], one_row, act, ns)
+    _product(pool[:, :], gw, one_row, act, ns, g[:, :])
     for j in range(gw.shape[1]):
         v = g[0, j] + gb[j]
         out[f, j] = zero if v < zero else v
@@ -649,14 +658,9 @@ def _frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out)
         _finish_frame(pool, bs[nl - 1], gw, gb, zero, out, f)
 
 
-@njit(cache=True, nogil=True)
-def _features_serial(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
-    _frame_range(pts, starts, counts, 0, counts.shape[0], w0, b0, ws, bs, gw, gb, zero, out)
-
-
 @njit(cache=True, nogil=True, parallel=True)
 def _features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
-    """:func:`_features_serial` on two threads: two frames or more, in two halves; one frame
+    """:func:`_frame_range` of every frame on two threads: two frames or more, in two halves; one frame
     (a rollout's new frame), its points in two halves, whose maxes are then combined (exact:
     a max of the same numbers, NaN kept)."""
     nf = counts.shape[0]
@@ -705,6 +709,7 @@ class NumbaFeatures:
         self.ws, self.bs = tuple(ws[1:-1]), tuple(bs[1:-1])
         self.gw, self.gb = ws[-1], bs[-1]
         self.k = int(config.global_features)
+        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
 
     @staticmethod
     def supports(config: Any) -> bool:
@@ -718,20 +723,70 @@ class NumbaFeatures:
         starts = np.zeros(counts.shape[0], dtype=np.intp)
         np.cumsum(counts[:-1], out=starts[1:])
         out = np.empty((counts.shape[0], self.gw.shape[1]), dtype=self.dtype)
-        args = (pts, starts, counts, self.w0, self.b0, self.ws, self.bs, self.gw, self.gb,
-                self.dtype.type(0), out)
-        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(parallel):
+        weights = (self.w0, self.b0, self.ws, self.bs, self.gw, self.gb, self.dtype.type(0))
+        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(
+                parallel and _available(_features_parallel, self._loaded,
+                                        (pts, starts, counts, *weights, out))):
             try:
-                _features_parallel(*args)
+                _features_parallel(pts, starts, counts, *weights, out)
             finally:
                 _PARALLEL.release()
-        else:
-            _features_serial(*args)
+        else:       # called directly: a wrapper would be one more level to compile
+            _frame_range(pts, starts, counts, 0, counts.shape[0], *weights, out)
         return out if out.shape[1] == self.k else np.ascontiguousarray(out[:, :self.k])
 
 
 #: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
 _PARALLEL = threading.Lock()
+
+
+def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...]) -> bool:
+    """Whether the two-thread ``kernel`` may run on ``args``: always where two-thread kernels
+    are compiled on demand (:data:`tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, the
+    library's default);
+    else (``tpnet demo``, ``predict``, ``animate``) only if numba has it for these argument
+    types, compiled in this process or in its cache (loaded then), so that a short command never
+    stops to compile it -- the one-thread kernel gives the same bits. ``memo``: the caller's
+    answers, by kernel (its argument types do not change)."""
+    if compile_watch.TWO_THREAD_KERNELS_ON_DEMAND:
+        return True
+    got = memo.get(kernel)
+    if got is None:
+        got = memo[kernel] = _compiled_or_cached(kernel, args)
+        if not got:
+            _SKIPPED.add(kernel.__name__)
+    return got
+
+
+#: the two-thread kernels that :func:`_available` found missing in this process
+_SKIPPED: set[str] = set()
+
+
+def two_thread_kernels_skipped() -> tuple[str, ...]:
+    """The two-thread kernels that ran on one thread in this process because numba did not have
+    them and they are not compiled on demand (:func:`_available`), sorted."""
+    return tuple(sorted(_SKIPPED))
+
+
+def _compiled_or_cached(kernel: Any, args: tuple[Any, ...]) -> bool:
+    """Whether ``kernel`` (a numba dispatcher) has a version for ``args``' types, compiled or
+    loaded now from numba's cache (as its ``compile`` does before compiling); never compiles.
+    False where numba's internals differ from those of numba 0.68 that this reads (then the
+    one-thread kernel runs: the same bits)."""
+    from numba.core.compiler_lock import global_compiler_lock
+    try:
+        sig = tuple(kernel.typeof_pyval(a) for a in args)
+        if sig in kernel.overloads:
+            return True
+        with global_compiler_lock:
+            cres = kernel._cache.load_overload(sig, kernel.targetctx)
+            if cres is None:
+                return False
+            kernel.targetctx.insert_user_function(cres.entry_point, cres.fndesc, [cres.library])
+            kernel.add_overload(cres)
+        return True
+    except Exception:                   # noqa: BLE001 -- numba's internals changed: one thread
+        return False
 
 
 def _two_threads(parallel: bool) -> bool:
@@ -811,6 +866,7 @@ class NumbaHead:
         self.out_shape = (config.n_out, config.dim)
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
+        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
 
     def project(self, features: np.ndarray, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection of each frame's feature ``(F, k)`` -> ``(F, 2N)``, in this
@@ -845,7 +901,8 @@ class NumbaHead:
             x = x[:, self.feature_order]
         x = np.ascontiguousarray(x, dtype=self.dtype)
         steps, bsz = (rows // batch, batch) if batch > 0 and rows % batch == 0 else (rows, 1)
-        if _two_threads(parallel):
+        if _two_threads(parallel and _available(_project_parallel, self._loaded,
+                                                (x, k, self.csts[0], out, steps, bsz))):
             try:
                 _project_parallel(x, k, self.csts[0], out, steps, bsz)
             finally:
@@ -864,7 +921,7 @@ class NumbaHead:
         args = (xp1, self.kernels, self.recs, self.gks, self.csts, self.units, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
-        if _two_threads(parallel):
+        if _two_threads(parallel and _available(_head_parallel, self._loaded, args)):
             try:
                 return _head_parallel(*args)
             finally:
@@ -872,4 +929,4 @@ class NumbaHead:
         return _head_serial(*args)
 
 
-__all__ = ["NumbaHead", "NumbaFeatures", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]
+__all__ = ["NumbaHead", "NumbaFeatures", "two_thread_kernels_skipped", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]

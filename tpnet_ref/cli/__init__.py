@@ -13,6 +13,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 # module path -> the sub-commands it registers (for the record; each module's add_cli is called)
 COMMAND_MODULES: tuple[str, ...] = (
@@ -74,11 +75,48 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: short commands: they run the Numba engine's two-thread kernels only where numba has them
+#: already, never stopping to compile them (tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND)
+SHORT_COMMANDS = ("demo", "predict", "animate")
+
+
+def _run(args: argparse.Namespace) -> int:
+    """``args.func(args)``; one of :data:`SHORT_COMMANDS` compiles no two-thread kernel."""
+    from .. import compile_watch
+    before = compile_watch.TWO_THREAD_KERNELS_ON_DEMAND
+    if args.command in SHORT_COMMANDS:
+        compile_watch.TWO_THREAD_KERNELS_ON_DEMAND = False
+    try:
+        return args.func(args)
+    finally:                    # main() called in a process that goes on (the tests)
+        compile_watch.TWO_THREAD_KERNELS_ON_DEMAND = before
+
+
+def watched(prefix: str, doing: str, fn: Any, *a: Any, stream: Any = None) -> Any:
+    """``fn(*a)`` for a command that may compile Numba kernels (``tpnet eval``, ``animate``,
+    ``predict`` on the Numba engine; ``tpnet demo`` says the same itself), on ``stream`` (default
+    stdout; ``tpnet eval``'s progress goes to stderr, its stdout is its table): ``PREFIX: DOING
+    (...)`` at once, ``compiling the Numba kernels ...`` when the first compilation starts
+    (:class:`tpnet_ref.compile_watch.CompileWatch`), the compile time after. An error stays one
+    line on stderr (a command's arguments are checked inside ``fn``, after the first line)."""
+    from ..compile_watch import COMPILING, CompileWatch
+
+    def say(text: str) -> None:
+        print(f"{prefix}: {text}", file=stream or sys.stdout, flush=True)
+
+    say(f"{doing} (a first run after install also compiles the Numba kernels, once)")
+    with CompileWatch(lambda: say(COMPILING)) as w:
+        result = fn(*a)
+    if w.count:
+        say(w.report())
+    return result
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        rc = args.func(args)
+        rc = _run(args)
     except BrokenPipeError:              # `tpnet ... | head`: the reader left, nothing to report
         sys.stderr.close()
         return 0

@@ -1,6 +1,7 @@
 """``tpnet eval``, ``tpnet demo`` and ``tpnet animate`` (argparse only; the work is in tpnet_ref.evaluation)."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -99,6 +100,12 @@ def _cli_demo(args: Any) -> int:
 
 def _cli_animate(args: Any) -> int:
     require_all(EVAL_MODULES, "eval", "tpnet animate")
+    from . import watched
+    return watched("tpnet animate", "simulating a held-out scene, rolling the model out on it "
+                   "and drawing the GIF", _animate, args)
+
+
+def _animate(args: Any) -> int:
     from ..evaluation import DEMO_CASE
     from ..evaluation.animate import animate
     r = animate(args.output, args.weights, case=args.case or DEMO_CASE,
@@ -113,6 +120,12 @@ def _cli_animate(args: Any) -> int:
 
 def _cli_eval(args: Any) -> int:
     require_all(EVAL_MODULES, "eval", "tpnet eval")
+    from . import watched
+    return watched("tpnet eval", "evaluating on the held-out cases", _eval, args,
+                   stream=sys.stderr)
+
+
+def _eval(args: Any) -> int:
     from ..evaluation import run_eval
     path = run_eval(args)
     text = Path(path).read_text()

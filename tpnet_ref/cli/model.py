@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..checks import OutsideTrainingRangeWarning
+from ..heads import resolve_engine
 
 #: ``tpnet predict`` runs the Numba engine (where installed) from this many steps on: below, a
 #: fresh process's cost of loading numba and its cached code (about 1 s, docs/deployment.md)
@@ -59,18 +60,31 @@ def _cli_info(args: Any) -> int:
     return 0
 
 
-def _cli_predict(args: Any) -> int:
+def _predict(args: Any, engine: str) -> tuple[np.ndarray, list[Any]]:
+    """The rollout ``tpnet predict`` asks for, and the input warnings it gave."""
     import tpnet_ref
 
-    from .files import load_npy, output_path, save_npy
-    if args.output:
-        output_path(args.output)                # a bad directory fails before any work
-    engine = args.engine or ("auto" if args.steps >= NUMBA_MIN_STEPS else "numpy")
+    from .files import load_npy
     model = tpnet_ref.load(args.weights, dtype=args.dtype, engine=engine)
     window = load_npy(args.window)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutsideTrainingRangeWarning)
         out = tpnet_ref.rollout(window, args.steps, model=model, normalized=args.normalized)
+    return out, caught
+
+
+def _cli_predict(args: Any) -> int:
+    from .files import output_path, save_npy
+    if args.output:
+        output_path(args.output)                # a bad directory fails before any work
+    engine = args.engine or ("auto" if args.steps >= NUMBA_MIN_STEPS else "numpy")
+    if resolve_engine(engine) == "numpy":
+        out, caught = _predict(args, engine)
+    else:                       # the Numba engine: what it does and its compilation said
+        from . import watched
+        steps = f"{args.steps} step" + ("" if args.steps == 1 else "s")
+        out, caught = watched("tpnet predict", f"{steps} on the Numba engine", _predict, args,
+                              engine)
     for w in caught:
         print(f"tpnet predict: warning: {w.message}", file=sys.stderr)
     if args.output:

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..blas import describe as blas_describe
 from ..blas import one_thread
+from ..compile_watch import COMPILING, CompileWatch
 from ..config import normalize
 from ..model import load
 from ..protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
@@ -42,28 +43,49 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
     in the ``squared`` and ``released`` readings (docs/spec.md §3), the timings with the threads
     the prediction ran on (and the BLAS inside it), and write a PNG (``png``; the ``plot`` extra).
 
+    The first line says what it does, at once; a run that compiles Numba kernels (the first
+    after install) says so when it starts compiling, and the compile time is a line of its own
+    in the report (:class:`~tpnet_ref.compile_watch.CompileWatch`), not part of the rollout's.
+
     Raises ``FileNotFoundError`` (from :func:`tpnet_ref.load`) when there are no weights.
     Returns the numbers printed: ``errors[h][method]`` -> the error dict of
     :func:`~tpnet_ref.evaluation.errors` at horizon ``h``, timings, the PNG path."""
     stream = out or sys.stdout
 
     def say(s: str = "") -> None:
-        print(s, file=stream)
+        print(s, file=stream, flush=True)
 
+    t0 = time.perf_counter()
+    say("tpnet demo: simulating a held-out scene and rolling the model out on it (the first run "
+        "after install also compiles the Numba kernels, once)")
+    with CompileWatch(lambda: say(COMPILING)) as compiled:
+        r = _demo(weights, case, steps, horizons, png, seed, dtype, say, compiled)
+    total = time.perf_counter() - t0
+    say(compiled.report())
+    say(f"total {total:.1f} s" + (f" ({compiled.seconds:.1f} s of it compiling)"
+                                  if compiled.count else ""))
+    r.update(total=total, t_compile=compiled.seconds, compiled=compiled.count)
+    return r
+
+
+def _demo(weights: str | None, case: Sequence[float], steps: int | None,
+          horizons: Sequence[int], png: str | None, seed: int, dtype: str, say: Any,
+          compiled: CompileWatch) -> dict[str, Any]:
+    """:func:`demo`'s work and report, but for its first line and its totals."""
     t0 = time.perf_counter()
     model = load(weights, dtype=dtype)
     m = model.config.m
     t_load = time.perf_counter() - t0
-    t = time.perf_counter()
+    t, c = time.perf_counter(), compiled.seconds
     frames = simulate(*case, SIM_ROWS)[::FRAME_EVERY]
-    t_sim = time.perf_counter() - t
+    t_sim = time.perf_counter() - t - (compiled.seconds - c)    # the simulator's kernel too
     H = int(steps) if steps is not None else frames.shape[0] - m
     inputs, targets = split_protocol(frames[None], m, H)
     window = order_points(inputs, "shuffle", seed)[0]
     model.rollout(window, 1)                                # warm caches before timing
-    t = time.perf_counter()
+    t, c = time.perf_counter(), compiled.seconds
     pred = model.rollout(window, H)                         # world units
-    t_roll = time.perf_counter() - t
+    t_roll = time.perf_counter() - t - (compiled.seconds - c)   # a kernel compiled meanwhile
     truth_n = normalize(targets)
     inputs_n = normalize(inputs)
     methods = {"TP-Net": normalize(pred[None].astype(np.float64)),
@@ -80,6 +102,12 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
         blas_inside = blas_describe()
     plan = model.preferred_threads("rollout step", 1, model.config.n_out)
     ran = ("2 threads (the Numba engine's two LSTM directions)" if plan == 0 else "1 thread")
+    if plan == 0 and model.engine == "numba":
+        from ..engine_numba import two_thread_kernels_skipped
+        if two_thread_kernels_skipped():
+            plan = 1
+            ran = ("1 thread (the two-thread plan was chosen, but numba's cache has no "
+                   "two-thread kernels and this command does not stop to compile them)")
     say(f"rollout: {H} recursive predictions in {t_roll * 1e3:.0f} ms "
         f"({t_roll * 1e3 / H:.2f} ms/frame, {model.dtype.name}); model loaded in "
         f"{t_load * 1e3:.0f} ms")
@@ -122,12 +150,10 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
         say("")
         say(f"wrote {png} (the box with the centroid paths; simulator vs prediction at "
             f"predictions {', '.join(map(str, ph))})")
-    total = time.perf_counter() - t0
-    say(f"total {total:.1f} s")
     rows = {h: {n: {k: float(v[0, h - 1]) for k, v in err[n].items()} for n in names}
             for h in shown}
     return {"errors": rows, "t_sim": t_sim, "t_rollout": t_roll, "t_load": t_load,
-            "blas": blas_inside, "threads": 2 if plan == 0 else 1, "png": wrote, "m": m, "steps": H, "total": total}
+            "blas": blas_inside, "threads": 2 if plan == 0 else 1, "png": wrote, "m": m, "steps": H}
 
 
 __all__ = ["demo", "DEMO_CASE", "DEMO_HORIZONS"]
