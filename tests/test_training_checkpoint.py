@@ -235,3 +235,44 @@ def test_cli_writes_parts_and_exports_from_them(dataset, tmp_path, capsys):
     assert "(done)" in capsys.readouterr().out
     assert cli.main(["train", "export", run, out]) == 0
     assert tpnet_ref.load(out).config == R.size_config("tiny")
+
+
+def test_pack_keeps_a_run_resumable_in_a_smaller_tarball(dataset, tmp_path, capsys):
+    """`tpnet train pack`: the run's checkpoint with Adam's moments in bfloat16, its log and
+    snapshot scores in one .tar.gz that unpacks into a run the loop resumes with Adam's state
+    (no fresh Adam); a run that kept no Adam state cannot be packed with one."""
+    import tarfile
+
+    import torch
+
+    run = tmp_path / "run"
+    L.train(dataset, run, tiny_recipe(epochs=1), threads=1, progress=False, max_steps=3,
+            checkpoint_optimizer="full")
+    (run / "snapshots").mkdir()
+    (run / "snapshots" / "scores.json").write_text("{}")
+    out = tmp_path / "run.tar.gz"
+    assert cli.main(["train", "pack", str(run), str(out)]) == 0
+    assert "restore: mkdir -p DIR && tar xzf" in capsys.readouterr().out
+    with tarfile.open(out) as tar:
+        names = set(tar.getnames())
+        tar.extractall(tmp_path / "moved", filter="data")
+    assert {"run/checkpoint.json", "run/log.jsonl", "run/snapshots/scores.json"} <= names
+    moved = tmp_path / "moved" / "run"
+    payload, state = C.load_checkpoint(moved)
+    full, _ = C.load_checkpoint(run)
+    moments = [v for s in payload["optimizer"]["state"].values() for v in s.values()
+               if torch.is_tensor(v) and v.dim() > 0]
+    assert moments and all(v.dtype == torch.bfloat16 for v in moments)
+    assert all(torch.equal(v, payload["model"][k]) if torch.is_tensor(v) else v == payload["model"][k]
+               for k, v in full["model"].items())
+    assert state["checkpoint_files"]["optimizer"] == "bf16"
+    assert state["checkpoint_files"]["bytes"] < json.loads(
+        (run / C.SIDECAR_NAME).read_text())["checkpoint_files"]["bytes"]
+    st = L.train(dataset, moved, resume=True, threads=1, progress=False)
+    assert st["stopped"] == "done" and "optimizer_resets" not in st
+
+    bare = tmp_path / "bare"
+    L.train(dataset, bare, tiny_recipe(epochs=1), threads=1, progress=False, max_steps=2,
+            checkpoint_optimizer="none")
+    with pytest.raises(ValueError, match="keeps no Adam state"):
+        C.repack_checkpoint(bare, tmp_path / "x", optimizer="bf16")

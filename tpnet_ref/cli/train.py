@@ -70,6 +70,7 @@ def add_cli(sub: Any) -> None:
     _add_bench(tsub)
     _add_score(tsub)
     _add_baselines(tsub)
+    _add_pack(tsub)
 
 
 def _add_run(tsub: Any) -> None:
@@ -293,6 +294,45 @@ def _add_baselines(tsub: Any) -> None:
     c.add_argument("--allow-other-scene", action="store_true",
                    help="score on a dataset made with another scene convention")
     c.set_defaults(func=_cli_baselines)
+
+
+def _add_pack(tsub: Any) -> None:
+    k = tsub.add_parser("pack", help="one .tar.gz of a run's state, to keep it or move it to "
+                                     "another machine: checkpoint, log, snapshot scores")
+    k.add_argument("run_dir", help="the run directory (`tpnet train run -o`)")
+    k.add_argument("output", help="the .tar.gz to write; it unpacks into a folder named as "
+                                  "the run directory")
+    k.add_argument("--optimizer", choices=OPTIMIZER_MODES, default="bf16",
+                   help="Adam's state in the packed checkpoint: bf16 (the default: moments in "
+                        "bfloat16, the run resumes with that rounding; the full network's state "
+                        "57 MB instead of 85), full (exact) or none (the model only)")
+    k.set_defaults(func=_cli_pack)
+
+
+def _cli_pack(args: argparse.Namespace) -> int:
+    import shutil
+    import tarfile
+    import tempfile
+
+    from ..training.checkpoint import repack_checkpoint
+
+    run = Path(args.run_dir)
+    if not (run / "checkpoint.json").is_file():
+        raise FileNotFoundError(f"{run}: no checkpoint.json (not a training run directory)")
+    with tempfile.TemporaryDirectory() as tmp:
+        dst = Path(tmp) / run.resolve().name
+        repack_checkpoint(run, dst, optimizer=args.optimizer)
+        for extra in ("log.jsonl", "snapshots/scores.json"):
+            if (run / extra).is_file():
+                (dst / extra).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(run / extra, dst / extra)
+        with tarfile.open(args.output, "w:gz") as tar:
+            tar.add(dst, arcname=dst.name)
+    size = Path(args.output).stat().st_size
+    print(f"wrote {args.output}: {size / 1e6:.1f} MB ({run.resolve().name}/: checkpoint with Adam's "
+          f"state {args.optimizer}, log, snapshot scores); restore: mkdir -p DIR && tar xzf "
+          f"{args.output} -C DIR")
+    return 0
 
 
 def _cli_run(args: argparse.Namespace) -> int:

@@ -44,13 +44,17 @@ def _payload(net: Any, opt: Any, optimizer: str) -> dict:
     if optimizer == "full":
         out["optimizer"] = opt.state_dict()
     elif optimizer == "bf16":
-        sd = opt.state_dict()
-        low = {k: {n: (v.to(torch.bfloat16) if torch.is_tensor(v) and v.is_floating_point()
-                       and v.dim() > 0 else v) for n, v in s.items()}
-               for k, s in sd["state"].items()}
-        # Optimizer.load_state_dict casts the moments back to the parameters' dtype
-        out["optimizer"] = {"state": low, "param_groups": sd["param_groups"]}
+        out["optimizer"] = _bf16_moments(opt.state_dict())
     return out
+
+
+def _bf16_moments(sd: dict) -> dict:
+    """An Adam state dict with its moment tensors in bfloat16 (the step counts, scalars, stay);
+    Optimizer.load_state_dict casts them back to the parameters' dtype."""
+    low = {k: {n: (v.to(torch.bfloat16) if torch.is_tensor(v) and v.is_floating_point()
+                   and v.dim() > 0 else v) for n, v in s.items()}
+           for k, s in sd["state"].items()}
+    return {"state": low, "param_groups": sd["param_groups"]}
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
@@ -67,10 +71,34 @@ def save_checkpoint(run_dir: str | os.PathLike, net: Any, opt: Any, state: dict,
                     part_mib: float | None = None, optimizer: str = "full") -> list[Path]:
     """Write the run's checkpoint (see the module docstring); returns the payload's files.
     ``state`` (JSON-able) gets ``checkpoint_files`` and is written last, atomically."""
-    run_dir = Path(run_dir)
+    return _write_payload(Path(run_dir), _payload(net, opt, optimizer), state, part_mib, optimizer)
+
+
+def repack_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, optimizer: str = "bf16",
+                      part_mib: float | None = 16.0) -> list[Path]:
+    """``src``'s checkpoint written again into ``dst`` with Adam's state kept as ``optimizer``
+    (``bf16``: the moments rounded to bfloat16, two thirds of the size; the run resumes from
+    ``dst`` with that rounding) in parts of ``part_mib``; ``dst`` gets ``src``'s
+    ``checkpoint.json`` with its file list updated. Refused where ``src`` has no Adam state and
+    one is asked for."""
+    if optimizer not in OPTIMIZER_MODES:
+        raise ValueError(f"optimizer must be one of {OPTIMIZER_MODES}, got {optimizer!r}")
+    payload, state = load_checkpoint(src)
+    out: dict[str, Any] = {"model": payload["model"]}
+    if optimizer != "none":
+        if "optimizer" not in payload:
+            raise ValueError(f"{src}: its checkpoint keeps no Adam state, so none can be "
+                             f"packed as {optimizer!r} (use optimizer='none')")
+        out["optimizer"] = (payload["optimizer"] if optimizer == "full"
+                            else _bf16_moments(payload["optimizer"]))
+    return _write_payload(Path(dst), out, state, part_mib, optimizer)
+
+
+def _write_payload(run_dir: Path, payload: dict, state: dict, part_mib: float | None,
+                   optimizer: str) -> list[Path]:
     run_dir.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
-    torch.save(_payload(net, opt, optimizer), buf)
+    torch.save(payload, buf)
     data = buf.getvalue()
     if part_mib is not None:
         size = int(part_mib * (1 << 20))
