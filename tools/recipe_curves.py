@@ -1,5 +1,6 @@
-"""Learning curves of training runs side by side: validation E_p@40 / E_p@80 of every snapshot
-and the dead units per layer, against the windows seen and the wall time.
+"""Learning curves of training runs side by side: validation E_p@40 / E_p@80 of every snapshot,
+the 8-step validation loss of every validation, and the dead units per layer, against the
+windows seen (the wall time is in the rows and the CSV).
 
 Each RUN is a ``tpnet train run ... --snapshots`` directory (its ``snapshots/step-*.h5`` and
 ``log.jsonl``). Every snapshot is scored with the test protocol on the validation trajectories
@@ -114,8 +115,10 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
         for ax, key in zip(axes[:2], ("Ep@40", "Ep@80")):
             ax.plot(w, [_num(r.get(column(key, reading))) for r in rr], "o-",
                     color=colours[label], label=label)
-        axes[3].plot([_num(r["wall_s"]) / 3600 for r in rr],
-                     [_num(r.get(column("Ep@80", reading))) for r in rr], "o-",
+        every = sorted(logs[label].items())          # every validation, not only snapshots
+        axes[3].plot([(offsets.get(label, 0) + v["windows_seen"]) / 1e6 for _, v in every
+                      if v.get("windows_seen")],
+                     [v["val_cd8"] for _, v in every if v.get("windows_seen")], ".-",
                      color=colours[label], label=label)
         vals = [v for _, v in sorted(logs[label].items()) if v.get("dead")]
         w = np.array([(offsets.get(label, 0) + v["windows_seen"]) / 1e6 for v in vals])
@@ -135,8 +138,8 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
         ax.legend(fontsize=8)
     axes[3].set_xscale("log")
     axes[3].set_yscale("log")
-    axes[3].set_xlabel("wall time (hours; the machines are in docs/training.md)")
-    axes[3].set_ylabel(f"validation Ep 80 ({reading} reading)")
+    axes[3].set_xlabel("training windows seen (millions)")
+    axes[3].set_ylabel("validation 8-step Chamfer loss (val_cd8, every validation)")
     axes[3].grid(alpha=0.3, which="both")
     axes[3].legend(fontsize=8)
     axes[2].set_xlabel("training windows seen (millions)")
