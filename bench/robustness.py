@@ -220,31 +220,39 @@ def calibration(count: int = 200) -> None:
 
 
 def motion(count: int = 100) -> None:
-    """The frame-to-frame motion behind tpnet_ref.checks.MOTION_RANGE, on ``count``
-    training-grid trajectories (never the test cases): the mean move of the centroid per frame
-    of every m = 4 window (every start) at the model's spacing (every 4th simulator row), and
-    the share of windows the warning flags at that spacing and at the wrong ones."""
-    from tpnet_ref.checks import MOTION_RANGE
+    """The frame spacing behind tpnet_ref.checks' FrameSpacingWarning, on ``count``
+    training-grid trajectories (never the test cases), every start of an m = 4 window at the
+    model's spacing (every 4th simulator row) and at wrong ones: the mean move of the centroid
+    per frame (MOTION_RANGE), the windows in free fall and the spacing their centroid's fall
+    reads (free_fall_rows), and the share of windows ``motion_problem`` flags."""
+    from tpnet_ref.checks import FRAME_ROWS, MOTION_RANGE, free_fall_rows, motion_problem
     from tpnet_ref.sim import simulate
     from tpnet_ref.sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
     grid = [(f, a, x, y) for f in TRAIN_FORCES for a in TRAIN_ANGLES_DEG
             for (x, y) in TRAIN_POSITIONS]
     pick = np.random.default_rng(2).choice(len(grid), count, replace=False)
-    rows = np.stack([simulate(*grid[i]) for i in pick])          # (count, 600, 30, 2)
-    centre = rows.mean(axis=2)
+    rows = np.stack([simulate(*grid[i]) for i in pick]).astype(np.float32)   # as users pass them
     lo, hi = MOTION_RANGE
-    print(f"{count} training-grid trajectories, every start of an m = {M} window; the mean move "
-          f"of the centroid per frame (world units), accepted {lo:g}..{hi:g}:")
+    print(f"{count} training-grid trajectories, every start of an m = {M} window (float32); the "
+          f"mean move of the centroid per frame (world units), accepted {lo:g}..{hi:g}; free fall "
+          f"read as a spacing (rows), accepted within 1 of {FRAME_ROWS}:")
     for every, what in ((4, "every 4th row (the model's spacing)"),
                         (1, "consecutive rows"), (2, "every 2nd row"), (8, "every 8th row")):
-        c = centre[:, ::every]                 # the centroid: what checks.motion_problem takes
-        step = np.sqrt((np.diff(c, axis=1) ** 2).sum(axis=2))          # (count, frames - 1)
-        mean = np.stack([step[:, i:i + M - 1].mean(axis=1)
-                         for i in range(step.shape[1] - M + 2)], axis=1).ravel()
-        flagged = (mean < lo) | (mean > hi)
-        print(f"  {what}: {mean.size} windows, min {mean.min():.3f}, 0.3 % quantile "
-              f"{np.quantile(mean, 0.003):.3f}, median {np.median(mean):.3f}, max {mean.max():.3f}; "
-              f"flagged {100 * flagged.mean():.2f} %")
+        moves, read, flagged = [], [], 0
+        for tr in rows.astype(np.float64):
+            for s in range(0, tr.shape[0] - (M - 1) * every):
+                w = tr[s:s + (M - 1) * every + 1:every]
+                c = w.mean(axis=1)
+                moves.append(np.sqrt((np.diff(c, axis=0) ** 2).sum(axis=1)).mean())
+                r = free_fall_rows(c)
+                if r is not None:
+                    read.append(r)
+                flagged += motion_problem(w) is not None
+        moves, read, n = np.array(moves), np.array(read), len(moves)
+        print(f"  {what}: {n} windows; move min {moves.min():.3f}, median {np.median(moves):.3f}, "
+              f"max {moves.max():.3f}; in free fall {100 * read.size / n:.1f} %, read as "
+              f"{np.median(read):.2f} rows (all within {np.abs(read - every).max():.3f}); "
+              f"flagged {100 * flagged / n:.2f} %")
 
 
 def main(argv=None) -> int:

@@ -297,6 +297,56 @@ def test_consecutive_simulator_rows_warn_and_every_fourth_row_does_not(net):
     assert caught == []
 
 
+def _falling(rows_apart: float, v=(0.3, 0.1), ax: float = 0.0) -> np.ndarray:
+    """A ring whose centroid falls freely (the scene's gravity) with frames ``rows_apart``
+    simulator rows apart, moving ``v`` world units a frame; ``ax`` an extra x acceleration."""
+    from tpnet_ref.checks import GRAVITY, SIM_DT
+    a = np.array([ax, -GRAVITY * (rows_apart * SIM_DT) ** 2])
+    return np.stack([_ring() + np.array(v) * i + 0.5 * a * i * i for i in range(4)])
+
+
+@pytest.mark.parametrize("rows_apart, flagged", [(1, True), (2, True), (2.9, True), (3.1, False),
+                                                 (4, False), (4.9, False), (5.1, True), (8, True)])
+def test_a_body_in_free_fall_shows_its_frame_spacing(rows_apart, flagged):
+    from tpnet_ref.checks import free_fall_rows, motion_problem
+    w = _falling(rows_apart)
+    assert free_fall_rows(w.mean(axis=1)) == pytest.approx(rows_apart, rel=1e-6)
+    why = motion_problem(w)                   # 0.32 a frame: inside MOTION_RANGE either way
+    assert (why is not None) == flagged
+    if flagged:
+        assert f"as if the frames were {rows_apart:.2g}/45 s apart, not 4/45 s" in why
+        assert ("consecutive simulator rows" in why) == (rows_apart < 1.5)
+    assert motion_problem(list(w)) == why
+
+
+def test_a_window_not_in_free_fall_is_judged_by_its_speed_alone():
+    from tpnet_ref.checks import FREE_FALL_TOL, free_fall_rows, motion_problem
+    assert free_fall_rows(_falling(1, ax=1.5 * FREE_FALL_TOL).mean(axis=1)) is None   # a push
+    assert motion_problem(_falling(1, ax=1.5 * FREE_FALL_TOL)) is None
+    assert free_fall_rows(_falling(1, ax=0.5 * FREE_FALL_TOL).mean(axis=1)) is not None
+    uneven = _falling(1)
+    uneven[3] += [0.0, -2 * FREE_FALL_TOL]         # its two falls differ: a contact, not free fall
+    assert free_fall_rows(uneven.mean(axis=1)) is None
+    assert free_fall_rows(_falling(1, v=(0.0, 0.0))[:3].mean(axis=1)) is None   # m = 3: one fall
+    rest = np.stack([_ring()] * 4)                 # no fall at all: a body at rest
+    assert free_fall_rows(rest.mean(axis=1)) is None and "closer in time" in motion_problem(rest)
+
+
+def test_the_thrown_ring_of_the_demo_warns_on_consecutive_rows(net):
+    pytest.importorskip("pymunk")
+    from tpnet_ref.checks import FrameSpacingWarning
+    from tpnet_ref.sim import simulate
+    rows = simulate(1.3, 195, 39.5, 29.5)        # held-out test case 1, the demo's scene
+    for w, says in ((rows[0:4], "consecutive simulator rows"), (rows[40:48:2], "2/45 s apart"),
+                    (rows[40:72:8], "8/45 s apart")):
+        got, caught = _caught(lambda: tpnet_ref.predict(w, model=net))
+        assert [c.category for c in caught] == [FrameSpacingWarning]
+        assert says in str(caught[0].message)
+        np.testing.assert_array_equal(got, _quiet(lambda: net.predict(w)))
+    for start in (0, 40, 300):
+        assert _caught(lambda: tpnet_ref.predict(rows[start:start + 16:4], model=net))[1] == []
+
+
 def test_a_batch_is_not_judged_by_its_motion(net):
     w = np.stack([_ring() + [0.02 * i, 0.0] for i in range(4)])
     _, caught = _caught(lambda: tpnet_ref.predict_batch(np.stack([w, w]), model=net))
