@@ -53,7 +53,7 @@ MODULES = {
     "reference": ["tests/test_reference.py", "tests/test_layers.py",
                   "tests/test_crosscheck.py::test_trace_names_in_order_and_result_unchanged"],
     "layers": ["tests/test_layers.py", "tests/test_reference.py"],
-    "checks": ["tests/test_checks.py", "tests/test_model.py"],
+    "checks": ["tests/test_checks.py", "tests/test_checks_scattered.py", "tests/test_model.py"],
     "native": ["tests/test_native.py", "tests/test_integrity.py"],
     "hdf5": ["tests/test_hdf5.py", "tests/test_untrusted_files.py", "tests/test_native.py"],
     # (tests/test_invariance.py runs the same checkers on more networks: 70 s more a mutant)
