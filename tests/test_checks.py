@@ -822,3 +822,19 @@ def test_the_input_warnings_of_ragged_and_normalized_frames():
     small = [normalize(_ring(r=0.5, n=25 + i)) for i in range(4)]
     got = _warned(small, True)
     assert [c for c, _ in got] == ["OutsideTrainingRangeWarning"] and "radius is 0.5" in got[0][1]
+
+
+def test_stray_points_just_outside_the_outline_within_the_bodys_reach_are_named():
+    """Two points 1.5 world units outside a ring of radius 2 (beyond the link, within 3.6 of the
+    body's centre): apart from the body, named -- whichever path judges the window (found by a
+    fresh mutation sample, seed 478775425: the outline and pairwise shortcuts that call any
+    frame within the body's reach one body)."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    strays = [[20.0, 23.5], [20.3, 23.5]]
+    frame = np.concatenate([_ring(), strays])
+    assert list(np.flatnonzero(body_outliers(frame))) == [30, 31]
+    w = np.stack([frame + [0.5 * i, 0.0] for i in range(4)])
+    for frames in (w, list(w), [w[0], w[1], w[2][1:], w[3]]):
+        got = window_body_problem(frames)
+        assert got is not None and "2 of " in got and "(likely stray points" in got, got
+    assert window_body_problem(w[:, :30]) is None               # the ring alone: one body
