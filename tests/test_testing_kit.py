@@ -463,3 +463,16 @@ def test_the_default_windows_have_the_released_four_frames():
 
     draw()
     assert seen == {4}
+
+
+# ------------------------------------------------------------------ found by a fresh mutation sample
+# (tools/mutation.py testing --sample 40 --fresh-seed: seed 479556107; docs/testing.md)
+def test_the_reference_and_invariance_checks_run_50_windows_by_default(released_random64):
+    """The documented default of agrees_with_reference and permutation_invariant: 50 windows,
+    as each one's report says."""
+    model = released_random64
+    zeros = np.zeros((model.config.n_out, model.config.dim))
+    got = testing.agrees_with_reference(lambda w: zeros, model, tol=1e9, seed=1)
+    assert got.report.startswith("agrees_with_reference: <lambda> passed on 50 windows (m=4, ")
+    got = testing.permutation_invariant(lambda w: zeros, seed=1)
+    assert " passed on 50 windows (" in got.report
