@@ -838,3 +838,14 @@ def test_stray_points_just_outside_the_outline_within_the_bodys_reach_are_named(
         got = window_body_problem(frames)
         assert got is not None and "2 of " in got and "(likely stray points" in got, got
     assert window_body_problem(w[:, :30]) is None               # the ring alone: one body
+
+
+def test_two_frames_are_enough_to_judge_the_motion():
+    """A model of m = 2 frames (TPNetConfig takes any m >= 1): its window's motion is judged
+    (found by a fresh mutation sample, seed 670151351)."""
+    from tpnet_ref.checks import motion_problem
+    slow = np.stack([_ring() + [0.02 * i, 0.0] for i in range(2)])
+    assert "moves 0.02 world units per frame" in motion_problem(slow)
+    assert "moves 0.02 world units per frame" in motion_problem(list(slow))
+    assert motion_problem(np.stack([_ring() + [0.5 * i, 0.0] for i in range(2)])) is None
+    assert [c for c, _ in _warned(list(slow))] == ["FrameSpacingWarning"]
