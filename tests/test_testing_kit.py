@@ -476,3 +476,20 @@ def test_the_reference_and_invariance_checks_run_50_windows_by_default(released_
     assert got.report.startswith("agrees_with_reference: <lambda> passed on 50 windows (m=4, ")
     got = testing.permutation_invariant(lambda w: zeros, seed=1)
     assert " passed on 50 windows (" in got.report
+
+
+def test_a_list_of_two_choices_draws_both():
+    """windows(m=[a, b]) and n=[a, b] draw from both choices (a fresh mutation sample, seed
+    479556107: a two-choice list drew only its first)."""
+    seen = set()
+
+    def record(window):
+        seen.add((len(window), len(window[0])))
+        return np.zeros((1, 2))
+    got = testing.permutation_invariant(record, windows=testing.windows(m=[2, 3], n=[4, 6]),
+                                        seed=0)
+    assert {m for m, _ in seen} == {2, 3} and {n for _, n in seen} == {4, 6}, seen
+    assert "(m=2..3, N=4..6, " in got.report
+    seen.clear()
+    testing.permutation_invariant(record, windows=testing.windows(m=[3], n=5), max_examples=5)
+    assert seen == {(3, 5)}
