@@ -493,3 +493,22 @@ def test_a_list_of_two_choices_draws_both():
     seen.clear()
     testing.permutation_invariant(record, windows=testing.windows(m=[3], n=5), max_examples=5)
     assert seen == {(3, 5)}
+
+
+def test_tied_windows_take_three_x_values_in_the_first_frame():
+    """windows(ties=True): in the first frame one coordinate takes only three values, the
+    centre and one spread either side (a fresh mutation sample, seed 479556107: a tied frame of
+    the smallest spread collapsed onto its centre)."""
+    firsts = []
+
+    def record(window):
+        firsts.append(np.unique(window[0][:, 0]))
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=64, ties=True, scales=[1e-3],
+                                                                  ragged=False), seed=0,
+                                  max_examples=10)
+    assert all(len(x) <= 3 for x in firsts)
+    three = [x for x in firsts if len(x) == 3]
+    assert three, firsts
+    for x in three:
+        np.testing.assert_allclose(np.diff(x), [1e-3, 1e-3], rtol=1e-6)
