@@ -512,3 +512,17 @@ def test_tied_windows_take_three_x_values_in_the_first_frame():
     assert three, firsts
     for x in three:
         np.testing.assert_allclose(np.diff(x), [1e-3, 1e-3], rtol=1e-6)
+
+
+def test_the_points_of_a_frame_spread_in_both_coordinates_independently():
+    """A frame's points are drawn around its centre in x and y independently: never all on one
+    line (a fresh mutation sample, seed 479556107: one draw for both put them on a diagonal)."""
+    spans = []
+
+    def record(window):
+        spans.extend(float(np.ptp(f[:, 0] - f[:, 1])) for f in window)
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=8, ties=False,
+                                                                  scales=[1.0]), seed=0,
+                                  max_examples=10)
+    assert spans and min(spans) > 1e-6, spans
