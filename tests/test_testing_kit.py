@@ -526,3 +526,18 @@ def test_the_points_of_a_frame_spread_in_both_coordinates_independently():
                                                                   scales=[1.0]), seed=0,
                                   max_examples=10)
     assert spans and min(spans) > 1e-6, spans
+
+
+def test_a_window_moves_by_the_step_asked_even_below_1():
+    """windows(step=(0.5, 0.5)): each frame's centre moves 0.5 from the one before (a fresh
+    mutation sample, seed 479556107: a step range below 1 gave windows at rest)."""
+    moves = []
+
+    def record(window):
+        c = np.array([f.mean(axis=0) for f in window])
+        moves.extend(np.hypot(*(c[1:] - c[:-1]).T))
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=16, step=(0.5, 0.5),
+                                                                  scales=[1e-3], ties=False),
+                                  seed=0, max_examples=10)
+    np.testing.assert_allclose(moves, 0.5, atol=0.01)
