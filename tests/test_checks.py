@@ -374,3 +374,528 @@ def test_the_dtype_rule_of_predict_docs_api():
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, tpnet_ref.predict(w.astype(np.float32)))
     assert tpnet_ref.predict(w, dtype="float64").dtype == np.float64
+
+
+# ------------------------------------------------------------------ every behaviour, both sides
+# (issue 60: what a user sees of each rule, at and around its threshold; written from the
+# rules, not from a mutation sample)
+from hypothesis import given  # noqa: E402
+from hypothesis import settings as hsettings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from tpnet_ref import checks as C  # noqa: E402
+
+
+@pytest.mark.parametrize("x, exc, msg", [
+    (b"12", TypeError, r"^a: expected a numeric array, got bytes$"),
+    ("12", TypeError, r"^a: expected a numeric array, got str$"),
+    (np.array([1, "x"], dtype=object), TypeError, r"^a: expected a numeric array, got an object"),
+    (np.array([True, False]), TypeError, r"^a: expected real numbers, got dtype bool$"),
+    (np.zeros(2, dtype=np.complex64), TypeError, r"^a: expected real numbers, got dtype complex64$"),
+])
+def test_real_arrays_refuse_what_is_not_a_real_number(x, exc, msg):
+    with pytest.raises(exc, match=msg):
+        as_real_array(x, "a")
+
+
+@pytest.mark.parametrize("x", [np.arange(3, dtype=np.int8), np.arange(3, dtype=np.uint16),
+                               np.arange(3.0, dtype=np.float32), [1.5, 2.0]])
+def test_real_arrays_keep_their_dtype_unless_one_is_asked(x):
+    arr = as_real_array(x, "a")
+    assert arr.dtype == np.asarray(x).dtype
+    np.testing.assert_array_equal(as_real_array(x, "a", np.float64), np.asarray(x, np.float64))
+    assert as_real_array(x, "a", np.float64).dtype == np.float64
+
+
+def test_non_finite_values_are_counted_and_integers_pass():
+    from tpnet_ref.checks import check_finite
+    with pytest.raises(ValueError, match=r"^b: contains 3 NaN or infinite value\(s\)$"):
+        check_finite(np.array([np.nan, 1.0, np.inf, -np.inf]), "b")
+    ints = np.arange(4)
+    assert check_finite(ints, "b") is ints
+    fine = np.ones(3)
+    assert check_finite(fine, "b") is fine
+
+
+def test_point_sets_of_other_dimensions_and_empty_ones_when_allowed():
+    assert as_point_set(np.zeros((4, 3)), "p", dim=3).shape == (4, 3)
+    with pytest.raises(ValueError, match=r"^p: expected shape \(N, 3\), got \(4, 2\)$"):
+        as_point_set(np.zeros((4, 2)), "p", dim=3)
+    with pytest.raises(ValueError, match=r"^p: expected shape \(N, 2\), got \(1, 4, 2\)$"):
+        as_point_set(np.zeros((1, 4, 2)), "p")
+    assert as_point_set(np.zeros((0, 2)), "p", allow_empty=True).shape == (0, 2)
+    assert as_point_set([[1, 2]], "p", dtype=np.float32).dtype == np.float32
+    from tpnet_ref.checks import as_point_sets
+    with pytest.raises(ValueError, match=r"^P: contains 1 NaN"):
+        as_point_sets(np.array([[[0.0, 1.0]], [[np.inf, 0.0]]]), "P")
+    assert as_point_sets(np.zeros((2, 3, 4, 2)), "P").shape == (2, 3, 4, 2)
+
+
+def test_parameters_are_checked_by_name_shape_and_value_and_come_in_the_config_order():
+    from tpnet_ref.checks import check_params
+    shapes = {"w": (2, 3), "b": (3,)}
+    p = {"b": [0, 1, 2], "w": np.ones((2, 3), dtype=np.float64)}
+    out = check_params(p, shapes, np.dtype(np.float32))
+    assert list(out) == ["w", "b"]
+    assert all(v.dtype == np.float32 and v.flags.c_contiguous for v in out.values())
+    np.testing.assert_array_equal(out["b"], [0, 1, 2])
+    with pytest.raises(ValueError, match=r"^parameters do not fit the config: missing \['b'\], "
+                                         r"unexpected \['c'\]$"):
+        check_params({"w": p["w"], "c": 1}, shapes, np.dtype(np.float32))
+    with pytest.raises(ValueError, match=r"^parameter 'b': expected shape \(3,\), got \(4,\)$"):
+        check_params({**p, "b": np.zeros(4)}, shapes, np.dtype(np.float32))
+    with pytest.raises(ValueError, match=r"^parameter 'w': contains NaN or infinite values$"):
+        check_params({**p, "w": np.full((2, 3), np.nan)}, shapes, np.dtype(np.float32))
+    with pytest.raises(TypeError, match=r"^parameter 'w': expected real numbers"):
+        check_params({**p, "w": np.zeros((2, 3), dtype=bool)}, shapes, np.dtype(np.float32))
+    fortran = np.asfortranarray(np.ones((2, 3)))
+    assert check_params({**p, "w": fortran}, shapes, np.dtype(np.float64))["w"].flags.c_contiguous
+
+
+F32, F64 = np.dtype(np.float32), np.dtype(np.float64)
+
+
+def test_a_window_that_is_a_path_or_a_string_is_refused_in_one_line(tmp_path):
+    from tpnet_ref.checks import check_window, check_windows
+    for bad in ("w.npy", b"w.npy", tmp_path / "w.npy"):
+        with pytest.raises(TypeError, match=r"^window: expected points, got the path or string .*"
+                                            r"load the file first, e\.g\. np\.load\(path\)"):
+            check_window(bad, 4, 2, F32)
+        with pytest.raises(TypeError, match=r"^windows: expected points, got the path"):
+            check_windows(bad, 4, 2, F32)
+
+
+@pytest.mark.parametrize("window, msg", [
+    (np.zeros((4, 30)), r"^window: expected shape \(m=4, N, 2\) or a sequence of m arrays "
+                        r"\(N_i, 2\), got an array of shape \(4, 30\)$"),
+    (np.zeros((4, 30, 3)), r"^window: expected shape \(m=4, N, 2\).*got an array of shape "
+                           r"\(4, 30, 3\)$"),
+    (np.zeros((3, 30, 2)), r"^window: the model takes m=4 frames, got 3$"),
+    ([np.zeros((30, 2))] * 5, r"^window: the model takes m=4 frames, got 5$"),
+    ([np.zeros((30, 2))] * 3 + [np.zeros((0, 2))], r"^window\[3\]: is empty \(0 points\)$"),
+    ([np.zeros((30, 2)), np.full((30, 2), np.nan)] + [np.zeros((30, 2))] * 2,
+     r"^window\[1\]: contains 60 NaN"),
+    (5.0, r"^window: expected shape \(m=4, N, 2\).*got an array of shape \(\)$"),
+])
+def test_a_window_of_the_wrong_shape_is_refused_naming_the_frame(window, msg):
+    from tpnet_ref.checks import check_window
+    with pytest.raises(ValueError, match=msg):
+        check_window(window, 4, 2, F32)
+
+
+def test_a_ragged_window_is_its_frames():
+    from tpnet_ref.checks import check_window
+    frames = [np.zeros((30 - i, 2)) for i in range(4)]
+    out = check_window(tuple(frames), 4, 2, F32)
+    assert [f.shape for f in out] == [(30, 2), (29, 2), (28, 2), (27, 2)]
+    assert [f.shape for f in check_window(np.zeros((4, 7, 2)), 4, 2, F32)] == [(7, 2)] * 4
+
+
+def test_values_beyond_the_models_dtype_are_refused_and_those_at_its_edge_are_not():
+    from tpnet_ref.checks import check_window, check_windows
+    top = float(np.finfo(np.float32).max)
+    w = np.zeros((4, 3, 2))
+    w[2, 1, 0] = -top                                           # exactly at the edge: accepted
+    assert len(check_window(w, 4, 2, F32)) == 4
+    assert check_windows(w[None], 4, 2, F32)[1] == 1
+    w[2, 1, 0] = -top * 1.0001
+    with pytest.raises(ValueError, match=r"^window\[2\]: values beyond the float32 range "
+                                         r"\(\|x\| > 3\.4e\+38\); predict in float64"):
+        check_window(w, 4, 2, F32)
+    with pytest.raises(ValueError, match=r"^windows\[1\]\[2\]: values beyond the float32 range"):
+        check_windows(np.stack([np.zeros((4, 3, 2)), w]), 4, 2, F32)
+    assert len(check_window(w, 4, 2, F64)) == 4                 # float64 model: fine
+    assert check_windows(np.stack([w, w]), 4, 2, F64)[1] == 2
+    # a float32 window always fits a float32 model
+    assert len(check_window(np.full((4, 3, 2), top, np.float32), 4, 2, F32)) == 4
+
+
+@pytest.mark.parametrize("windows, exc, msg", [
+    (np.zeros((4, 30, 2)), ValueError, r"^windows: expected shape \(B, m, N, 2\) or a sequence "
+                                       r"of windows, got an array of shape \(4, 30, 2\)$"),
+    (np.zeros((0, 4, 30, 2)), ValueError, r"^windows: empty batch$"),
+    ([], ValueError, r"^windows: empty batch$"),
+    (7, TypeError, r"^windows: expected an array or a sequence of windows, got int$"),
+    (np.zeros((2, 3, 30, 2)), ValueError, r"^windows\[0\]: the model takes m=4 frames, got 3$"),
+    (np.zeros((2, 4, 0, 2)), ValueError, r"^windows\[0\]\[0\]: is empty \(0 points\)$"),
+    (np.zeros((2, 4, 30, 3)), ValueError, r"^windows\[0\]: expected shape \(m=4, N, 2\)"),
+    (np.zeros((2, 4, 30, 2), dtype=bool), TypeError, r"^windows: expected real numbers"),
+])
+def test_a_batch_is_refused_naming_the_window_and_frame(windows, exc, msg):
+    from tpnet_ref.checks import check_windows
+    with pytest.raises(exc, match=msg):
+        check_windows(windows, 4, 2, F32)
+
+
+def test_a_batch_names_its_first_bad_frame_and_a_good_one_is_its_frames_in_order():
+    from tpnet_ref.checks import check_windows
+    b = np.arange(3 * 4 * 5 * 2, dtype=np.float64).reshape(3, 4, 5, 2)
+    frames, n = check_windows(b, 4, 2, F32)
+    assert n == 3 and len(frames) == 12
+    np.testing.assert_array_equal(frames[6], b[1, 2])
+    frames, n = check_windows([b[0], list(b[1]), b[2]], 4, 2, F32)
+    assert n == 3 and len(frames) == 12
+    np.testing.assert_array_equal(frames[7], b[1, 3])
+    b[2, 1, 3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"^windows\[2\]\[1\]: contains 1 NaN"):
+        check_windows(b, 4, 2, F32)
+
+
+def test_an_overflow_advises_float64_on_float32_and_rescaling_on_float64():
+    from tpnet_ref.checks import FLOAT64_ADVICE, NonFiniteResultError, overflow_error
+    e32 = overflow_error(F32, "step 3")
+    assert isinstance(e32, NonFiniteResultError) and isinstance(e32, ArithmeticError)
+    assert str(e32).startswith("the prediction network overflowed in float32 at step 3 ")
+    assert str(e32).endswith(FLOAT64_ADVICE)
+    e64 = str(overflow_error(F64, "the head"))
+    assert "in float64 at the head" in e64 and e64.endswith("rescale the input towards the "
+                                                            "training range")
+    assert "\n" not in str(e32) + e64
+
+
+# the training range: the box [-0.05, 1.05] in model units, radius 1..3 world units
+@pytest.mark.parametrize("edge, inside", [(-0.05, True), (-0.0501, False), (1.05, True),
+                                          (1.0501, False)])
+def test_the_training_box_has_a_margin_of_5_percent_on_both_sides(edge, inside):
+    model = np.full((4, 19, 2), 0.5)                            # (radius not judged: < 20)
+    model[1, 3, 1] = edge
+    got = training_range_problem(model, NORM_LO, NORM_HI, True)
+    assert (got is None) == inside, got
+    if not inside:
+        assert got == (f"coordinates span [{min(edge, 0.5):.3g}, {max(edge, 0.5):.3g}] in model "
+                       "units, outside the training box [0, 1]")
+
+
+@pytest.mark.parametrize("r, inside", [(0.99, False), (1.01, True), (2.0, True), (2.99, True),
+                                       (3.01, False)])
+def test_the_bodys_mean_radius_is_accepted_from_1_to_3_world_units(r, inside):
+    w = _window(r=r)
+    for frames in (normalize(w), list(normalize(w))):
+        got = training_range_problem(frames, NORM_LO, NORM_HI)
+        assert (got is None) == inside, got
+    if not inside:
+        assert got == (f"a frame's mean radius is {r:.3g} world units; the trained body is a "
+                       "ring of radius 2 (accepted 1..3)")
+
+
+def test_a_tiny_radius_hints_at_model_coordinates_only_when_world_units_were_claimed():
+    w = _window(r=0.05)
+    assert _problem(w).endswith("(accepted 1..3) (model coordinates given as world units? pass "
+                                "normalized=True)")
+    assert _problem(normalize(w), normalized=True).endswith("(accepted 1..3)")
+    assert _problem(_window(r=0.5)).endswith("(accepted 1..3)")          # small, not tiny
+
+
+def test_ragged_frames_are_judged_one_by_one_by_range_and_radius():
+    frames = [_ring(n=30 - i) for i in range(4)]
+    assert _problem(frames) is None
+    small = frames[:2] + [_ring(r=0.5, n=25), frames[3]]
+    assert "mean radius is 0.5 world units" in _problem(small)
+    assert _problem(frames[:2] + [_ring(r=0.5, n=19), frames[3]]) is None   # too few to judge
+    far = frames[:3] + [_ring(cx=60.0, n=22)]
+    assert _problem(far).startswith("coordinates span [")
+
+
+def test_the_range_warning_is_one_line_at_the_callers_line_and_says_whether_it_warned():
+    from tpnet_ref.checks import warn_outside_training_range
+    model = normalize(_window(cx=120.0))
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        assert warn_outside_training_range(model, NORM_LO, NORM_HI, "win") is True
+        assert warn_outside_training_range(normalize(_window()), NORM_LO, NORM_HI, "w") is False
+    [w] = got
+    assert w.category is OutsideTrainingRangeWarning and w.filename == __file__
+    msg = str(w.message)
+    assert msg.startswith("win: outside the training range: coordinates span [")
+    assert msg.endswith("; the prediction is an extrapolation") and "\n" not in msg
+
+
+# one body: the outlier rule
+def _line(n, spacing, y=0.0, x0=0.0):
+    return np.stack([x0 + spacing * np.arange(n), np.full(n, y)], axis=1)
+
+
+def test_fewer_than_5_points_have_no_outliers_and_5_do():
+    from tpnet_ref.checks import body_outliers
+    four = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1], [50.0, 50.0]])
+    assert not body_outliers(four).any()
+    five = np.concatenate([four[:3], [[0.1, 0.1]], [[50.0, 50.0]]])
+    np.testing.assert_array_equal(body_outliers(five), [False] * 4 + [True])
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_link_and_max_radius_must_be_finite_distances_above_0(bad):
+    from tpnet_ref.checks import body_outliers
+    ring = _ring()
+    with pytest.raises(ValueError, match=r"^link: must be a finite distance > 0, got "):
+        body_outliers(ring, link=bad)
+    with pytest.raises(ValueError, match=r"^max_radius: must be a finite distance > 0, got "):
+        body_outliers(ring, max_radius=bad)
+
+
+@pytest.mark.parametrize("max_radius, flagged", [(0.5, []), (0.33, []), (0.3, [2, 5])])
+def test_a_max_radius_below_1_is_valid_and_used(max_radius, flagged):
+    """A small body: its bounding box's centre is (0, 0.125), its points lie 0.075 to 0.325 from
+    it; a max_radius below 1 is a valid distance and decides which points are apart."""
+    from tpnet_ref.checks import body_outliers
+    pts = np.array([[-0.2, 0.0], [0.2, 0.0], [0.0, -0.2], [0.0, 0.2], [0.0, 0.3], [0.0, 0.45]])
+    assert list(np.flatnonzero(body_outliers(pts, max_radius=max_radius))) == flagged
+
+
+def test_points_exactly_max_radius_from_the_bodys_centre_are_kept():
+    from tpnet_ref.checks import body_outliers
+    pts = np.stack([np.linspace(-3.6, 3.6, 9), np.zeros(9)], axis=1)   # centre exactly 0
+    assert not body_outliers(pts).any()                        # ends exactly 3.6 away: kept
+    np.testing.assert_array_equal(np.flatnonzero(body_outliers(pts, max_radius=3.59)), [0, 8])
+    small = pts * (0.7 / 3.6)                                  # ends exactly 0.7 away
+    assert not body_outliers(small, max_radius=0.7).any()
+    assert body_outliers(small, max_radius=0.69).sum() == 2
+
+
+def test_points_exactly_link_apart_are_joined():
+    from tpnet_ref.checks import body_outliers
+    pts = np.concatenate([_line(6, 1.0), _line(3, 1.0, x0=7.0)])   # gap 2.0 between groups
+    assert not body_outliers(pts, link=2.0, max_radius=100.0).any()   # 2.0 apart: one group
+    out = body_outliers(pts, link=1.0, max_radius=100.0)       # two groups; the 3 join: reach
+    assert not out.any()
+    out = body_outliers(np.concatenate([_line(6, 1.0), _line(2, 1.0, x0=7.0)]), link=1.999,
+                        max_radius=100.0)
+    np.testing.assert_array_equal(np.flatnonzero(out), [6, 7])  # 2 points: no piece of a body
+    out = body_outliers(np.concatenate([_line(6, 1.0), _line(2, 1.0, x0=7.0)]), link=2.0,
+                        max_radius=100.0)
+    assert not out.any()                                       # joined at exactly the link
+
+
+@pytest.mark.parametrize("piece, joins", [(1, False), (2, False), (3, True), (4, True)])
+def test_only_a_piece_of_3_or_more_points_joins_the_body_and_only_within_its_reach(piece, joins):
+    """Far pieces (10 world units off, beyond any link) with a max_radius wide enough to hold both:
+    a piece of 3 or more points is part of the body, fewer are apart."""
+    from tpnet_ref.checks import body_outliers
+    ring = _ring(n=30)
+    blob = np.array([[31.0, 20.0], [31.3, 20.0], [31.0, 20.3], [31.3, 20.3]])[:piece]
+    out = body_outliers(np.concatenate([ring, blob]), max_radius=100.0)
+    assert not out[:30].any()
+    assert out[30:].all() != joins and (out[30:].any() != joins)
+    # the same piece that would not fit within max_radius (the default 3.6) stays apart
+    out = body_outliers(np.concatenate([ring, blob]))
+    assert out[30:].all() and not out[:30].any()
+
+
+def test_the_largest_group_is_the_body():
+    from tpnet_ref.checks import body_outliers
+    small, big = _ring(n=8, r=1.0), _ring(cx=40.0, n=30)
+    out = body_outliers(np.concatenate([small, big]))
+    assert out[:8].all() and not out[8:].any()
+    out = body_outliers(np.concatenate([big, small]))
+    assert out[30:].all() and not out[:30].any()
+
+
+@hsettings(max_examples=25)
+@given(st.floats(0.6, 2.8), st.integers(12, 60), st.floats(3.0, 42.0), st.floats(3.0, 42.0),
+       st.floats(0.0, 2 * np.pi), st.floats(10.0, 20.0))
+def test_a_ring_has_no_outliers_and_a_far_stray_point_is_the_only_one(r, n, cx, cy, angle, off):
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    ring = _ring(cx=cx, cy=cy, r=r, n=n)
+    assert not body_outliers(ring).any()
+    stray = [[cx + off * np.cos(angle), cy + off * np.sin(angle)]]
+    out = body_outliers(np.concatenate([ring, stray]))
+    assert out[-1] and not out[:-1].any()
+    w = np.stack([ring + [0.5 * i, 0.0] for i in range(4)])
+    assert window_body_problem(w) is None and window_body_problem(list(w)) is None
+    moved = [np.add(stray, [0.5 * i, 0.0]) for i in range(4)]         # moving with the ring
+    bad = [np.concatenate([f, moved[i]]) if i == 2 else f for i, f in enumerate(w)]
+    for frames in (bad, [np.concatenate([f, moved[i]]) for i, f in enumerate(w)]):
+        got = window_body_problem(frames)
+        assert got.startswith(f"frame {0 if len(frames[0]) > n else 2} does not look like one "
+                              f"body: 1 of {n + 1} points lie apart from it (likely stray points")
+
+
+# one body: the window
+def _with_strays(k, n=30):
+    """A ring of n points and k stray points, 8 to 9 world units off, 1 apart."""
+    ring = _ring(n=n)
+    return np.concatenate([ring, [[28.0 + 0.2 * i, 20.0 + 0.2 * i] for i in range(k)]])
+
+
+@pytest.mark.parametrize("k, what", [(1, "stray points"), (4, "stray points"),
+                                     (5, "a second blob"), (12, "a second blob")])
+def test_stray_points_and_a_second_blob_are_named_in_one_line(k, what):
+    from tpnet_ref.checks import NotOneBodyWarning, warn_not_one_body, window_body_problem
+    frames = [_ring(cx=20.0 + 0.5 * i) for i in range(4)]
+    frames[1] = _with_strays(k)
+    frames[1][:30] += [0.5, 0.0]
+    expect = (f"frame 1 does not look like one body: {k} of {30 + k} points lie apart from it "
+              f"(likely {what}: background specks, reflections, another object); max pooling "
+              "takes them as part of the body, so clean each frame with "
+              "tpnet_ref.observe.drop_outliers")
+    assert window_body_problem(frames) == expect
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        assert warn_not_one_body(frames, "wdw") is True
+        assert warn_not_one_body([_ring()] * 4, "wdw") is False
+    [w] = got
+    assert w.category is NotOneBodyWarning and issubclass(w.category, OutsideTrainingRangeWarning)
+    assert str(w.message) == f"wdw: {expect}; the prediction is unreliable"
+    assert w.filename == __file__
+
+
+def test_a_body_must_outnumber_the_points_apart_from_it_and_have_5_points():
+    from tpnet_ref.checks import window_body_problem
+    body = _ring(r=0.5, n=5)
+    stray = [[30.0, 20.0]]
+    five = np.concatenate([body, stray])                       # 5 in the body, 1 apart
+    assert window_body_problem([five] * 4).startswith("frame 0 does not look like one body: 1 of "
+                                                      "6 points")
+    four = np.concatenate([body[:4], stray])                   # 4 in the body: no body
+    assert window_body_problem([four] * 4) is None
+    # a body of 6 and, far from it, three pairs: as many apart as in the body -- named; one more
+    # point apart and they outnumber it: no body of the scene's size, left to the range check
+    pairs = [[20.0, 60.0], [20.3, 60.0], [60.0, 20.0], [60.0, 20.3], [-40.0, -40.0],
+             [-40.3, -40.0]]
+    even = np.concatenate([_ring(r=1.0, n=6), pairs])
+    assert window_body_problem([even] * 4).startswith("frame 0 does not look like one body: 6 of "
+                                                      "12 points lie apart from it (likely a "
+                                                      "second blob")
+    assert window_body_problem([np.concatenate([even, [[60.0, 60.0]]])] * 4) is None
+
+
+@pytest.mark.parametrize("step, says", [(3.99, False), (4.01, True)])
+def test_a_frame_more_than_4_world_units_from_the_previous_one_is_named(step, says):
+    from tpnet_ref.checks import window_body_problem
+    w = np.stack([_ring() + [0.5 * i, 0.0] for i in range(4)])
+    w[3:] += [step - 0.5, 0.0]                                  # frame 2 -> 3: `step` apart
+    ragged = [w[0], w[1][:29], w[2], w[3]]
+    for frames in (w, list(w), ragged):
+        got = window_body_problem(frames)
+        assert (got is not None) == says, got
+    if says:
+        assert got.startswith(f"frame 3's body is {step:.3g} world units from frame 2's (the "
+                              "scene's bodies move at most ~2.1 per frame): a frame from another "
+                              "moment or object, or frames not 4/45 s apart?")
+
+
+def test_a_scattered_frame_leaves_the_window_to_the_range_check_even_after_a_jump():
+    """Frames 0 and 1 are a ring 6 world units apart, frame 2 is scattered points: the window is
+    not judged as one body at all (no body in frame 2), whichever path judges it; with a ring
+    in frame 2 the jump is named."""
+    from tpnet_ref.checks import window_body_problem
+    rng = np.random.default_rng(5)
+    w = np.stack([_ring(cx=10.0), _ring(cx=16.0), rng.uniform(1, 44, (30, 2)), _ring(cx=16.5)])
+    ragged = [w[0], w[1], w[2][:29], w[3]]
+    for frames in (w, list(w), ragged):
+        assert window_body_problem(frames) is None
+    w[2] = _ring(cx=16.2)
+    assert window_body_problem(w).startswith("frame 1's body is 6 world units from frame 0's")
+    # a stray point before the scattered frame is still named
+    w = np.stack([_with_strays(1)[1:], _ring(cx=20.5), rng.uniform(1, 44, (30, 2)),
+                  _ring(cx=21.0)])
+    assert window_body_problem(w).startswith("frame 0 does not look like one body: 1 of 30")
+
+
+def test_frames_above_the_pairwise_limit_are_not_judged():
+    from tpnet_ref.checks import BODY_MAX_POINTS, window_body_problem
+    frames = [_with_strays(3)] * 4
+    assert window_body_problem(frames) is not None
+    big = np.concatenate([_ring(n=BODY_MAX_POINTS - 2), [[30.0, 20.0], [31.0, 30.0], [1, 1]]])
+    assert window_body_problem([big, *frames[1:]]) is None
+
+
+# sparse frames and motion
+@pytest.mark.parametrize("counts, says", [
+    ([30, 30, 30, 30], None), ([3, 3, 3, 3], None),
+    ([30, 2, 30, 30], "frame 1 has 2 point(s); a body's outline needs at least 3 (fewer cannot "
+                      "span an area; the model was trained on 30 per frame)"),
+    ([30, 2, 1, 0], "frame 1 has 2 point(s) (3 frames have too few); a body's outline needs at "
+                    "least 3"),
+])
+def test_sparse_frames_name_the_first_and_count_the_others(counts, says):
+    from tpnet_ref.checks import sparse_frames_problem
+    got = sparse_frames_problem(counts)
+    assert (got is None) if says is None else got.startswith(says), got
+
+
+def test_motion_is_the_mean_step_of_the_centroids_and_one_frame_has_none():
+    from tpnet_ref.checks import motion_problem
+    assert motion_problem(_window()[:1]) is None and motion_problem([_ring()]) is None
+    # steps 0.05, 0.05, 0.35: mean 0.15, inside although two steps are below 0.1
+    xs = [0.0, 0.05, 0.1, 0.45]
+    w = np.stack([_ring() + [x, 0.0] for x in xs])
+    assert motion_problem(w) is None
+    ragged = [_ring(cx=20.0 + x, n=30 - i) for i, x in enumerate([0.0, 0.01, 0.02, 0.03])]
+    got = motion_problem(ragged)
+    assert got.startswith("the body's centroid moves 0.01 world units per frame on average; the "
+                          "training windows move 0.1..2.5 (frames 4/45 s apart): frames closer "
+                          "in time than 4/45 s, e.g. consecutive simulator rows instead of every "
+                          "fourth, or a body at rest? (tpnet_ref.observe.frames_at_model_rate")
+    fast = motion_problem(np.stack([_ring() + [0.0, 2.6 * i] for i in range(4)]))
+    assert "moves 2.6 world units" in fast and "further apart in time than 4/45 s, e.g. every " \
+                                               "8th simulator row?" in fast
+
+
+def _warned(frames, normalized=False, one_window=True):
+    from tpnet_ref.checks import warn_about_input
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        warn_about_input(frames, NORM_LO, NORM_HI, normalized, "w", one_window)
+    return [(g.category.__name__, str(g.message)) for g in got]
+
+
+def test_the_input_warnings_come_one_cause_at_a_time_in_order():
+    slow = [_ring() + [0.02 * i, 0.0] for i in range(4)]
+    assert [c for c, _ in _warned(slow)] == ["FrameSpacingWarning"]
+    assert _warned(slow, one_window=False) == []               # a batch: no motion judged
+    stray = [np.concatenate([f, [[29.0, 20.0]]]) for f in slow]
+    assert [c for c, _ in _warned(stray)] == ["NotOneBodyWarning"]     # not also the motion
+    assert _warned(stray, one_window=False) == []
+    far = [f + [100.0, 0.0] for f in slow]
+    assert [c for c, _ in _warned(far)] == ["OutsideTrainingRangeWarning"]
+    few = [f[:2] for f in slow]
+    got = _warned(few)
+    assert [c for c, _ in got] == ["TooFewPointsWarning", "FrameSpacingWarning"]
+    assert got[0][1].startswith("w: too few points: frame 0 has 2 point(s) (4 frames have too "
+                                "few); ") and got[0][1].endswith("; the prediction is an "
+                                                                 "extrapolation")
+    assert got[1][1].startswith("w: unusual motion: the body's centroid moves 0.02 world units")
+    assert [c for c, _ in _warned(few, one_window=False)] == ["TooFewPointsWarning"]
+    assert _warned([_ring() + [0.5 * i, 0.0] for i in range(4)]) == []
+
+
+def test_the_input_warnings_of_ragged_and_normalized_frames():
+    ragged = [_ring(cx=20.0 + 0.02 * i, n=30 - i) for i in range(4)]
+    assert [c for c, _ in _warned(ragged)] == ["FrameSpacingWarning"]
+    assert [c for c, _ in _warned([normalize(f) for f in ragged], True)] == ["FrameSpacingWarning"]
+    steady = [_ring(cx=20.0 + 0.5 * i, n=30 - i) for i in range(4)]
+    assert _warned(steady) == [] and _warned([normalize(f) for f in steady], True) == []
+    stray = steady[:2] + [np.concatenate([steady[2], [[29.0, 20.0]]]), steady[3]]
+    assert [c for c, _ in _warned(stray)] == ["NotOneBodyWarning"]
+    assert [c for c, _ in _warned([normalize(f) for f in stray], True)] == ["NotOneBodyWarning"]
+    small = [normalize(_ring(r=0.5, n=25 + i)) for i in range(4)]
+    got = _warned(small, True)
+    assert [c for c, _ in got] == ["OutsideTrainingRangeWarning"] and "radius is 0.5" in got[0][1]
+
+
+def test_stray_points_just_outside_the_outline_within_the_bodys_reach_are_named():
+    """Two points 1.5 world units outside a ring of radius 2 (beyond the link, within 3.6 of the
+    body's centre): apart from the body, named -- whichever path judges the window (found by a
+    fresh mutation sample, seed 478775425: the outline and pairwise shortcuts that call any
+    frame within the body's reach one body)."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    strays = [[20.0, 23.5], [20.3, 23.5]]
+    frame = np.concatenate([_ring(), strays])
+    assert list(np.flatnonzero(body_outliers(frame))) == [30, 31]
+    w = np.stack([frame + [0.5 * i, 0.0] for i in range(4)])
+    for frames in (w, list(w), [w[0], w[1], w[2][1:], w[3]]):
+        got = window_body_problem(frames)
+        assert got is not None and "2 of " in got and "(likely stray points" in got, got
+    assert window_body_problem(w[:, :30]) is None               # the ring alone: one body
+
+
+def test_two_frames_are_enough_to_judge_the_motion():
+    """A model of m = 2 frames (TPNetConfig takes any m >= 1): its window's motion is judged
+    (found by a fresh mutation sample, seed 670151351)."""
+    from tpnet_ref.checks import motion_problem
+    slow = np.stack([_ring() + [0.02 * i, 0.0] for i in range(2)])
+    assert "moves 0.02 world units per frame" in motion_problem(slow)
+    assert "moves 0.02 world units per frame" in motion_problem(list(slow))
+    assert motion_problem(np.stack([_ring() + [0.5 * i, 0.0] for i in range(2)])) is None
+    assert [c for c, _ in _warned(list(slow))] == ["FrameSpacingWarning"]

@@ -167,3 +167,28 @@ def test_column_blocks_are_the_widest_that_fit():
                     if (8 * u) % nb == 0 and rows * c * nb <= SMALL_PRODUCT), default=None)
         got = None if fused.blocks is None else fused.blocks.shape[2]
         assert got == want, (rows, got, want)
+
+
+# ------------------------------------------------------------------ found by a fresh mutation sample
+# (tools/mutation.py layers --sample 40 --fresh-seed: seed 479556107; docs/testing.md)
+@pytest.mark.parametrize("name", ["elu", "gelu", "linear", "RELU", "Tanh", "sigmoid", "swish", ""])
+def test_an_unknown_lstm_activation_is_refused_by_name(name):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(1, 3, 2))
+    k, r, b = rng.normal(size=(2, 8)), rng.normal(size=(2, 8)), np.zeros(8)
+    with pytest.raises(ValueError, match=f"^unknown LSTM activation {name!r}: expected 'relu' "
+                                         "or 'tanh'$"):
+        L.lstm(x, k, r, b, activation=name)
+    for good in ("relu", "tanh"):
+        assert L.lstm(x, k, r, b, activation=good).shape == (1, 3, 2)
+
+
+@pytest.mark.parametrize("spans", [[], [(3, 3)], [(5, 2), (0, 0)]])
+def test_a_projection_of_all_zero_columns_is_zero_in_the_given_buffer_too(spans):
+    rng = np.random.default_rng(1)
+    x, kernel = np.zeros((3, 6), np.float32), rng.normal(size=(6, 5)).astype(np.float32)
+    got = L.project_spans(x, kernel, None, spans)
+    assert got.dtype == np.float32 and got.shape == (3, 5) and not got.any()
+    buf = np.full((3, 5), 7.0, np.float32)
+    assert L.project_spans(x, kernel, None, spans, out=buf) is buf
+    np.testing.assert_array_equal(buf, np.zeros((3, 5)))

@@ -9,6 +9,8 @@ import json
 from pathlib import Path
 from types import SimpleNamespace
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -52,3 +54,40 @@ def test_a_mutant_inside_an_annotation_is_recognised():
     body = SimpleNamespace(start_pos=(row + 3, 4), end_pos=(row + 3, 5))
     assert "activation: str | None" in head
     assert m.in_annotation(inside, spans) and not m.in_annotation(body, spans)
+
+
+def test_a_fresh_seed_is_drawn_from_the_clock_printed_first_and_starts_over(monkeypatch, capsys,
+                                                                            tmp_path):
+    """``--fresh-seed``: the seed comes from the clock, is printed before any mutant runs, chooses
+    the sample and starts the session over; without ``--sample`` or beside ``--seed`` it is an
+    error. (cosmic-ray itself is stubbed out: only the tool's own choices are seen here.)"""
+    import sys
+    m = _tool()
+    monkeypatch.setitem(sys.modules, "cosmic_ray", SimpleNamespace())
+    calls = []
+    monkeypatch.setattr(m.time, "time_ns", lambda: 1_234_567_890_123)
+    monkeypatch.setattr(m.os, "nice", lambda n: None)
+    monkeypatch.setattr(m, "prepare", lambda module, work, timeout, sample, seed, fresh: calls.append(
+        (module, sample, seed, fresh, capsys.readouterr().out)))
+    monkeypatch.setattr(m, "run", lambda module, work: None)
+    monkeypatch.setattr(m, "report", lambda modules, work: {"checks": {}})
+    seed = 1_234_567_890_123 % 1_000_000_007
+    assert m.main(["checks", "--sample", "40", "--fresh-seed", "--workdir", str(tmp_path)]) == 0
+    [(module, sample, got, fresh, printed)] = calls
+    assert (module, sample, got, fresh) == ("checks", 40, seed, True)
+    assert f"fresh seed: {seed}" in printed                   # printed before the module ran
+    monkeypatch.setattr(m.time, "time_ns", lambda: 1_234_567_890_124)
+    m.main(["checks", "--sample", "40", "--fresh-seed", "--workdir", str(tmp_path)])
+    assert calls[1][2] == seed + 1                             # another moment, another sample
+    for bad in (["checks", "--fresh-seed"], ["checks", "--sample", "40", "--seed", "3",
+                                             "--fresh-seed"]):
+        with pytest.raises(SystemExit):
+            m.main(bad + ["--workdir", str(tmp_path)])
+
+
+def test_the_report_names_each_sample_by_its_seed(tmp_path):
+    m = _tool()
+    assert m.sample_seed("checks", tmp_path) == "?"
+    (tmp_path / "checks").mkdir()
+    (tmp_path / "checks" / "seed").write_text("777\n")
+    assert m.sample_seed("checks", tmp_path) == "777"

@@ -463,3 +463,81 @@ def test_the_default_windows_have_the_released_four_frames():
 
     draw()
     assert seen == {4}
+
+
+# ------------------------------------------------------------------ found by a fresh mutation sample
+# (tools/mutation.py testing --sample 40 --fresh-seed: seed 479556107; docs/testing.md)
+def test_the_reference_and_invariance_checks_run_50_windows_by_default(released_random64):
+    """The documented default of agrees_with_reference and permutation_invariant: 50 windows,
+    as each one's report says."""
+    model = released_random64
+    zeros = np.zeros((model.config.n_out, model.config.dim))
+    got = testing.agrees_with_reference(lambda w: zeros, model, tol=1e9, seed=1)
+    assert got.report.startswith("agrees_with_reference: <lambda> passed on 50 windows (m=4, ")
+    got = testing.permutation_invariant(lambda w: zeros, seed=1)
+    assert " passed on 50 windows (" in got.report
+
+
+def test_a_list_of_two_choices_draws_both():
+    """windows(m=[a, b]) and n=[a, b] draw from both choices (a fresh mutation sample, seed
+    479556107: a two-choice list drew only its first)."""
+    seen = set()
+
+    def record(window):
+        seen.add((len(window), len(window[0])))
+        return np.zeros((1, 2))
+    got = testing.permutation_invariant(record, windows=testing.windows(m=[2, 3], n=[4, 6]),
+                                        seed=0)
+    assert {m for m, _ in seen} == {2, 3} and {n for _, n in seen} == {4, 6}, seen
+    assert "(m=2..3, N=4..6, " in got.report
+    seen.clear()
+    testing.permutation_invariant(record, windows=testing.windows(m=[3], n=5), max_examples=5)
+    assert seen == {(3, 5)}
+
+
+def test_tied_windows_take_three_x_values_in_the_first_frame():
+    """windows(ties=True): in the first frame one coordinate takes only three values, the
+    centre and one spread either side (a fresh mutation sample, seed 479556107: a tied frame of
+    the smallest spread collapsed onto its centre)."""
+    firsts = []
+
+    def record(window):
+        firsts.append(np.unique(window[0][:, 0]))
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=64, ties=True, scales=[1e-3],
+                                                                  ragged=False), seed=0,
+                                  max_examples=10)
+    assert all(len(x) <= 3 for x in firsts)
+    three = [x for x in firsts if len(x) == 3]
+    assert three, firsts
+    for x in three:
+        np.testing.assert_allclose(np.diff(x), [1e-3, 1e-3], rtol=1e-6)
+
+
+def test_the_points_of_a_frame_spread_in_both_coordinates_independently():
+    """A frame's points are drawn around its centre in x and y independently: never all on one
+    line (a fresh mutation sample, seed 479556107: one draw for both put them on a diagonal)."""
+    spans = []
+
+    def record(window):
+        spans.extend(float(np.ptp(f[:, 0] - f[:, 1])) for f in window)
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=8, ties=False,
+                                                                  scales=[1.0]), seed=0,
+                                  max_examples=10)
+    assert spans and min(spans) > 1e-6, spans
+
+
+def test_a_window_moves_by_the_step_asked_even_below_1():
+    """windows(step=(0.5, 0.5)): each frame's centre moves 0.5 from the one before (a fresh
+    mutation sample, seed 479556107: a step range below 1 gave windows at rest)."""
+    moves = []
+
+    def record(window):
+        c = np.array([f.mean(axis=0) for f in window])
+        moves.extend(np.hypot(*(c[1:] - c[:-1]).T))
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=16, step=(0.5, 0.5),
+                                                                  scales=[1e-3], ties=False),
+                                  seed=0, max_examples=10)
+    np.testing.assert_allclose(moves, 0.5, atol=0.01)

@@ -9,6 +9,7 @@ mutant is killed when the tests fail or time out, survives when they pass.
 
     python tools/mutation.py                         # every module, every mutant (hours)
     python tools/mutation.py layers checks --sample 60 --seed 1   # 60 mutants of each
+    python tools/mutation.py checks --sample 40 --fresh-seed       # a sample no test has seen
     python tools/mutation.py --report                # the score so far, from the saved sessions
     python tools/mutation.py layers --rerun-survivors    # after new tests: the survivors again
 
@@ -16,7 +17,10 @@ The work happens in a copy of the repository per module (``--workdir``, default
 ``$TMPDIR/tpnet-mutation``), never in the working tree: cosmic-ray edits the module in place. A
 session is kept there (``<module>/session.sqlite``): running the same command again goes on with
 the mutants not yet run (``--fresh`` starts over). ``--sample N`` runs a seeded random N of a
-module's mutants and marks the others skipped.
+module's mutants and marks the others skipped. ``--fresh-seed`` draws the seed from the clock,
+prints it before anything runs and starts the sessions over (a sample the tests were not written
+against: the honest score); the seed is kept beside the session (``<module>/seed``) and printed
+by the report.
 
 The report prints, per module, the mutants run, killed, survived, the equivalent survivors
 (:data:`TRIAGE` file ``tools/mutation_triage.json``: the mutated line before and after, and why
@@ -49,7 +53,7 @@ MODULES = {
     "reference": ["tests/test_reference.py", "tests/test_layers.py",
                   "tests/test_crosscheck.py::test_trace_names_in_order_and_result_unchanged"],
     "layers": ["tests/test_layers.py", "tests/test_reference.py"],
-    "checks": ["tests/test_checks.py", "tests/test_model.py"],
+    "checks": ["tests/test_checks.py", "tests/test_checks_scattered.py", "tests/test_model.py"],
     "native": ["tests/test_native.py", "tests/test_integrity.py"],
     "hdf5": ["tests/test_hdf5.py", "tests/test_untrusted_files.py", "tests/test_native.py"],
     # (tests/test_invariance.py runs the same checkers on more networks: 70 s more a mutant)
@@ -114,6 +118,7 @@ def prepare(module: str, work: Path, timeout: float, sample: int | None, seed: i
     (home / "config.toml").write_text(_config(module, timeout))
     if session.exists():
         return session
+    (home / "seed").write_text(f"{seed}\n" if sample is not None else "all\n")
     _cr("init", str(home / "config.toml"), str(session), cwd=tree)
     with use_db(str(session), WorkDB.Mode.open) as db:
         items = list(db.work_items)
@@ -145,6 +150,17 @@ def forget_survivors(module: str, work: Path) -> int:
         con.executemany("DELETE FROM work_results WHERE job_id = ?", [(j,) for j in again])
     print(f"{module}: {len(again)} survivors to run again", flush=True)
     return len(again)
+
+
+def clock_seed() -> int:
+    """A seed drawn from the clock (nanoseconds), for a sample nobody chose."""
+    return time.time_ns() % 1_000_000_007
+
+
+def sample_seed(module: str, work: Path) -> str:
+    """The seed of ``module``'s session as recorded by :func:`prepare` ('?' when unknown)."""
+    f = work / module / "seed"
+    return f.read_text().strip() if f.exists() else "?"
 
 
 def run(module: str, work: Path) -> None:
@@ -248,11 +264,12 @@ def report(modules: list[str], work: Path, verbose: bool = True) -> dict:
         live = c["run"] - c["equivalent"]
         c["score"] = c["killed"] / live if live else float("nan")
         scores[module] = c
-    print(f"{'module':<11} {'mutants':>7} {'run':>4} {'killed':>6} {'(timeout)':>9} "
+    print(f"{'module':<11} {'seed':>10} {'mutants':>7} {'run':>4} {'killed':>6} {'(timeout)':>9} "
           f"{'survived':>8} {'equiv.':>6} {'accepted':>8} {'pending':>7}  "
           "score (killed / non-equivalent)")
     for module, c in scores.items():
-        print(f"{module:<11} {c['total']:>7} {c['run']:>4} {c['killed']:>6} {c['timeout']:>9} "
+        print(f"{module:<11} {sample_seed(module, work):>10} {c['total']:>7} {c['run']:>4} "
+              f"{c['killed']:>6} {c['timeout']:>9} "
               f"{c['survived']:>8} {c['equivalent']:>6} {c['accepted']:>8} {c['pending']:>7}  "
               f"{100 * c['score']:.1f} %")
     if verbose and untriaged:
@@ -270,6 +287,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sample", type=int, default=None,
                     help="run a seeded random N of each module's mutants (default: all)")
     ap.add_argument("--seed", type=int, default=0, help="the sample's seed")
+    ap.add_argument("--fresh-seed", action="store_true",
+                    help="draw the sample's seed from the clock, print it first, and start the "
+                         "sessions over (a sample no test was written against)")
     ap.add_argument("--timeout", type=float, default=300.0,
                     help="seconds one mutant's tests may run before it counts as killed")
     ap.add_argument("--workdir", type=Path,
@@ -288,6 +308,15 @@ def main(argv: list[str] | None = None) -> int:
         import cosmic_ray  # noqa: F401
     except ImportError:
         ap.error("cosmic-ray is not installed: pip install -e '.[mutation]'")
+    if args.fresh_seed:
+        if args.seed:
+            ap.error("--fresh-seed draws the seed: give it or --seed, not both")
+        if args.sample is None:
+            ap.error("--fresh-seed needs --sample N (a seed chooses a sample)")
+        if args.report or args.rerun_survivors:
+            ap.error("--fresh-seed starts a new sample: not with --report or --rerun-survivors")
+        args.seed, args.fresh = clock_seed(), True
+        print(f"fresh seed: {args.seed} (rerun this sample with --seed {args.seed})", flush=True)
     if not args.report:
         os.nice(args.nice)
         for module in args.modules:
