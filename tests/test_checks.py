@@ -319,6 +319,14 @@ def test_a_body_in_free_fall_shows_its_frame_spacing(rows_apart, flagged):
     assert motion_problem(list(w)) == why
 
 
+def test_the_free_fall_constants_are_the_scenes_and_the_protocols():
+    from tpnet_ref import protocol
+    from tpnet_ref.checks import FRAME_ROWS, GRAVITY, SIM_DT
+    from tpnet_ref.sim.scene import SceneParams
+    assert (FRAME_ROWS, SIM_DT) == (protocol.FRAME_EVERY, protocol.REFERENCE_DT)
+    assert SceneParams().gravity == (0.0, -GRAVITY) and SceneParams().dt == SIM_DT
+
+
 def test_a_window_not_in_free_fall_is_judged_by_its_speed_alone():
     from tpnet_ref.checks import FREE_FALL_TOL, free_fall_rows, motion_problem
     assert free_fall_rows(_falling(1, ax=1.5 * FREE_FALL_TOL).mean(axis=1)) is None   # a push

@@ -68,8 +68,18 @@ MAX_FILES=8; MAX_MIB=${PART_MIB:-16}; MAX_TOTAL_MIB=${MAX_TOTAL_MIB:-60}; UP_MIB
 UP=.up/$NAME
 bytes() { awk -v m="$1" 'BEGIN { printf "%d", m * 1048576 }'; }
 SITE=
-T() { PYTHONPATH="${SITE:+$SITE:}$REPO${PYTHONPATH:+:$PYTHONPATH}" \
-        ${T_TIMEOUT:+timeout --signal=KILL "$T_TIMEOUT"} "$PY" -m tpnet_ref.cli "$@"; }
+py() { PYTHONPATH="${SITE:+$SITE:}$REPO${PYTHONPATH:+:$PYTHONPATH}" \
+         ${T_TIMEOUT:+timeout --signal=KILL "$T_TIMEOUT"} "$PY" "$@"; }
+T() { py -m tpnet_ref.cli "$@"; }
+# a run directory's parts checked against its checkpoint.json, by the loader's own check
+parts_ok() {
+    py -c "import sys
+from tpnet_ref.training.checkpoint import checkpoint_bytes
+try:
+    checkpoint_bytes(sys.argv[1])
+except (OSError, ValueError) as e:
+    sys.exit(f'gpu_train: {e}')" "$1"
+}
 # DEADLINE (epoch seconds, empty: none): the call's end; MINUTES is then what is left after the
 # data and the bench, less RESERVE_S for the last checkpoint and the copy (a device call that
 # outlasts its limit brings nothing back)
@@ -110,13 +120,7 @@ assemble() {
     cp "$UP/1/checkpoint.json" "$UP/1/log.jsonl" "$RUN.in/"
     for i in $(seq 1 "$k"); do cat "$UP/$i/chunk"; done \
         | split -b "$(awk '$1 == "part_bytes" {print $2}' "$man")" -d -a 3 - "$RUN.in/checkpoint.pt."
-    "$PY" - "$RUN.in" <<'PYEOF'
-import hashlib, json, pathlib, sys
-d = pathlib.Path(sys.argv[1]); s = json.loads((d / "checkpoint.json").read_text())["checkpoint_files"]
-data = b"".join((d / n).read_bytes() for n in s["files"])
-if hashlib.sha256(data).hexdigest() != s["sha256"] or sorted(p.name for p in d.glob("checkpoint.pt.*")) != s["files"]:
-    sys.exit(f"gpu_train: the bundles in .up do not rebuild {s['files']}: incomplete or mixed stages")
-PYEOF
+    parts_ok "$RUN.in" || { echo "gpu_train: the bundles in $UP do not rebuild the run: incomplete or mixed stages" >&2; return 1; }
     rm -rf "$RUN"; mv "$RUN.in" "$RUN"; rm -rf "$UP"
     echo "gpu_train: $RUN assembled from $k bundles"
 }
@@ -159,15 +163,7 @@ collect)   # here: the files calls returned (a call and its `rest` calls) -> .gp
         cp "$src/$NAME"/* "$RUN.in"/
     done
     [ -f "$RUN.in/checkpoint.json" ] || { echo "no checkpoint.json in $*" >&2; exit 1; }
-    "$PY" - "$RUN.in" <<'PYEOF'
-import hashlib, json, pathlib, sys
-d = pathlib.Path(sys.argv[1]); s = json.loads((d / "checkpoint.json").read_text())["checkpoint_files"]
-missing = [n for n in s["files"] if not (d / n).is_file()]
-if missing:
-    sys.exit(f"gpu_train: {missing} did not come back: a `rest` call brings them (then collect both)")
-if hashlib.sha256(b"".join((d / n).read_bytes() for n in s["files"])).hexdigest() != s["sha256"]:
-    sys.exit("gpu_train: the parts do not match checkpoint.json: mixed calls")
-PYEOF
+    parts_ok "$RUN.in" || { echo "gpu_train: parts did not come back or come from other calls: a \`rest\` call brings the missing ones (then collect every folder)" >&2; exit 1; }
     rm -rf "$RUN"; mv "$RUN.in" "$RUN"
     mkdir -p runs
     T train export "$RUN" "runs/gpu-$NAME.h5"

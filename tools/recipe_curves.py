@@ -35,20 +35,12 @@ from tpnet_ref.training.score import SNAPSHOT_READINGS as READINGS, score_snapsh
 LAYERS = ("mlp1.0", "mlp1.1", "mlp2.0", "mlp2.1", "mlp2.2", "global", "lstm1", "lstm2", "lstm3")
 
 
-def _val_records(run: Path) -> dict[int, dict]:
+def _log_records(run: Path, kind: str = "val") -> dict[int, dict]:
+    """The run's ``log.jsonl`` records of ``kind`` (``val`` or ``train``), by step."""
     out = {}
     for line in (run / "log.jsonl").read_text().splitlines():
         rec = json.loads(line)
-        if rec.get("kind") == "val":
-            out[int(rec["step"])] = rec
-    return out
-
-
-def _train_records(run: Path) -> dict[int, dict]:
-    out = {}
-    for line in (run / "log.jsonl").read_text().splitlines():
-        rec = json.loads(line)
-        if rec.get("kind") == "train" and "wall_s" in rec:
+        if rec.get("kind") == kind:
             out[int(rec["step"])] = rec
     return out
 
@@ -72,8 +64,8 @@ def run_rows(data: WindowData, label: str, run: Path,
     cache = {**(json.loads(stored.read_text()) if stored.is_file() else {}), **cache}
     names = sorted(k for k in cache if k.startswith("step-"))
     w0, t0 = offset
-    vals = _val_records(run)
-    trained = _train_records(run)
+    vals = _log_records(run)
+    trained = _log_records(run, "train")
     ck = run / "checkpoint.json"
     batch = json.loads(ck.read_text())["recipe"]["batch"] if ck.is_file() else None
     rows = []
@@ -243,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         off = inherited(Path(run))
         r, copy_last = run_rows(data, label, Path(run), off)
         rows += r
-        logs[label] = _val_records(Path(run))
+        logs[label] = _log_records(Path(run))
         offsets[label] = off[0]
     cols = ["run", "step", "windows_seen", "wall_s",
             *(column(k, args.reading) for k in ("Ep@40", "Ep@80", "Es@80")), "val_cd8",

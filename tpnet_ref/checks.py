@@ -461,9 +461,10 @@ class TooFewPointsWarning(OutsideTrainingRangeWarning):
 
 
 class FrameSpacingWarning(OutsideTrainingRangeWarning):
-    """A window whose body moves slower or faster from frame to frame than in any training window
-    (frames not 4/45 s apart: e.g. consecutive simulator rows instead of every fourth); the
-    result is computed unchanged."""
+    """A window whose frames look otherwise spaced in time than 4/45 s (e.g. consecutive
+    simulator rows instead of every fourth): a falling body's centroid falls as at another
+    spacing, or the body moves slower or faster than in any training window
+    (:func:`motion_problem`); the result is computed unchanged."""
 
 
 #: a frame needs at least this many points: fewer than 3 cannot span an area, so they cannot
@@ -476,7 +477,9 @@ MIN_FRAME_POINTS = 3
 #: 89.3 % of every 2nd row, 82.4 % of every 8th (``python bench/robustness.py --motion 200``)
 MOTION_RANGE = (0.1, 2.5)
 #: the scene's gravity (world units / s², downwards), simulator step (s) and simulator rows per
-#: model frame (docs/spec.md §3): a body in free fall has its centroid's second difference
+#: model frame (docs/spec.md §3; the same as the scene's ``SceneParams`` and
+#: ``protocol.REFERENCE_DT`` / ``FRAME_EVERY``, which this bottom layer cannot import: a test
+#: holds them equal): a body in free fall has its centroid's second difference
 #: (0, -GRAVITY * (FRAME_ROWS * SIM_DT)²) per frame, whatever its springs do (internal forces)
 GRAVITY, SIM_DT, FRAME_ROWS = 0.5, 1.0 / 45.0, 4
 #: a window is "in free fall" when its centroid's second differences match (0, -g h²) for one h
@@ -561,8 +564,8 @@ def warn_about_input(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
     :class:`OutsideTrainingRangeWarning` when it leaves the training range (stray points trip
     both; one line names the likely cause); then, for input inside the training range, a
     :class:`TooFewPointsWarning` for a frame of fewer than :data:`MIN_FRAME_POINTS` points and,
-    for ``one_window``, a :class:`FrameSpacingWarning` when its body moves outside
-    :data:`MOTION_RANGE` per frame."""
+    for ``one_window``, a :class:`FrameSpacingWarning` when :func:`motion_problem` finds its
+    frames otherwise spaced in time than the training windows'."""
     scale = norm_hi - norm_lo
     with np.errstate(over="ignore", invalid="ignore"):      # far-out input: judged, not warned twice
         x: Any = ([np.asarray(f, dtype=np.float64) for f in frames]

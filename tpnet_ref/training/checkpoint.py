@@ -137,6 +137,19 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict, dict]:
         if not ckpt.is_file():
             raise FileNotFoundError(f"checkpoint not found: {ckpt}")
         return torch.load(ckpt, map_location="cpu", weights_only=True), state
+    payload = torch.load(io.BytesIO(checkpoint_bytes(run_dir, listed)), map_location="cpu",
+                         weights_only=True)
+    return payload, state
+
+
+def checkpoint_bytes(run_dir: str | os.PathLike, listed: dict | None = None) -> bytes:
+    """The payload of ``run_dir``'s checkpoint files (parts joined), checked against the list,
+    size and SHA-256 in its ``checkpoint.json`` (``listed``: its ``checkpoint_files``, read
+    when not given); a missing part raises FileNotFoundError, a damaged or mixed set
+    ValueError."""
+    run_dir = Path(run_dir)
+    if listed is None:
+        listed = json.loads((run_dir / SIDECAR_NAME).read_text())["checkpoint_files"]
     chunks = []
     for name in listed["files"]:
         f = run_dir / name
@@ -149,8 +162,7 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict, dict]:
         raise ValueError(f"{run_dir}: checkpoint files {listed['files']} do not match "
                          f"checkpoint.json ({len(data):,} bytes, expected {listed['bytes']:,}, "
                          "or another SHA-256): incomplete or mixed copies")
-    payload = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-    return payload, state
+    return data
 
 
 def load_parent(source: str | os.PathLike) -> tuple[dict, dict, TPNetConfig]:
