@@ -324,13 +324,16 @@ class ThreadPolicy:
             return self._best(times)
 
     @contextlib.contextmanager
-    def __call__(self, kind: Hashable, held: bool = False) -> Iterator[int]:
+    def __call__(self, kind: Hashable, held: bool = False,
+                 blas_free: bool = False) -> Iterator[int]:
         """Run the block with a one-thread BLAS and the chosen plan (:func:`two_threads` tells
         the block); yields the choice (1, 0, or -1 when the policy stands aside: nested in
         another :func:`one_thread` block, or one core) and records the block's latency.
         ``held``: the caller holds a :func:`one_thread` block of its own around many such
         blocks (a rollout's steps, ~30 us each saved) and was not itself nested in one when it
-        took it: the policy chooses all the same."""
+        took it: the policy chooses all the same. ``blas_free``: the block calls no BLAS
+        product (the Numba engine's kernels alone), so on one thread it needs no one-thread
+        BLAS block (about 4 us saved per call); its two-thread plan still takes one."""
         if (in_one_thread() and not held) or cpu_count() < 2:
             with one_thread():
                 yield -1
@@ -339,7 +342,7 @@ class ThreadPolicy:
         t = time.perf_counter()
         _LOCAL.two = choice == 0
         try:
-            if held:
+            if held or (blas_free and choice == 1):
                 yield choice
             else:
                 with one_thread():

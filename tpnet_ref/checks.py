@@ -192,26 +192,38 @@ def training_range_problem(frames: np.ndarray | list[np.ndarray], norm_lo: float
     lo = min(float(g.min()) for g in groups)
     hi = max(float(g.max()) for g in groups)
     if lo < RANGE_LO or hi > RANGE_HI:
-        if normalized:
-            hint = (" (world units passed as normalized=True / --normalized?)" if hi > 2.0
-                    else "")
-            return (f"coordinates span [{lo:.3g}, {hi:.3g}] in model units, outside the training "
-                    f"box [0, 1]{hint}")
-        return (f"coordinates span [{lo * scale + norm_lo:.3g}, {hi * scale + norm_lo:.3g}] world "
-                f"units, outside the training box [{norm_lo:g}, {norm_hi:g}]"
-                )
+        return span_problem(lo, hi, norm_lo, norm_hi, normalized)
     for g in groups:
         if g.shape[1] < RADIUS_MIN_POINTS:
             continue
         r = np.sqrt(((g - g.mean(axis=1, keepdims=True)) ** 2).sum(axis=2)).mean(axis=1) * scale
         bad = r[(r < RADIUS_RANGE[0]) | (r > RADIUS_RANGE[1])]
         if bad.size:
-            hint = (" (model coordinates given as world units? pass normalized=True)"
-                    if not normalized and float(bad[0]) < 0.1 else "")
-            return (f"a frame's mean radius is {float(bad[0]):.3g} world units; the trained body "
-                    f"is a ring of radius 2 (accepted {RADIUS_RANGE[0]:g}..{RADIUS_RANGE[1]:g})"
-                    + hint)
+            return radius_problem(float(bad[0]), normalized)
     return None
+
+
+def span_problem(lo: float, hi: float, norm_lo: float, norm_hi: float, normalized: bool) -> str:
+    """:func:`training_range_problem`'s words for coordinates spanning ``[lo, hi]`` (model
+    units) beyond the training box."""
+    if normalized:
+        hint = (" (world units passed as normalized=True / --normalized?)" if hi > 2.0
+                else "")
+        return (f"coordinates span [{lo:.3g}, {hi:.3g}] in model units, outside the training "
+                f"box [0, 1]{hint}")
+    scale = norm_hi - norm_lo
+    return (f"coordinates span [{lo * scale + norm_lo:.3g}, {hi * scale + norm_lo:.3g}] world "
+            f"units, outside the training box [{norm_lo:g}, {norm_hi:g}]")
+
+
+def radius_problem(radius: float, normalized: bool) -> str:
+    """:func:`training_range_problem`'s words for a frame of mean radius ``radius`` (world
+    units) outside :data:`RADIUS_RANGE`."""
+    hint = (" (model coordinates given as world units? pass normalized=True)"
+            if not normalized and radius < 0.1 else "")
+    return (f"a frame's mean radius is {radius:.3g} world units; the trained body "
+            f"is a ring of radius 2 (accepted {RADIUS_RANGE[0]:g}..{RADIUS_RANGE[1]:g})"
+            + hint)
 
 
 def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: float, norm_hi: float,
@@ -221,10 +233,19 @@ def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: 
     (``stacklevel`` None: the first caller outside the package); whether it warned."""
     problem = training_range_problem(frames, norm_lo, norm_hi, normalized)
     if problem:
-        warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
-                      "extrapolation", OutsideTrainingRangeWarning,
-                      stacklevel=stacklevel or _caller_level())
+        _warn_range(name, problem, stacklevel or _caller_level())
     return problem is not None
+
+
+def _warn_range(name: str, problem: str, stacklevel: int) -> None:
+    """``stacklevel``: as the caller would pass it to :func:`warnings.warn` itself."""
+    warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
+                  "extrapolation", OutsideTrainingRangeWarning, stacklevel=stacklevel + 1)
+
+
+def _warn_motion(name: str, problem: str) -> None:
+    warnings.warn(f"{name}: unusual motion: {problem}; the prediction is an extrapolation",
+                  FrameSpacingWarning, stacklevel=_caller_level())
 
 
 # --------------------------------------------------------------------------- one body?
@@ -528,17 +549,30 @@ def motion_problem(world: np.ndarray | list[np.ndarray]) -> str | None:
     if rows is not None:                    # the scene's gravity reads the spacing exactly
         if abs(rows - FRAME_ROWS) < 1.0:
             return None
-        return (f"the body falls freely, and its centroid falls as if the frames were "
-                f"{rows:.2g}/45 s apart, not {FRAME_ROWS}/45 s (gravity {GRAVITY:g} world "
-                f"units/s², the simulator's step 1/45 s): "
-                + ("consecutive simulator rows instead of every fourth?" if rows < 1.5 else
-                   "frames picked at another rate?")
-                + " (tpnet_ref.observe.frames_at_model_rate picks frames at the model's rate)")
+        return fall_problem(rows)
     d = c[1:] - c[:-1]
     step = float(np.sqrt(np.einsum("fk,fk->f", d, d)).mean())
     lo, hi = MOTION_RANGE
     if lo <= step <= hi:
         return None
+    return step_problem(step)
+
+
+def fall_problem(rows: float) -> str:
+    """:func:`motion_problem`'s words for a body falling freely as at ``rows`` simulator rows
+    per frame."""
+    return (f"the body falls freely, and its centroid falls as if the frames were "
+            f"{rows:.2g}/45 s apart, not {FRAME_ROWS}/45 s (gravity {GRAVITY:g} world "
+            f"units/s², the simulator's step 1/45 s): "
+            + ("consecutive simulator rows instead of every fourth?" if rows < 1.5 else
+               "frames picked at another rate?")
+            + " (tpnet_ref.observe.frames_at_model_rate picks frames at the model's rate)")
+
+
+def step_problem(step: float) -> str:
+    """:func:`motion_problem`'s words for a centroid moving ``step`` world units per frame on
+    average, outside :data:`MOTION_RANGE`."""
+    lo, hi = MOTION_RANGE
     why = ("frames closer in time than 4/45 s, e.g. consecutive simulator rows instead of every "
            "fourth, or a body at rest" if step < lo else
            "frames further apart in time than 4/45 s, e.g. every 8th simulator row")
@@ -584,5 +618,31 @@ def warn_about_input(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
                           "extrapolation", TooFewPointsWarning, stacklevel=_caller_level())
         moved = motion_problem(world) if one_window else None
         if moved:
-            warnings.warn(f"{name}: unusual motion: {moved}; the prediction is an extrapolation",
-                          FrameSpacingWarning, stacklevel=_caller_level())
+            _warn_motion(name, moved)
+
+
+# --------------------------------------------------------------------------- a first pass's verdict
+#: what a compiled first pass over a window of equal frames found (the Numba engine's
+#: :mod:`tpnet_ref.engine_checks`, held to :func:`warn_about_input` by tests): nothing to say;
+#: undecided (a frame not clearly one body, a value at a threshold, a refused value: the checks
+#: above then run); or the one warning :func:`warn_about_input` gives, with its numbers
+VERDICT_CLEAR, VERDICT_UNDECIDED, VERDICT_SPAN, VERDICT_RADIUS, VERDICT_FALL, VERDICT_STEP = range(6)
+
+
+def warn_verdict(code: int, a: float, b: float, norm_lo: float, norm_hi: float,
+                 normalized: bool, name: str) -> None:
+    """The warning :func:`warn_about_input` gives for a decided verdict ``code`` (one of the
+    ``VERDICT_*`` other than undecided) with its numbers: ``a, b`` the span's ends in model
+    units (``VERDICT_SPAN``), ``a`` the frame's mean radius in world units (``VERDICT_RADIUS``),
+    the rows per frame of a free fall (``VERDICT_FALL``) or the centroid's mean step in world
+    units (``VERDICT_STEP``); nothing for ``VERDICT_CLEAR``."""
+    if code == VERDICT_SPAN:
+        _warn_range(name, span_problem(a, b, norm_lo, norm_hi, normalized), _caller_level())
+    elif code == VERDICT_RADIUS:
+        _warn_range(name, radius_problem(a, normalized), _caller_level())
+    elif code == VERDICT_FALL:
+        _warn_motion(name, fall_problem(a))
+    elif code == VERDICT_STEP:
+        _warn_motion(name, step_problem(a))
+    elif code != VERDICT_CLEAR:
+        raise ValueError(f"verdict: no warning for code {code}")

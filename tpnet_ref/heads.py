@@ -101,10 +101,20 @@ def build_features(model: Any, engine: str) -> Any:
     return engine_numba.NumbaFeatures(model.config, model.params, model.dtype)
 
 
+def build_screen(engine: str, config: Any) -> Any:
+    """The compiled first pass over an array of windows
+    (:class:`tpnet_ref.engine_checks.Screen`) that goes with the numba head, or None: engine
+    "numpy", or points of another dimension than 2 (the checks then serve every call)."""
+    if engine != "numba" or config.dim != 2:
+        return None
+    from . import engine_checks
+    return engine_checks.Screen()
+
+
 def for_batch(heads: list[Head], batch: int) -> Head:
     """The first of ``heads`` that runs batches of ``batch`` windows."""
     return next(h for h in heads if h.max_batch is None or batch <= h.max_batch)
 
 
 __all__ = ["ENGINES", "ENGINE_MAX_BATCH", "Head", "resolve_engine", "build", "build_features",
-           "for_batch"]
+           "build_screen", "for_batch"]

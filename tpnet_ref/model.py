@@ -75,6 +75,8 @@ class TPNet:
             (h.scene for h in self.heads if h.name == "specialised"), None)
         self._lo = self.dtype.type(config.norm_lo)
         self._scale = self.dtype.type(config.norm_hi - config.norm_lo)
+        #: the compiled first pass over an array of windows (None: the checks serve every call)
+        self.screen = H.build_screen(self.engine, config)
 
     # ------------------------------------------------------- the same network, changed
     def _replace(self, **changes: Any) -> "TPNet":
@@ -216,9 +218,13 @@ class TPNet:
         feature extractor's blocks of :data:`~tpnet_ref.fast_numpy.BLOCK_POINTS` points, the
         numba head's two directions) take it while that measures faster (the same bits either
         way). A call with nothing to share runs on one thread."""
-        if not self.head_for(batch).threaded and points <= BLOCK_POINTS:
+        head = self.head_for(batch)
+        if not head.threaded and points <= BLOCK_POINTS:
             return one_thread()
-        return adaptive((id(self), what, batch, points), held)
+        # the Numba engine's own kernels alone (its feature extractor, its head): no BLAS product
+        blas_free = (head.name == "numba" and self.engine_features is not None
+                     and batch <= ENGINE_MAX_BATCH)
+        return adaptive((id(self), what, batch, points), held, blas_free)
 
     def preferred_threads(self, what: str = "predict", batch: int = 1, points: int = 0) -> int | None:
         """The plan :data:`tpnet_ref.blas.adaptive` measured faster for this model's calls of
@@ -227,38 +233,47 @@ class TPNet:
         to share: one feature block on the NumPy head)."""
         return adaptive.preferred((id(self), what, batch, points))
 
-    def _split(self, fn: Any, windows: Any, one: bool, normalized: bool, *args: Any) -> np.ndarray:
-        """``fn(frames, batch, normalized, *args)`` on one window (``one``) or a batch: checked,
-        a one-line warning for input outside the training range or not one body, then run in
-        chunks that depend on the batch size alone (:func:`tpnet_ref.blas.split_batch`)."""
+    def _run(self, fn: Any, windows: Any, one: bool, normalized: bool, *args: Any) -> np.ndarray:
+        """``fn(points, counts, batch, normalized, *args)`` on :meth:`canonical_points`' points of
+        one window (``one``) or a batch. An array the Numba engine's compiled first pass decides
+        (:class:`tpnet_ref.engine_checks.Screen`: the checks' warnings, the points, at once) goes
+        straight in; any other input is checked, warned about (a one-line warning for input
+        outside the training range or not one body) and run in chunks that depend on the batch
+        size alone (:func:`tpnet_ref.blas.split_batch`)."""
         c = self.config
+        got = None if self.screen is None else self.screen(self, windows, one, normalized)
         try:    # the user's error: its traceback ends here, not deep in the checks or heads
-            if one:
+            if got is None and one:
                 frames, batch = check_window(windows, c.m, c.dim, self.dtype), 1
-            else:
+            elif got is None:
                 frames, batch = check_windows(windows, c.m, c.dim, self.dtype)
         except (ValueError, TypeError) as exc:
             raise exc.with_traceback(None) from None
-        warn_about_input(frames, c.norm_lo, c.norm_hi, normalized,
-                         "window" if one else "windows", one)
         try:
-            return split_batch(fn, frames, batch, c.m, self.threads, normalized, *args)
+            if got is not None:
+                return fn(*got, normalized, *args)
+            warn_about_input(frames, c.norm_lo, c.norm_hi, normalized,
+                             "window" if one else "windows", one)
+            return split_batch(lambda f, b, *a: fn(*self.canonical_points(f, normalized), b, *a),
+                               frames, batch, c.m, self.threads, normalized, *args)
         except NonFiniteResultError as exc:
             raise exc.with_traceback(None) from None
 
     # ------------------------------------------------------------ public API
     def predict(self, window: Any, normalized: bool = False) -> np.ndarray:
         """Next point set. ``window``: ``(m, N, dim)`` or m arrays ``(N_i, dim)`` -> ``(n_out, dim)``."""
-        return self._split(self._predict, window, True, normalized)[0]
+        return self._run(self._network, window, True, normalized)[0]
 
     def predict_batch(self, windows: Any, normalized: bool = False) -> np.ndarray:
         """Next point set of each window: ``(B, m, N, dim)`` or B windows -> ``(B, n_out, dim)``."""
-        return self._split(self._predict, windows, False, normalized)
+        return self._run(self._network, windows, False, normalized)
 
-    def _predict(self, frames: list[np.ndarray], batch: int, normalized: bool) -> np.ndarray:
-        """``batch * m`` checked frames, window after window -> ``(batch, n_out, dim)``."""
-        with self._threads("predict", batch, sum(f.shape[0] for f in frames)):
-            g = self.frame_features(*self.canonical_points(frames, normalized), batch)
+    def _network(self, points: np.ndarray, counts: np.ndarray, batch: int,
+                 normalized: bool) -> np.ndarray:
+        """:meth:`canonical_points`' ``points`` and ``counts`` of ``batch`` windows ->
+        ``(batch, n_out, dim)``, world units unless ``normalized``."""
+        with self._threads("predict", batch, len(points)):
+            g = self.frame_features(points, counts, batch)
             y = self.sequence_head(g.reshape(batch, self.config.m, -1))
         return y if normalized else self.denormalize(y)
 
@@ -266,20 +281,19 @@ class TPNet:
         """Recursive prediction: ``steps`` future point sets ``(steps, n_out, dim)``.
 
         After each step the window slides by one frame and the prediction becomes its newest
-        frame. Each frame's global feature is computed once and kept.
+        frame. Each frame's global feature is computed once and kept
+        (:func:`tpnet_ref.recursive.rollout`).
         """
-        return self._split(self._rollout, window, True, normalized, steps)[0]
+        return self._run(self._rollout, window, True, normalized, steps)[0]
 
     def rollout_batch(self, windows: Any, steps: int, normalized: bool = False) -> np.ndarray:
         """:meth:`rollout` of every window, the windows stepped together:
         ``(B, m, N, dim)`` or B windows -> ``(B, steps, n_out, dim)``."""
-        return self._split(self._rollout, windows, False, normalized, steps)
+        return self._run(self._rollout, windows, False, normalized, steps)
 
-    def _rollout(self, frames: list[np.ndarray], batch: int, normalized: bool,
+    def _rollout(self, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
                  steps: Any) -> np.ndarray:
-        """``batch * m`` checked frames -> ``(batch, steps, n_out, dim)``
-        (:func:`tpnet_ref.recursive.rollout`)."""
-        return R.rollout(self, frames, batch, normalized, steps)
+        return R.rollout(self, points, counts, batch, normalized, steps)
 
 
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32",

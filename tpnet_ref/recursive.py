@@ -16,10 +16,10 @@ import numpy as np
 from .blas import in_one_thread, one_thread
 
 
-def rollout(model: Any, frames: list[np.ndarray], batch: int, normalized: bool,
+def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
             steps: Any) -> np.ndarray:
-    """``batch * m`` checked frames of ``model``'s windows, window after window ->
-    ``(batch, steps, n_out, dim)``, world units unless ``normalized``."""
+    """``model.canonical_points``' ``points`` and ``counts`` of ``batch`` windows' frames (checked,
+    window after window) -> ``(batch, steps, n_out, dim)``, world units unless ``normalized``."""
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps: expected a positive integer, got {steps!r}")
     c, steps = model.config, int(steps)
@@ -35,9 +35,8 @@ def rollout(model: Any, frames: list[np.ndarray], batch: int, normalized: bool,
     # (unless the rollout is itself nested in a block: a chunk of a split batch)
     held = not in_one_thread()
     with one_thread():
-        with model._threads("features", batch, sum(f.shape[0] for f in frames), held):
-            feats[:, :m] = model.frame_features(
-                *model.canonical_points(frames, normalized), batch).reshape(batch, m, -1)
+        with model._threads("features", batch, len(points), held):
+            feats[:, :m] = model.frame_features(points, counts, batch).reshape(batch, m, -1)
             proj = model.project_frames(
                 feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1), batch)
             proj = None if proj is None else list(proj.reshape(m, batch, -1))
