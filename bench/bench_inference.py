@@ -5,6 +5,7 @@
     python bench/bench_inference.py --threads 1   # every peer on one core (BLAS, torch, ORT)
     python bench/bench_inference.py --blas-kernel SkylakeX   # NumPy's OpenBLAS with this kernel
     python bench/bench_inference.py --no-busy  # skip the B = 1 run beside a spinning process
+    python bench/bench_inference.py --sizes    # only every shipped size against its own export
 
 Every peer runs the same weights, the shipped m = 4 model (N = 30, identity transform nets),
 on the same windows of the scene (simulated held-out test cases, normalised; only timed, never
@@ -55,7 +56,7 @@ THREADS = _pin_env()
 import numpy as np  # noqa: E402
 
 import tpnet_ref  # noqa: E402
-from _common import TEST_CASE_B1, machine, scene_windows  # noqa: E402
+from _common import TEST_CASE_B1, load_average, machine, scene_windows  # noqa: E402
 from tpnet_ref.blas import adaptive  # noqa: E402
 from tpnet_ref.checks import OutsideTrainingRangeWarning  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
@@ -153,6 +154,70 @@ def cold_start(weights: Path, runs: int = 3, engine: str = "numpy",
     return t, float(res[-1][1]), float(res[-1][2]), (res[-1][3] if len(res[-1]) > 3 else "")
 
 
+#: the per-size section's targets (ratio of the default engine to onnxruntime on that size's own
+#: export, B = 1): a size made to be fast must be fast at one window
+SIZE_TARGETS = {"full": 0.6, "half": 0.75, "quarter": 0.5}
+
+
+def sizes(rounds: int, block: float) -> dict:
+    """``--sizes``: each shipped size on the default engine (its first pass, its checks' verdict
+    and warnings included: world-unit input, as a user calls ``tpnet_ref.predict``) against
+    onnxruntime on that size's own export (``tpnet export onnx``: world units in and out), in
+    one run: B = 1 on a ring of the scene and on random points, B = 8, an 80-frame rollout
+    against onnxruntime looping its graph, and what the input checks cost of the ring's call."""
+    from tpnet_ref.onnx_peer import onnx_session
+    ring = np.asarray(tpnet_ref.example_window(), dtype=np.float32)           # (4, 30, 2)
+    rng = np.random.default_rng(0)
+    rand = (1.1438 + 42.7124 * rng.uniform(0.1, 0.9, (4, 30, 2))).astype(np.float32)
+    b8 = np.stack([ring + [0.5 * i, 0.0] for i in range(8)]).astype(np.float32)
+    out: dict = {}
+    print(f"{'size':8s} {'params':>7s}  {'B=1 ring':>21s}  {'B=1 random':>10s}  {'B=8':>6s}  "
+          f"{'rollout/frame':>20s}  {'checks':>13s}")
+    for size in ("full", "half", "quarter"):
+        model = tpnet_ref.load(size=size)
+        model.threads = THREADS
+        sess = onnx_session(model, n_points=None, threads=THREADS, world_units=True)
+
+        def ort(x, sess=sess):
+            return sess.run(None, {"window": x})[0]
+
+        def ort_loop(sess=sess):
+            win = ring[None].copy()
+            for _ in range(80):
+                win = np.concatenate([win[:, 1:], ort(win)[:, None]], axis=1)
+
+        fns = {"ring": lambda m=model: m.predict(ring), "ring ort": lambda: ort(ring[None]),
+               "random": lambda m=model: m.predict(rand), "random ort": lambda: ort(rand[None]),
+               "b8": lambda m=model: m.predict_batch(b8), "b8 ort": lambda: ort(b8),
+               "checks": lambda m=model: m.screen(m, ring, True, False)
+               if m.screen is not None else None}
+        t = alternate(fns, rounds, block, 3)
+        roll = alternate({"roll": lambda m=model: m.rollout(ring, 80), "roll ort": ort_loop},
+                         rounds, block, 2)
+        t.update(roll)
+        med = {k: float(np.median(v)) for k, v in t.items()}
+        row = {"params": int(model.num_params), **{k: v * 1e6 for k, v in med.items()},
+               **{f"{k} ratio": paired(t, k, f"{k} ort") for k in ("ring", "random", "b8", "roll")}}
+        row["checks share"] = med["checks"] / med["ring"]
+        out[size] = row
+        print(f"{size:8s} {row['params'] / 1e6:6.2f}M  {row['ring']:6.0f} vs {row['ring ort']:6.0f} us "
+              f"{row['ring ratio']:5.2f}  {row['random ratio']:10.2f}  {row['b8 ratio']:6.2f}  "
+              f"{row['roll'] / 80:6.0f} vs {row['roll ort'] / 80:4.0f} us {row['roll ratio']:4.2f}  "
+              f"{row['checks']:5.1f} us {100 * row['checks share']:3.0f} %")
+    print("\ntargets: B = 1 ratio " + ", ".join(f"{k} <= {v}" for k, v in SIZE_TARGETS.items())
+          + "; the quarter's call <= 120 us, its checks <= 15 % of it; rollout ratio <= 0.5")
+    for size, v in SIZE_TARGETS.items():
+        r = out[size]
+        print(f"  {size:8s} B = 1 ring {r['ring ratio']:.2f}, random {r['random ratio']:.2f} "
+              f"(target {v}): {'met' if max(r['ring ratio'], r['random ratio']) <= v else 'NOT met'}; "
+              f"rollout {r['roll ratio']:.2f}: {'met' if r['roll ratio'] <= 0.5 else 'NOT met'}")
+    q = out["quarter"]
+    print(f"  quarter call {q['ring']:.0f} us (<= 120: {'met' if q['ring'] <= 120 else 'NOT met'}), "
+          f"checks {100 * q['checks share']:.0f} % (<= 15 %: "
+          f"{'met' if q['checks share'] <= 0.15 else 'NOT met'})")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions")
@@ -163,7 +228,18 @@ def main(argv: list[str] | None = None) -> int:
                     help="OPENBLAS_CORETYPE for NumPy's OpenBLAS (default: the environment's)")
     ap.add_argument("--no-busy", action="store_true",
                     help="skip B = 1 latency with one core kept busy by a second process")
+    ap.add_argument("--sizes", action="store_true",
+                    help="only the per-size section: every shipped size against onnxruntime on "
+                         "its own export, B = 1, B = 8, rollout, the checks' share")
     args = ap.parse_args(argv)
+    if args.sizes:
+        warnings.simplefilter("ignore", OutsideTrainingRangeWarning)   # random points warn
+        print(f"machine: {machine()}; threads per peer: {THREADS or 'library default'}; "
+              f"{load_average()}")
+        got = sizes(rounds=5 if args.quick else 9, block=0.2 if args.quick else 0.5)
+        if args.json:
+            Path(args.json).write_text(json.dumps(got, indent=1))
+        return 0
     # random input and the model's own 80-frame rollouts are timed on purpose: what the input
     # warnings say about them is no news here (the check's cost is still in every timing)
     warnings.simplefilter("ignore", OutsideTrainingRangeWarning)   # NotOneBodyWarning too

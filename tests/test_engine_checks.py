@@ -258,3 +258,27 @@ def test_a_rollout_through_it_is_the_rollout_through_the_checks(released_random6
     assert net.rollout_batch(x, 4).tobytes() == checked.rollout_batch(x, 4).tobytes()
     with pytest.raises(ValueError, match="steps: expected a positive integer"):
         net.rollout(w, 0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(frames=st.integers(1, 6), n=st.integers(1, 40), seed=st.integers(0, 2 ** 16),
+       ties=st.booleans(), f32=st.booleans())
+def test_the_compiled_sort_is_the_canonical_order(frames, n, seed, ties, f32):
+    from tpnet_ref.engine_checks import Screen
+    from tpnet_ref.point_order import canonical_order
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-1, 1, (frames * n, 2))
+    if ties:                                # shared x, shared rows, and zeros of both signs
+        pts = np.round(pts * 2) / 2
+        pts[rng.random(len(pts)) < 0.2] = [-0.0, 0.0]
+        pts[rng.random(len(pts)) < 0.2] = [0.0, -0.0]
+    pts = pts.astype(np.float32 if f32 else np.float64)
+    counts = np.full(frames, n)
+    got = Screen.sorted(pts, counts)
+    assert got.tobytes() == pts[canonical_order(pts, counts)].tobytes()
+    assert Screen.sorted(pts[::2], counts) is None or len(pts[::2]) == len(pts)
+    if frames > 1:
+        ragged = counts.copy()
+        ragged[0] += 1
+        ragged[-1] -= 1
+        assert Screen.sorted(pts, ragged) is None

@@ -99,6 +99,26 @@ def _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out):
 
 
 @njit(cache=True, nogil=True)
+def _sort_frames(points, n, out):
+    """``out``: ``points (F * n, 2)`` with each frame of ``n`` rows sorted by x then y (stable,
+    as ``np.lexsort``; rows that tie on both are the same numbers)."""
+    for f in range(points.shape[0] // n):
+        base = f * n
+        for i in range(n):
+            out[base + i, 0] = points[base + i, 0]
+            out[base + i, 1] = points[base + i, 1]
+        for i in range(1, n):
+            px, py = out[base + i, 0], out[base + i, 1]
+            j = i - 1
+            while j >= 0 and (out[base + j, 0] > px or (out[base + j, 0] == px and out[base + j, 1] > py)):
+                out[base + j + 1, 0] = out[base + j, 0]
+                out[base + j + 1, 1] = out[base + j, 1]
+                j -= 1
+            out[base + j + 1, 0] = px
+            out[base + j + 1, 1] = py
+
+
+@njit(cache=True, nogil=True)
 def _world(x, f, i, k, normalized, norm_lo, scale):
     v = np.float64(x[f, i, k])
     return v * scale + norm_lo if normalized else v
@@ -337,6 +357,19 @@ class Screen:
             C.warn_verdict(code, a, b, c.norm_lo, c.norm_hi, normalized,
                            "window" if one else "windows")
         return pts, np.full(batch * c.m, n, dtype=np.intp), batch
+
+    @staticmethod
+    def sorted(points: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
+        """``points (P, 2)`` in canonical order (``points[canonical_order(points, counts)]``,
+        :mod:`tpnet_ref.point_order`) when every frame has the same number of points, at most
+        :data:`MAX_POINTS` (a rollout's predicted frames); else None."""
+        n = int(counts[0]) if len(counts) else 0
+        if (points.ndim != 2 or points.shape[1] != 2 or not 0 < n <= MAX_POINTS
+                or points.shape[0] != n * len(counts) or (counts != n).any()):
+            return None
+        out = np.empty_like(points, order="C")
+        _sort_frames(points, n, out)
+        return out
 
 
 __all__ = ["screen", "Screen", "MAX_POINTS"]

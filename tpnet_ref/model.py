@@ -178,7 +178,10 @@ class TPNet:
     def sorted_points(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray:
         """``points (P, dim)`` of frames of ``counts`` points, each frame in canonical order
         (:func:`tpnet_ref.point_order.canonical_order`; as given when ``sort_points`` is off)."""
-        return points[canonical_order(points, counts)] if self.sort_points else points
+        if not self.sort_points:
+            return points
+        fast = None if self.screen is None else self.screen.sorted(points, counts)
+        return points[canonical_order(points, counts)] if fast is None else fast
 
     def frame_features(self, points: np.ndarray, counts: np.ndarray,
                        batch: int | None = None) -> np.ndarray:
@@ -236,10 +239,9 @@ class TPNet:
     def _run(self, fn: Any, windows: Any, one: bool, normalized: bool, *args: Any) -> np.ndarray:
         """``fn(points, counts, batch, normalized, *args)`` on :meth:`canonical_points`' points of
         one window (``one``) or a batch. An array the Numba engine's compiled first pass decides
-        (:class:`tpnet_ref.engine_checks.Screen`: the checks' warnings, the points, at once) goes
-        straight in; any other input is checked, warned about (a one-line warning for input
-        outside the training range or not one body) and run in chunks that depend on the batch
-        size alone (:func:`tpnet_ref.blas.split_batch`)."""
+        (:class:`tpnet_ref.engine_checks.Screen`: the checks' warnings and the points at once)
+        goes straight in; other input is checked, warned about (input outside the training range
+        or not one body), and run in chunks set by the batch size (:func:`blas.split_batch`)."""
         c = self.config
         got = None if self.screen is None else self.screen(self, windows, one, normalized)
         try:    # the user's error: its traceback ends here, not deep in the checks or heads

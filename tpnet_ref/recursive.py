@@ -30,7 +30,8 @@ def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, norm
     except MemoryError:
         raise ValueError(f"steps: {steps} steps do not fit in memory") from None
     # BiLSTM 1's input projection of each frame, also computed once per frame (when the
-    # head takes it: a specialised one projects its kept units itself); the last m kept.
+    # head takes it: a specialised one projects its kept units itself), kept in a buffer of
+    # 2m rows whose last m-1 move to its front when it is full (the head reads m in a row).
     # One one-thread BLAS block around all the steps, the thread plan still chosen per step
     # (unless the rollout is itself nested in a block: a chunk of a split batch)
     held = not in_one_thread()
@@ -39,18 +40,24 @@ def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, norm
             feats[:, :m] = model.frame_features(points, counts, batch).reshape(batch, m, -1)
             proj = model.project_frames(
                 feats[:, :m].transpose(1, 0, 2).reshape(m * batch, -1), batch)
-            proj = None if proj is None else list(proj.reshape(m, batch, -1))
+            if proj is not None:
+                buf = np.empty((2 * m,) + proj.reshape(m, batch, -1).shape[1:], dtype=proj.dtype)
+                buf[:m] = proj.reshape(m, batch, -1)
+        first = 0                                     # the window's first row in buf
         counts = np.full(batch, c.n_out)
         for s in range(steps):
             with model._threads("rollout step", batch, c.n_out, held):   # follows the load
                 y = model.sequence_head(feats[:, s:s + m],            # (batch, n_out, dim)
-                                        None if proj is None else np.stack(proj[-m:]))
+                                        None if proj is None else buf[first:first + m])
                 out[:, s] = y
                 flat = model.sorted_points(y.reshape(-1, c.dim), counts)
                 feats[:, m + s] = model.frame_features(flat, counts, batch)
                 if proj is not None and s + 1 < steps:
-                    proj = proj[len(proj) - m + 1:] + [
-                        model.project_frames(feats[:, m + s], batch)]
+                    if first + m == len(buf):
+                        buf[:m - 1] = buf[first + 1:]
+                        first = -1
+                    first += 1
+                    buf[first + m - 1] = model.project_frames(feats[:, m + s], batch)
     return out if normalized else model.denormalize(out)
 
 
