@@ -7,7 +7,8 @@ file size, E_p / E_s at 40 and 80 predictions in the squared reading (the paper 
 ``docs/evaluation.md``) on the 60 held-out test cases of the faithful scene (frames 0..3 in, 80
 recursive predictions, ``tpnet eval``'s protocol), and the B = 1 latency of one prediction on
 both engines (``engine="numpy"`` and ``engine="numba"``; median over the 64 scene windows
-``x256[::4]`` of ``_common.scene_windows``, engines alternating call by call, float32).
+``x256[::4]`` of ``_common.scene_windows``, engines alternating call by call, float32), beside
+onnxruntime running each size's exported graph when it is installed.
 
 The Pareto front (which sizes are worth shipping) is chosen WITHOUT the test cases: with
 ``--data`` (a ``tpnet data generate`` file), the same protocol runs on its validation
@@ -42,11 +43,23 @@ def n_params(model) -> int:
     return int(sum(np.asarray(v).size for v in model.params.values()))
 
 
+ORT = "onnxruntime"
+
+
 def latency_b1(models: dict[str, dict[str, object]], x: np.ndarray, reps: int) -> dict:
     """Median seconds of one ``predict_batch`` of one window, per (label, engine), alternating
-    label by label and engine by engine within each round."""
+    label by label and engine by engine within each round; with onnxruntime installed, also
+    (label, :data:`ORT`): onnxruntime running that size's exported graph (model units in and
+    out, like the calls it is timed beside)."""
     calls = {(k, e): (lambda w, mo=mo: mo.predict_batch(w[None], normalized=True))
              for k in models for e, mo in models[k].items()}
+    try:
+        from tpnet_ref.onnx_peer import onnx_session
+        for k in models:
+            sess = onnx_session(models[k]["numpy"].astype("float32"), n_points=None)
+            calls[(k, ORT)] = lambda w, s=sess: s.run(None, {"window": w[None]})[0]
+    except ImportError as exc:
+        print(f"onnxruntime skipped ({exc})")
     for f in calls.values():                           # warm up (compile, caches)
         f(x[0])
     return alternate(calls, list(x), reps)
@@ -96,10 +109,14 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), sharey=False)
     for ax, h in zip(axes, HORIZONS):
-        for eng, mk, col in (("numpy", "o", "tab:blue"), ("numba", "s", "tab:orange")):
+        engines = [("numpy", "o", "tab:blue"), ("numba", "s", "tab:orange")]
+        if all(r.get(f"ms_{ORT}") for r in rows):
+            engines.append((ORT, "^", "tab:green"))
+        for eng, mk, col in engines:
             xs = [r[f"ms_{eng}"] for r in rows]
             ys = [r[f"Ep@{h}"] for r in rows]
-            ax.plot(xs, ys, mk + "-", color=col, label=f"{eng} engine", alpha=0.85)
+            ax.plot(xs, ys, mk + "-", color=col, alpha=0.85,
+                    label=f"{eng} on each size's export" if eng == ORT else f"{eng} engine")
             for r, xv, yv in zip(rows, xs, ys):
                 if eng != "numpy":          # one label per size, beside its NumPy point
                     continue
@@ -114,7 +131,7 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
             axis.set_major_locator(matplotlib.ticker.LogLocator(subs=subs))
             axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
             axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        ms = [r[f"ms_{e}"] for r in rows for e in ("numpy", "numba")]
+        ms = [r[f"ms_{e}"] for r in rows for e, _, _ in engines]
         ax.set_xlim(min(ms) / 1.25, max(ms) * 1.6)     # room for the labels right of the points
         ax.set_xlabel("B = 1 latency of one prediction (ms, log)")
         ax.set_ylabel(f"E_p@{h}, squared reading, 60 test cases (log)")
@@ -171,6 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     for w, (k, v) in zip(args.weights, models.items()):
         rows.append({"label": k, "params": n_params(v["numpy"]), "bytes": os.path.getsize(w),
                      "ms_numpy": 1e3 * lat[(k, "numpy")], "ms_numba": 1e3 * lat[(k, "numba")],
+                     f"ms_{ORT}": 1e3 * lat[(k, ORT)] if (k, ORT) in lat else None,
                      **test[k], **{f"copy@{h}": test[COPY_LAST][f"Ep@{h}"] for h in HORIZONS}})
     rows.sort(key=lambda r: -r["params"])
     front = []
@@ -185,6 +203,9 @@ def main(argv: list[str] | None = None) -> int:
     emit("")
     head = ["weights", "trained parameters", "file (MB)", "E_p@40", "E_s@40", "E_p@80", "E_s@80",
             "B=1 numpy (ms)", "B=1 numba (ms)"]
+    ort = all(r[f"ms_{ORT}"] for r in rows)
+    if ort:
+        head += ["B=1 onnxruntime (ms)", "numba / onnxruntime"]
     if val is not None:
         head += ["val E_p@40", "val E_p@80", "front"]
     emit("| " + " | ".join(head) + " |")
@@ -193,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         cells = [f"`{r['label']}`", f"{r['params']:,}", f"{r['bytes'] / 1e6:.1f}",
                  *(cell(per_case[r["label"]][q]) for q in ("Ep@40", "Es@40", "Ep@80", "Es@80")),
                  f"{r['ms_numpy']:.3g}", f"{r['ms_numba']:.3g}"]
+        if ort:
+            cells += [f"{r[f'ms_{ORT}']:.3g}", f"{r['ms_numba'] / r[f'ms_{ORT}']:.2f}"]
         if val is not None:
             v = val[r["label"]]
             cells += [f"{v['Ep@40']:.3g}", f"{v['Ep@80']:.3g}",
@@ -200,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         emit("| " + " | ".join(cells) + " |")
     cells = [COPY_LAST, "0", "–",
              *(cell(per_case[COPY_LAST][q]) for q in ("Ep@40", "Es@40", "Ep@80", "Es@80")),
-             "–", "–"]
+             "–", "–"] + (["–", "–"] if ort else [])
     if val is not None:
         cells += [f"{val[COPY_LAST]['Ep@40']:.3g}", f"{val[COPY_LAST]['Ep@80']:.3g}", "–"]
     emit("| " + " | ".join(cells) + " |")
@@ -225,7 +248,9 @@ def main(argv: list[str] | None = None) -> int:
                 "The same TP-Net at smaller widths (`tpnet train run --size half|quarter`, "
                 "docs/training.md). Errors: the 60 held-out test cases, squared reading, "
                 "frames 0..3 in, 80 recursive predictions. Latency: one prediction of one window "
-                "(B = 1), float32, median over 64 scene windows, the two engines alternating. "
+                "(B = 1), float32, median over 64 scene windows, the two engines and "
+                "onnxruntime on each size's exported graph (`tpnet export onnx`, here in model "
+                "units like the engines' calls) alternating. "
                 "The front ('front') is chosen on the validation trajectories of the training "
                 "grid (`val E_p`, same protocol and reading), never on the test cases; copying "
                 "the last frame counts as a size of no run time. A file given by a path "

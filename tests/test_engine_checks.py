@@ -282,3 +282,31 @@ def test_the_compiled_sort_is_the_canonical_order(frames, n, seed, ties, f32):
         ragged[0] += 1
         ragged[-1] -= 1
         assert Screen.sorted(pts, ragged) is None
+
+
+@pytest.mark.parametrize("size", ["full", "half", "quarter"])
+def test_every_shipped_size_gives_every_warning_and_error_through_the_default_engine(size):
+    import tpnet_ref
+    net = tpnet_ref.load(size=size)
+    assert net.screen is not None                            # numba installed: the default
+    stray = np.concatenate([_window(), _window()[:, :1] + [9.0, 0.0]], axis=1)
+    cases = [(_window(), []), (_window(cx=60.0), [C.OutsideTrainingRangeWarning]),
+             (np.random.default_rng(0).uniform(5.4, 39.6, (4, 30, 2)),
+              [C.OutsideTrainingRangeWarning]),
+             (_falling(1), [C.FrameSpacingWarning]), (stray, [C.NotOneBodyWarning]),
+             ([f[:2] for f in _window()], [C.TooFewPointsWarning])]
+    for w, kinds in cases:
+        y, said = _record(lambda: net.predict(w))
+        assert [k for k, _ in said] == kinds and y.shape == (30, 2) and np.isfinite(y).all()
+        ys, said_b = _record(lambda: net.predict_batch([w, w]))
+        assert ys.shape == (2, 30, 2)
+    nan = _window()
+    nan[1, 2, 0] = np.nan
+    with pytest.raises(ValueError, match=r"window\[1\]: contains 1 NaN"):
+        net.predict(nan)
+    big = _window()
+    big[3, 0, 1] = 1e39
+    with pytest.raises(ValueError, match=r"window\[3\]: values beyond the float32 range"):
+        net.predict(big)
+    with pytest.raises(ValueError, match="the model takes m=4 frames, got 3"):
+        net.predict(_window()[:3])
