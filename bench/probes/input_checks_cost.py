@@ -5,8 +5,10 @@
 Times ``check_window`` + ``warn_about_input`` (what ``tpnet_ref.predict`` runs before the network)
 on a window of the held-out scene and on four frames of 30 uniformly random points in the box,
 with the one-body test's shortcut for scattered frames (``checks._cannot_hold_a_body``) and
-without it (the pairwise grouping for every such frame), interleaved round by round; and
-``predict`` itself on both windows, for the share (docs/performance.md, "Input checks").
+without it (the pairwise grouping for every such frame), interleaved round by round; the
+Numba engine's compiled first pass (``model.screen``: what ``predict`` runs instead of both
+when it decides the window); and ``predict`` itself on both windows, for the share
+(docs/performance.md, "Input checks").
 """
 from __future__ import annotations
 
@@ -58,6 +60,9 @@ def main() -> int:
                 rows.setdefault((name, f"checks, {mode}"), []).append(
                     _median_us(lambda: checks(w), args.calls))
             C._cannot_hold_a_body = shortcut
+            if model.screen is not None:       # the Numba engine's compiled first pass
+                rows.setdefault((name, "first pass (compiled)"), []).append(
+                    _median_us(lambda: model.screen(model, w, True, False), args.calls))
             rows.setdefault((name, f"predict ({model.engine})"), []).append(
                 _median_us(lambda: model.predict(w), args.calls))
     print(f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())}; medians of "
