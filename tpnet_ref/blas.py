@@ -313,6 +313,20 @@ class ThreadPolicy:
                 st[2] = 0
             times[choice].append(seconds)
 
+    def one_thread_plan(self, kind: Hashable, held: bool = False) -> bool:
+        """Whether calls of ``kind`` run on one thread now, with no change of plan in sight:
+        nested in another :func:`one_thread` block (unless ``held``, as for :meth:`__call__`),
+        one core, ``TPNET_THREADS=1``, the other core taken (the monitor), or one thread
+        measured faster (:meth:`preferred`). Changes nothing."""
+        if (in_one_thread() and not held) or cpu_count() < 2:
+            return True
+        fixed = _fixed_choice()
+        if fixed is not None:
+            return fixed == 1
+        if self.monitor is not None and self.monitor.taken():
+            return True
+        return self.preferred(kind) == 1
+
     def preferred(self, kind: Hashable) -> int | None:
         """The choice (1 or 0) the recent calls of ``kind`` measured faster; None before any."""
         with self._lock:

@@ -98,7 +98,9 @@ def build_features(model: Any, engine: str) -> Any:
     from . import engine_numba
     if not engine_numba.NumbaFeatures.supports(model.config):
         return None
-    return engine_numba.NumbaFeatures(model.config, model.params, model.dtype)
+    features = engine_numba.NumbaFeatures(model.config, model.params, model.dtype)
+    features.max_batch = ENGINE_MAX_BATCH       # the batches it serves (TPNet.frame_features)
+    return features
 
 
 def build_screen(engine: str, config: Any) -> Any:

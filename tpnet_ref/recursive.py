@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .blas import in_one_thread, one_thread
+from .blas import adaptive, in_one_thread, one_thread
 
 
 def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
@@ -45,7 +45,16 @@ def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, norm
                 buf[:m] = proj.reshape(m, batch, -1)
         first = 0                                     # the window's first row in buf
         counts = np.full(batch, c.n_out)
+        fused = None
+        if model.engine == "numba" and proj is not None:
+            from . import engine_rollout              # the Numba engine's: numba is installed
+            fused = engine_rollout if engine_rollout.fusable(model, batch) else None
+        kind = (id(model), "rollout step", batch, c.n_out)   # model._threads' kind of a step
         for s in range(steps):
+            if fused is not None and s == fused.STEPS_FIRST and adaptive.one_thread_plan(kind, held):
+                # one thread from here on: the rest of the steps in one compiled call
+                fused.run_rest(model, feats, buf, first, s, steps, batch, out)
+                break
             with model._threads("rollout step", batch, c.n_out, held):   # follows the load
                 y = model.sequence_head(feats[:, s:s + m],            # (batch, n_out, dim)
                                         None if proj is None else buf[first:first + m])
