@@ -274,14 +274,14 @@ def test_the_compiled_sort_is_the_canonical_order(frames, n, seed, ties, f32):
         pts[rng.random(len(pts)) < 0.2] = [0.0, -0.0]
     pts = pts.astype(np.float32 if f32 else np.float64)
     counts = np.full(frames, n)
-    got = Screen.sorted(pts, counts)
+    got = Screen().sorted(pts, counts)
     assert got.tobytes() == pts[canonical_order(pts, counts)].tobytes()
-    assert Screen.sorted(pts[::2], counts) is None or len(pts[::2]) == len(pts)
+    assert Screen().sorted(pts[::2], counts) is None or len(pts[::2]) == len(pts)
     if frames > 1:
         ragged = counts.copy()
         ragged[0] += 1
         ragged[-1] -= 1
-        assert Screen.sorted(pts, ragged) is None
+        assert Screen().sorted(pts, ragged) is None
 
 
 @pytest.mark.parametrize("size", ["full", "half", "quarter"])
@@ -310,3 +310,21 @@ def test_every_shipped_size_gives_every_warning_and_error_through_the_default_en
         net.predict(big)
     with pytest.raises(ValueError, match="the model takes m=4 frames, got 3"):
         net.predict(_window()[:3])
+
+
+def test_the_short_commands_run_the_first_pass_only_where_numba_has_it(net, monkeypatch):
+    import numba
+
+    from tpnet_ref import compile_watch
+    from tpnet_ref import engine_checks as EC
+    from tpnet_ref.compile_watch import CompileWatch
+    fresh = numba.njit(EC.screen.py_func)                   # compiled nowhere, cached nowhere
+    monkeypatch.setattr(EC, "screen", fresh)
+    monkeypatch.setattr(compile_watch, "TWO_THREAD_KERNELS_ON_DEMAND", False)
+    screen = EC.Screen()
+    with CompileWatch() as w:
+        assert screen(net, _window(), True, False) is None  # the checks serve the call
+        y = net.with_engine("numba").predict(_window())       # a new Screen, the same answer
+    assert w.count == 0 and not fresh.signatures and np.isfinite(y).all()
+    monkeypatch.setattr(compile_watch, "TWO_THREAD_KERNELS_ON_DEMAND", True)   # the default
+    assert screen(net, _window(), True, False) is not None and fresh.signatures   # compiled

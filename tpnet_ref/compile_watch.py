@@ -26,8 +26,10 @@ from typing import Any
 
 #: the event numba triggers around each compilation (not around a load from its cache)
 EVENT = "numba:compile"
-#: whether a call that may run the Numba engine's two-thread kernels compiles one it lacks
-#: (the module docstring); the one-thread kernel runs otherwise
+#: whether a call that may run one of the Numba engine's optional kernels compiles it when
+#: lacking (the module docstring): the two-thread kernels (the one-thread kernel runs otherwise),
+#: the input checks' compiled first pass and sort (the NumPy checks run otherwise) and a
+#: rollout's fused steps (the step-by-step loop runs otherwise) -- the same results either way
 TWO_THREAD_KERNELS_ON_DEMAND = True
 
 

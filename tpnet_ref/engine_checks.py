@@ -59,7 +59,7 @@ _GRAVITY, _SIM_DT, _FRAME_ROWS, _FALL_TOL = C.GRAVITY, C.SIM_DT, C.FRAME_ROWS, C
 MAX_POINTS = 256
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _side(value, threshold, band):
     """-1 if ``value`` is clearly below ``threshold``, 1 if clearly above, 0 if within ``band``."""
     if value < threshold - band:
@@ -69,7 +69,7 @@ def _side(value, threshold, band):
     return 0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _band(threshold):
     return _REL * max(1.0, abs(threshold))
 
@@ -323,9 +323,30 @@ def screen(x, m, normalized, norm_lo, scale, lo_d, scale_d, limit, one_window, s
     return _CLEAR, 0.0, 0.0
 
 
+def may_compile(kernel, key, memo: dict, args: tuple) -> bool:
+    """Whether the optional ``kernel`` (the same results exist without it) may run on ``args``:
+    always where the library compiles such kernels on demand
+    (:data:`tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, its default); in the short
+    commands (``tpnet demo``, ``predict``, ``animate``) only when numba already has it, compiled
+    in this process or in its cache, so that they never stop to compile it. ``memo``: the
+    answers by ``key`` (the argument types)."""
+    from . import compile_watch
+    if compile_watch.TWO_THREAD_KERNELS_ON_DEMAND:
+        return True
+    got = memo.get(key)
+    if got is None:
+        from .engine_numba import _compiled_or_cached
+        got = memo[key] = _compiled_or_cached(kernel, args)
+    return got
+
+
 class Screen:
     """:func:`screen` as a model's way into a prediction (``model.screen``, built by
-    :func:`tpnet_ref.heads.build_screen` for the Numba engine)."""
+    :func:`tpnet_ref.heads.build_screen` for the Numba engine). Like the two-thread kernels, it
+    runs in the short commands only when numba already has it (:func:`may_compile`)."""
+
+    def __init__(self) -> None:
+        self._memo: dict = {}
 
     def __call__(self, model, x, one: bool, normalized: bool):
         """For an array of one window ``(m, N, 2)`` (``one``) or of fewer than
@@ -349,8 +370,11 @@ class Screen:
         pts = np.empty((batch * c.m * n, c.dim), dtype=model.dtype)
         limit = (float(np.finfo(model.dtype).max) if x.dtype.itemsize > model.dtype.itemsize
                  else np.inf)
-        code, a, b = screen(frames, c.m, normalized, c.norm_lo, c.norm_hi - c.norm_lo,
-                            model._lo, model._scale, limit, one, model.sort_points, pts)
+        args = (frames, c.m, normalized, c.norm_lo, c.norm_hi - c.norm_lo, model._lo,
+                model._scale, limit, one, model.sort_points, pts)
+        if not may_compile(screen, (frames.dtype, pts.dtype), self._memo, args):
+            return None
+        code, a, b = screen(*args)
         if code == _UNDECIDED:
             return None
         if code != _CLEAR:
@@ -358,8 +382,7 @@ class Screen:
                            "window" if one else "windows")
         return pts, np.full(batch * c.m, n, dtype=np.intp), batch
 
-    @staticmethod
-    def sorted(points: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
+    def sorted(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
         """``points (P, 2)`` in canonical order (``points[canonical_order(points, counts)]``,
         :mod:`tpnet_ref.point_order`) when every frame has the same number of points, at most
         :data:`MAX_POINTS` (a rollout's predicted frames); else None."""
@@ -368,8 +391,11 @@ class Screen:
                 or points.shape[0] != n * len(counts) or (counts != n).any()):
             return None
         out = np.empty_like(points, order="C")
+        if not may_compile(_sort_frames, ("sort", points.dtype, points.flags.c_contiguous),
+                           self._memo, (points, n, out)):
+            return None
         _sort_frames(points, n, out)
         return out
 
 
-__all__ = ["screen", "Screen", "MAX_POINTS"]
+__all__ = ["screen", "Screen", "MAX_POINTS", "may_compile"]

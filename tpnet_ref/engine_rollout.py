@@ -88,23 +88,37 @@ def fusable(model, batch: int) -> bool:
             and model.sort_points)
 
 
-def run_rest(model, feats, buf, first: int, s0: int, steps: int, batch: int,
-             out: np.ndarray) -> None:
-    """Steps ``s0 ..`` of a rollout as :func:`rollout_steps` (``fusable`` checked by the
-    caller); raises the overflow errors the step-by-step loop raises."""
-    from .checks import overflow_error
+_MEMO: dict = {}
+
+
+def _args(model, feats, buf, first, s0, steps, batch, out) -> tuple:
     head, fx = model.head_for(batch), model.engine_features
     order = (np.arange(feats.shape[2]) if head.feature_order is None
              else np.asarray(head.feature_order, dtype=np.intp))
-    s, bad = rollout_steps(feats, buf, first, s0, steps, model.config.m, batch, order,
-                           head.kernels, head.recs, head.gks, head.csts, head.units,
-                           head.gammas, head.betas, head.head_w, head.head_b, head.relu,
-                           head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw,
-                           fx.gb, fx.dtype.type(0), out)
+    return (feats, buf, first, s0, steps, model.config.m, batch, order, head.kernels, head.recs,
+            head.gks, head.csts, head.units, head.gammas, head.betas, head.head_w, head.head_b,
+            head.relu, head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw, fx.gb,
+            fx.dtype.type(0), out)
+
+
+def run_rest(model, feats, buf, first: int, s0: int, steps: int, batch: int,
+             out: np.ndarray) -> bool:
+    """Steps ``s0 ..`` of a rollout as :func:`rollout_steps` (``fusable`` checked by the
+    caller), raising the overflow errors the step-by-step loop raises; False (nothing run)
+    where the kernel may not be compiled now (:func:`tpnet_ref.engine_checks.may_compile`)."""
+    from .checks import overflow_error
+    from .engine_checks import may_compile
+    args = _args(model, feats, buf, first, s0, steps, batch, out)
+    head = model.head_for(batch)
+    key = (out.dtype, len(head.recs), len(model.engine_features.ws))
+    if not may_compile(rollout_steps, key, _MEMO, args):
+        return False
+    s, bad = rollout_steps(*args)
     if bad > 0:
         raise overflow_error(head.dtype, f"BiLSTM {bad}")
     if bad < 0:
         raise overflow_error(head.dtype, "the output layer")
+    return True
 
 
 __all__ = ["rollout_steps", "fusable", "run_rest", "STEPS_FIRST"]

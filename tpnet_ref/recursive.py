@@ -51,10 +51,9 @@ def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, norm
             fused = engine_rollout if engine_rollout.fusable(model, batch) else None
         kind = (id(model), "rollout step", batch, c.n_out)   # model._threads' kind of a step
         for s in range(steps):
-            if fused is not None and s == fused.STEPS_FIRST and adaptive.one_thread_plan(kind, held):
-                # one thread from here on: the rest of the steps in one compiled call
-                fused.run_rest(model, feats, buf, first, s, steps, batch, out)
-                break
+            if (fused is not None and s == fused.STEPS_FIRST and adaptive.one_thread_plan(kind, held)
+                    and fused.run_rest(model, feats, buf, first, s, steps, batch, out)):
+                break       # one thread from here on: the rest of the steps in one compiled call
             with model._threads("rollout step", batch, c.n_out, held):   # follows the load
                 y = model.sequence_head(feats[:, s:s + m],            # (batch, n_out, dim)
                                         None if proj is None else buf[first:first + m])

@@ -75,8 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: short commands: they run the Numba engine's two-thread kernels only where numba has them
-#: already, never stopping to compile them (tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND)
+#: short commands: they run the Numba engine's optional kernels (two-thread, first pass, fused rollout)
+#: only where numba has them already, never stopping to compile them (compile_watch.TWO_THREAD_KERNELS_ON_DEMAND)
 SHORT_COMMANDS = ("demo", "predict", "animate")
 
 
