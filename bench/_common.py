@@ -37,7 +37,7 @@ def load_average() -> str:
 
 def machine() -> str:
     """CPU, cores, Python, NumPy and the BLAS as loaded (library, version, kernel, threads)."""
-    from tpnet_ref.blas import describe
+    from tpnet_ref.engines.blas import describe
     return (f"{cpu_name()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
             f"NumPy {np.__version__} ({describe()}; OPENBLAS_CORETYPE="
             f"{os.environ.get('OPENBLAS_CORETYPE', 'unset')})")

@@ -80,7 +80,7 @@ def _probe(calls: int) -> dict:
     from threadpoolctl import threadpool_info
 
     import tpnet_ref
-    from tpnet_ref import blas
+    from tpnet_ref.engines import blas
     from tpnet_ref.model import init_random
 
     # the thread policy switches plans on every call (one thread, two threads, ...)

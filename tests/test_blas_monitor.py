@@ -5,7 +5,7 @@ measures both plans afresh when the machine changes. Fakes stand in for /proc/st
 clocks, so these run the same on any machine."""
 from __future__ import annotations
 
-from tpnet_ref import blas
+from tpnet_ref.engines import blas
 
 
 class Machine:

@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("h5py")
 
 import tpnet_ref  # noqa: E402
-from tpnet_ref import unit_order as U  # noqa: E402
+from tpnet_ref.engines import unit_order as U  # noqa: E402
 from tpnet_ref.cli import main  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
 from ring_helpers import SMALL, rings  # noqa: E402

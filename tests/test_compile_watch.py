@@ -43,7 +43,8 @@ def test_watch_announces_once_and_times_only_compilations():
 
 
 def test_a_missing_two_thread_kernel_is_found_missing_not_compiled(monkeypatch):
-    from tpnet_ref import compile_watch, engine_numba as EN
+    from tpnet_ref import compile_watch
+    from tpnet_ref.engines import numba_engine as EN
 
     @numba.njit(parallel=True)
     def two(x):

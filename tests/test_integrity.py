@@ -23,8 +23,8 @@ import pytest
 
 import tpnet_ref
 from tpnet_ref import native
-from tpnet_ref import specialize as S
-from tpnet_ref import unit_order as U
+from tpnet_ref.engines import specialised as S
+from tpnet_ref.engines import unit_order as U
 from tpnet_ref.cli import main
 from tpnet_ref.model import init_random
 from tpnet_ref.provenance import absolute_paths, portable_path, scrub

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tpnet_ref import layers as L
-from tpnet_ref.blas import BLOCK_COLUMNS, SMALL_PRODUCT, one_thread
+from tpnet_ref.engines.blas import BLOCK_COLUMNS, SMALL_PRODUCT, one_thread
 
 
 def _direction(rng, c, u, dtype):

@@ -11,6 +11,10 @@
 from __future__ import annotations
 
 import importlib as _importlib
+import importlib.abc as _importlib_abc
+import importlib.util as _importlib_util
+import sys as _sys
+import warnings as _warnings
 import weakref as _weakref
 from typing import Any as _Any
 
@@ -119,13 +123,66 @@ def example_window() -> _np.ndarray:
 
 
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
-_LAZY = ("config", "checks", "layers", "model", "blas", "extras", "weights", "metrics", "sim",
-         "data", "protocol", "evaluation", "training", "onnx_peer", "specialize", "observe",
-         "testing")
+_LAZY = ("config", "checks", "layers", "model", "extras", "engines", "weights", "metrics", "sim",
+         "data", "protocol", "evaluation", "training", "onnx_peer", "observe", "testing")
+
+# ------------------------------------------------------------------ old import paths
+#: modules that moved, by their old name under ``tpnet_ref``: the modules that hold their names
+#: now. ``import tpnet_ref.heads``, ``from tpnet_ref.blas import one_thread`` and
+#: ``tpnet_ref.specialize`` still work until the next release, with a ``DeprecationWarning``
+#: naming the new place.
+_MOVED: dict[str, tuple[str, ...]] = {
+    "heads": ("engines.interface",),
+    "fast_numpy": ("engines.numpy_engine",),
+    "engine_numba": ("engines.numba_engine",),
+    "specialize": ("engines.specialised",),
+    "unit_order": ("engines.unit_order",),
+    "blas": ("engines.blas",),
+}
+#: names renamed on the way: ``"old module.old name": "new module.new name"``
+_RENAMED: dict[str, str] = {}
+
+
+class _OldPaths(_importlib_abc.MetaPathFinder, _importlib_abc.Loader):
+    """Imports an old module path (:data:`_MOVED`) as a module whose names are looked up in the
+    modules that hold them now."""
+
+    def find_spec(self, fullname: str, path: _Any = None, target: _Any = None) -> _Any:
+        head, _, old = fullname.partition(".")
+        if head != __name__ or old not in _MOVED:
+            return None
+        return _importlib_util.spec_from_loader(fullname, self)
+
+    def create_module(self, spec: _Any) -> None:
+        return None
+
+    def exec_module(self, module: _Any) -> None:
+        old = module.__name__.partition(".")[2]
+        new = [f"{__name__}.{m}" for m in _MOVED[old]]
+        _warnings.warn(f"{module.__name__} has moved to {' and '.join(new)}; the old path goes "
+                       "in the next release", DeprecationWarning, stacklevel=2)
+        homes = [_importlib.import_module(m) for m in new]
+
+        def __getattr__(name: str) -> _Any:
+            renamed = _RENAMED.get(f"{old}.{name}")
+            if renamed is not None:
+                where, _, attr = renamed.rpartition(".")
+                return getattr(_importlib.import_module(f"{__name__}.{where}"), attr)
+            for home in homes:
+                if hasattr(home, name):
+                    return getattr(home, name)
+            raise AttributeError(f"module {module.__name__!r} has no attribute {name!r}")
+
+        module.__getattr__ = __getattr__
+        module.__dir__ = lambda: sorted(set().union(*(dir(h) for h in homes)))
+
+
+if not any(type(f).__name__ == "_OldPaths" for f in _sys.meta_path):
+    _sys.meta_path.insert(0, _OldPaths())       # before any finder that might know the old files
 
 
 def __getattr__(name: str) -> _Any:
-    if name in _LAZY:
+    if name in _LAZY or name in _MOVED:
         return _importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'tpnet_ref' has no attribute {name!r}")
 

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
+from .engines.blas import BLOCK_COLUMNS, SMALL_PRODUCT
 
 #: :func:`bilstm_steps` runs one direction after the other when one direction's recurrent
 #: weights take this many bytes or more (the 2 MB L2 of a Sapphire Rapids core: the released
@@ -193,7 +193,7 @@ def fuse_bilstm(fwd: tuple[np.ndarray, np.ndarray, np.ndarray],
     and computes sigmoid(x) = 1 / (1 + exp(-x)) in three in-place passes. With ``block_rows``
     (the rows of the input projection of one window, ``m``), also the kernel's columns cut
     into equal contiguous blocks ``(8u / nb, C, nb)`` with ``block_rows * C * nb`` at most
-    :data:`SMALL_PRODUCT` and ``nb`` at most :data:`~tpnet_ref.blas.BLOCK_COLUMNS`, for
+    :data:`SMALL_PRODUCT` and ``nb`` at most :data:`~tpnet_ref.engines.blas.BLOCK_COLUMNS`, for
     :func:`project`.
     """
     def reorder(a: np.ndarray) -> np.ndarray:
@@ -308,8 +308,8 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     """Keras ``Bidirectional(LSTM)`` (``merge_mode='concat'``) on weights from :func:`fuse_bilstm`,
     time-major: ``x (T, B, C)`` -> ``(T, B, 2u)`` or, with ``return_sequences=False``, ``(B, 2u)``.
 
-    The fused layer as one function, for measuring units' use (:mod:`tpnet_ref.unit_order`)
-    and for tests: the NumPy head (:mod:`tpnet_ref.fast_numpy`) runs its two parts itself, the
+    The fused layer as one function, for measuring units' use (:mod:`tpnet_ref.engines.unit_order`)
+    and for tests: the NumPy head (:mod:`tpnet_ref.engines.numpy_engine`) runs its two parts itself, the
     input projection (:func:`project_spans` / :func:`project_layer_norm`, LayerNorm folded) and
     :func:`bilstm_steps`. Its specification is :func:`lstm` (one direction, written for reading)
     and :func:`bidirectional_lstm`; ``tests/test_layers.py`` checks that this function equals

@@ -18,17 +18,17 @@ from typing import Any
 
 import numpy as np
 
-from . import heads as H
+from .engines import interface as H
 from . import recursive as R
-from . import specialize as S
-from . import unit_order as U
-from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
+from .engines import specialised as S
+from .engines import unit_order as U
+from .engines.blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
                    split_batch, two_threads)
 from .checks import (NonFiniteResultError, check_params, check_window, check_windows,
                      warn_about_input)
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
-from .fast_numpy import BLOCK_POINTS, NumpyFeatures
-from .heads import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
+from .engines.numpy_engine import BLOCK_POINTS, NumpyFeatures
+from .engines.interface import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
 from .native import default_weights_path, read_native, write_native
 from .point_order import SMALL_SORT, canonical_order  # noqa: F401  (re-exported)
 

@@ -11,7 +11,7 @@ Format (``format = "tpnet_ref-weights"``, ``format_version = 1``):
     /params/<name>    one dataset per tensor, names and shapes from
                       :func:`~tpnet_ref.config.param_shapes`
     /unit_order, /specialization   optional groups of 1-D integer datasets
-                      (:mod:`tpnet_ref.unit_order`, :mod:`tpnet_ref.specialize`)
+                      (:mod:`tpnet_ref.engines.unit_order`, :mod:`tpnet_ref.engines.specialised`)
 
 Integrity. The root attribute ``content_sha256`` is a SHA-256 digest of everything else the file
 stores: every root attribute (the provenance), every group's attributes (the config) and every
@@ -440,7 +440,7 @@ def convert_storage(src: str | os.PathLike, dst: str | os.PathLike,
     """Rewrite the native file ``src`` as ``dst`` (which may be ``src``) in ``storage`` with
     ``mantissa_bits`` (:func:`write_native`), the same config, provenance (``created``
     included) and compute dtype, and the same other groups (the unit order, a specialisation's
-    masks: exact whatever the weights, :mod:`tpnet_ref.specialize`). Returns the new file's
+    masks: exact whatever the weights, :mod:`tpnet_ref.engines.specialised`). Returns the new file's
     ``meta`` (:func:`read_native`)."""
     cfg, params, meta = read_native(src)
     return write_replacing(dst, cfg, params, meta, extra_groups(src), storage, mantissa_bits)

@@ -29,7 +29,7 @@ import numpy as np
 import tpnet_ref
 import tpnet_ref.layers as L
 from _common import machine, scene_windows
-from tpnet_ref.blas import one_thread
+from tpnet_ref.engines.blas import one_thread
 
 
 class Worker:

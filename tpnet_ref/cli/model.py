@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..checks import OutsideTrainingRangeWarning
-from ..heads import resolve_engine
+from ..engines.interface import resolve_engine
 
 #: ``tpnet predict`` runs the Numba engine (where installed) from this many steps on: below, a
 #: fresh process's cost of loading numba and its cached code (about 1 s, docs/deployment.md)

@@ -72,7 +72,7 @@ def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool,
 
 
 def _cli_sort_units(args: Any) -> int:
-    from .. import unit_order as U
+    from ..engines import unit_order as U
 
     src, out, model = _prepare(args)
     with warnings.catch_warnings():
@@ -87,7 +87,7 @@ def _cli_sort_units(args: Any) -> int:
 
 
 def _cli_specialize(args: Any) -> int:
-    from .. import specialize as S
+    from ..engines import specialised as S
 
     src, out, model = _prepare(args)
     windows, normalized, _ = _windows(args, src, model)

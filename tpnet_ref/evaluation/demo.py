@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from ..blas import describe as blas_describe
-from ..blas import one_thread
+from ..engines.blas import describe as blas_describe
+from ..engines.blas import one_thread
 from ..compile_watch import COMPILING, CompileWatch
 from ..config import normalize
 from ..model import load
@@ -103,7 +103,7 @@ def _demo(weights: str | None, case: Sequence[float], steps: int | None,
     plan = model.preferred_threads("rollout step", 1, model.config.n_out)
     ran = ("2 threads (the Numba engine's two LSTM directions)" if plan == 0 else "1 thread")
     if plan == 0 and model.engine == "numba":
-        from ..engine_numba import two_thread_kernels_skipped
+        from ..engines.numba_engine import two_thread_kernels_skipped
         if two_thread_kernels_skipped():
             plan = 1
             ran = ("1 thread (the two-thread plan was chosen, but numba's cache has no "

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..blas import describe as blas_describe
+from ..engines.blas import describe as blas_describe
 from ..config import denormalize
 from ..data import load_trajectories
 from ..model import load

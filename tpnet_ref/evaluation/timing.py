@@ -1,7 +1,7 @@
 """Error against run time: every way of obtaining the next frames, timed and scored in one run.
 
 Rows: the network in NumPy float64/float32, optionally float32 scene-specialised (calibrated on
-training-grid trajectories, :mod:`tpnet_ref.specialize`), with the ``crosscheck`` extra PyTorch and
+training-grid trajectories, :mod:`tpnet_ref.engines.specialised`), with the ``crosscheck`` extra PyTorch and
 onnxruntime, the two baselines, and the simulator itself at its reference step and coarser ones.
 """
 from __future__ import annotations

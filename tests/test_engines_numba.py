@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("numba")
 
 import tpnet_ref  # noqa: E402
-from tpnet_ref import blas  # noqa: E402
+from tpnet_ref.engines import blas  # noqa: E402
 from tpnet_ref import model as M  # noqa: E402
 from tpnet_ref.config import TPNetConfig  # noqa: E402
 from tpnet_ref.extras import MissingExtraError  # noqa: E402
@@ -208,7 +208,7 @@ def test_numpy_engine_imports_no_numba(tmp_path):
 # ------------------------------------------------------------------ the zero-skipping engine
 # (products over the non-zero inputs only, LayerNorm folded into BiLSTM 2/3's projections)
 
-from tpnet_ref import engine_numba as EN  # noqa: E402
+from tpnet_ref.engines import numba_engine as EN  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -451,7 +451,7 @@ def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(tmp_path)
             "                  lstm_units=(6, 5, 7))\n"
             "head = init_random(cfg, seed=1).with_engine('numba').heads[0]\n"
             "g = np.random.default_rng(0).uniform(0, 1, (3, 12)).astype(np.float32)\n"
-            "from tpnet_ref.blas import one_thread\n"
+            "from tpnet_ref.engines.blas import one_thread\n"
             "a = head.run(head.project_rows(g), 3, 1, parallel=False)\n"
             "with one_thread():\n"
             "    b = head.run(head.project_rows(g, True), 3, 1, parallel=True)\n"

@@ -1,11 +1,11 @@
 """The Numba engine (``load()``'s default where numba is installed): TP-Net's prediction
 network (BiLSTMs, LayerNorms, head) as one compiled function, :class:`NumbaHead`, for every
 batch, and its feature extractor as another, :class:`NumbaFeatures`, for batches of up to
-:data:`tpnet_ref.heads.ENGINE_MAX_BATCH` windows. ``TPNet(..., engine="numba")`` or
+:data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH` windows. ``TPNet(..., engine="numba")`` or
 ``model.with_engine("numba")``; needs numba (the ``metrics`` extra). The NumPy path
 (:func:`tpnet_ref.layers.bilstm_steps`, :func:`tpnet_ref.layers.project_layer_norm`,
-:class:`tpnet_ref.fast_numpy.NumpyFeatures`, specified by :mod:`tpnet_ref.reference`) is the
-reference; ``tests/test_engine_numba.py`` checks they agree.
+:class:`tpnet_ref.engines.numpy_engine.NumpyFeatures`, specified by :mod:`tpnet_ref.reference`) is the
+reference; ``tests/test_engines_numba.py`` checks they agree.
 
 What it does that NumPy cannot:
 
@@ -26,7 +26,7 @@ What it does that NumPy cannot:
   them into up to :data:`GROUP_ROWS` accumulator rows (a window's m steps share their
   non-zero inputs, so at B = 1 each needed weight row is read once per layer and direction);
 - the weights are laid out at load, each matrix row-major with its gate columns padded to
-  whole 64-byte vectors, in the model's unit order when given one (:mod:`tpnet_ref.unit_order`:
+  whole 64-byte vectors, in the model's unit order when given one (:mod:`tpnet_ref.engines.unit_order`:
   the rows a window needs lie closer together; a few percent here, as the rows are streamed
   one by one anyway);
 - the gates are vectorised (a branch-free ``exp``, :func:`_exp_neg`, within 1.5 ulp);
@@ -50,10 +50,10 @@ from typing import Any
 
 import numpy as np
 
-from . import compile_watch
+from .. import compile_watch
 from .blas import in_one_thread, two_threads
-from .checks import overflow_error
-from .extras import require
+from ..checks import overflow_error
+from ..extras import require
 
 numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
 from llvmlite import ir  # noqa: E402
@@ -292,7 +292,7 @@ def _exp_neg_impl(dtype: Any, lowest: float, ln2_hi: float, ln2_lo: float, degre
     """``exp(t)`` for ``t <= 0`` in ``dtype``: ``t = n ln2 + r`` (Cody-Waite, ``|r| <= ln2/2``),
     ``exp(r)`` by its Taylor polynomial of ``degree`` (truncation below half an ulp), times
     ``2 ** n``; 0 below ``lowest`` (where ``exp`` leaves the normal range); within 1.5 ulp
-    (``tests/test_engine_numba.py``)."""
+    (``tests/test_engines_numba.py``)."""
     f = np.dtype(dtype).type
     log2e, shifter = f(1 / np.log(2.0)), f(1.5 * 2.0 ** np.finfo(dtype).nmant)
     lo, hi_, lo_ = f(lowest), f(ln2_hi), f(ln2_lo)
@@ -791,7 +791,7 @@ def _compiled_or_cached(kernel: Any, args: tuple[Any, ...]) -> bool:
 
 def _two_threads(parallel: bool) -> bool:
     """Whether a call asked to run ``parallel`` takes the two-thread kernels now: only inside a
-    :func:`tpnet_ref.blas.one_thread` block (a one-thread BLAS), and one such call at a time.
+    :func:`tpnet_ref.engines.blas.one_thread` block (a one-thread BLAS), and one such call at a time.
     Beside a multi-threaded BLAS, whose threads spin between calls, numba's second thread waits
     for a core (measured, 2 cores: predict 1.4 -> 8 ms, rollout 0.9 -> 16 ms per frame); beside
     a one-thread BLAS it pays (predict 1.4 -> 1.2 ms, rollout 0.9 -> 0.6 ms per frame)."""
@@ -800,10 +800,10 @@ def _two_threads(parallel: bool) -> bool:
 
 class NumbaHead:
     """A model's prediction network laid out for the kernels above (built once per model), the
-    :class:`tpnet_ref.heads.Head` "numba": ``params`` in the file's order (``model.params``),
-    ``unit_order`` the model's (:mod:`tpnet_ref.unit_order`; None: the file's order) -- only the
+    :class:`tpnet_ref.engines.interface.Head` "numba": ``params`` in the file's order (``model.params``),
+    ``unit_order`` the model's (:mod:`tpnet_ref.engines.unit_order`; None: the file's order) -- only the
     layout, and so the order of the sums, depends on it. Its calls take the second thread that
-    :data:`tpnet_ref.blas.adaptive` offers (``threaded``); the bits do not depend on it."""
+    :data:`tpnet_ref.engines.blas.adaptive` offers (``threaded``); the bits do not depend on it."""
 
     name = "numba"
     threaded = True
@@ -811,7 +811,7 @@ class NumbaHead:
     def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype,
                  unit_order: dict[str, np.ndarray] | None = None,
                  max_batch: int | None = None) -> None:
-        #: the largest batch it runs (None: any; :data:`tpnet_ref.heads.ENGINE_MAX_BATCH`)
+        #: the largest batch it runs (None: any; :data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH`)
         self.max_batch = max_batch
         self.dtype = dt = np.dtype(dtype)
         self.relu = config.lstm_activation == "relu"

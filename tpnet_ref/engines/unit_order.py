@@ -9,7 +9,7 @@ the windows the order was measured on, so a prediction reads a fraction of the w
 
 Permuting the units of a layer is an exact re-parameterisation (the same function, up to the
 rounding of LayerNorm's sums): the order only changes the fast paths' layout
-(:mod:`tpnet_ref.fast_numpy`, :mod:`tpnet_ref.engine_numba`); ``model.params`` keep the file's order.
+(:mod:`tpnet_ref.engines.numpy_engine`, :mod:`tpnet_ref.engines.numba_engine`); ``model.params`` keep the file's order.
 :meth:`tpnet_ref.model.TPNet.sort_units` measures an order; :func:`write` / :func:`read` keep
 it in the native weights file as a group ``unit_order`` (ignored by readers that do not know it).
 
@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from . import layers as L
-from .checks import check_window
-from .fast_numpy import file_order_lstms
-from .hdf5 import read_vectors, write_vectors
-from .native import seal
+from .. import layers as L
+from ..checks import check_window
+from .numpy_engine import file_order_lstms
+from ..hdf5 import read_vectors, write_vectors
+from ..native import seal
 
 #: name of the HDF5 group that holds a unit order in the native weights file
 GROUP = "unit_order"

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import threadpoolctl
 
-from tpnet_ref import blas
+from tpnet_ref.engines import blas
 from tpnet_ref.model import init_random
 
 

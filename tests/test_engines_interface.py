@@ -1,11 +1,11 @@
-"""tpnet_ref.heads: which head runs a batch, and the interface every head keeps (each head's
+"""tpnet_ref.engines.interface: which head runs a batch, and the interface every head keeps (each head's
 numbers are checked against the reference in tests/test_reference.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tpnet_ref import heads as H
+from tpnet_ref.engines import interface as H
 from tpnet_ref.model import init_random
 
 from ring_helpers import SMALL, rings

@@ -8,9 +8,9 @@ the order of the sums differ.
 =============  ========================================  ==================  ==================
 head           class                                     runs batches of     needs
 =============  ========================================  ==================  ==================
-numpy          :class:`tpnet_ref.fast_numpy.NumpyHead`   any size            NumPy
-numba          :class:`tpnet_ref.engine_numba.NumbaHead` any size            numba (``metrics``)
-specialised    :class:`tpnet_ref.specialize.SpecialisedHead`  any size; flagged windows go to numpy
+numpy          :class:`tpnet_ref.engines.numpy_engine.NumpyHead`   any size            NumPy
+numba          :class:`tpnet_ref.engines.numba_engine.NumbaHead` any size            numba (``metrics``)
+specialised    :class:`tpnet_ref.engines.specialised.SpecialisedHead`  any size; flagged windows go to numpy
 =============  ========================================  ==================  ==================
 
 The numba head of a specialised model runs batches of up to :data:`ENGINE_MAX_BATCH` windows;
@@ -27,12 +27,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from . import specialize as S
-from .extras import require
-from .fast_numpy import NumpyHead
+from . import specialised as S
+from ..extras import require
+from .numpy_engine import NumpyHead
 
 #: the prediction engines: "numpy" (the NumPy head), "numba" (the compiled head of
-#: :mod:`tpnet_ref.engine_numba`; extra ``metrics``), "auto" (numba when installed)
+#: :mod:`tpnet_ref.engines.numba_engine`; extra ``metrics``), "auto" (numba when installed)
 ENGINES = ("numpy", "numba", "auto")
 #: the numba head runs batches of every size (faster than the NumPy head at 1 to 64 windows, and
 #: free of the GIL, so a split batch's chunks run side by side); its compiled feature extractor
@@ -70,13 +70,13 @@ def resolve_engine(engine: Any) -> str:
 
 def build(model: Any, engine: str, used: dict[str, np.ndarray] | None) -> list[Head]:
     """``model``'s heads, fastest first: the numba head for ``engine="numba"``, the specialised
-    one when ``used`` (masks from :func:`tpnet_ref.specialize.calibrate`) is given, and the
+    one when ``used`` (masks from :func:`tpnet_ref.engines.specialised.calibrate`) is given, and the
     NumPy head. The model's ``counts`` count the specialised head's windows and fallbacks."""
     cfg = model.config
     full: list[Head] = [NumpyHead(cfg, model.params, model.dtype, model.unit_order)]
     if engine == "numba":
         require("numba", "metrics", "engine='numba' (the Numba inference engine)")
-        from . import engine_numba      # optional: imports numba
+        from . import numba_engine as engine_numba  # optional: imports numba
         # every batch, or (specialised) the batches up to ENGINE_MAX_BATCH, the larger ones
         # going to the specialised head, which computes only the scene's units
         full.insert(0, engine_numba.NumbaHead(cfg, model.params, model.dtype, model.unit_order,
@@ -90,12 +90,12 @@ def build(model: Any, engine: str, used: dict[str, np.ndarray] | None) -> list[H
 
 
 def build_features(model: Any, engine: str) -> Any:
-    """The compiled feature extractor (:class:`tpnet_ref.engine_numba.NumbaFeatures`) that
+    """The compiled feature extractor (:class:`tpnet_ref.engines.numba_engine.NumbaFeatures`) that
     goes with the numba head, or None: engine "numpy", or trained transform nets (the NumPy
     extractor then serves every batch)."""
     if engine != "numba":
         return None
-    from . import engine_numba
+    from . import numba_engine as engine_numba
     if not engine_numba.NumbaFeatures.supports(model.config):
         return None
     return engine_numba.NumbaFeatures(model.config, model.params, model.dtype)

@@ -11,8 +11,8 @@ import pytest
 import tpnet_ref
 from tpnet_ref import layers as L
 from tpnet_ref import native
-from tpnet_ref import specialize as S
-from tpnet_ref import unit_order as U
+from tpnet_ref.engines import specialised as S
+from tpnet_ref.engines import unit_order as U
 from tpnet_ref.model import TPNetConfig, init_random
 
 from ring_helpers import SMALL, rings as _rings  # noqa: E402

@@ -14,10 +14,10 @@ import tpnet_ref
 from tpnet_ref import data as D
 from tpnet_ref import layers as L
 from tpnet_ref import native
-from tpnet_ref import specialize as S
-from tpnet_ref import unit_order as U
+from tpnet_ref.engines import specialised as S
+from tpnet_ref.engines import unit_order as U
 from tpnet_ref.checks import NonFiniteResultError
-from tpnet_ref.fast_numpy import file_order_lstms
+from tpnet_ref.engines.numpy_engine import file_order_lstms
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
 from ring_helpers import SMALL, rings  # noqa: E402

@@ -22,7 +22,7 @@ m = 4 model, training-grid windows and the model's own rollouts: 83 of 128 globa
 A flagged window is recomputed by the full network, so the output equals the full model's up to
 rounding on every input. Like the full NumPy engine, the head reads only the weight rows that
 non-zero inputs multiply: the kept units are laid out in the model's unit order (most used
-first, :mod:`tpnet_ref.unit_order`), each recurrent product stops after its direction's last
+first, :mod:`tpnet_ref.engines.unit_order`), each recurrent product stops after its direction's last
 non-zero state unit and each input projection after the last non-zero input.
 
 :meth:`tpnet_ref.model.TPNet.specialize` builds one; :func:`save` / :func:`attach` keep it in the
@@ -39,11 +39,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import layers as L
+from .. import layers as L
 from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 from .unit_order import measure
-from .hdf5 import read_vectors, write_vectors
-from .native import seal
+from ..hdf5 import read_vectors, write_vectors
+from ..native import seal
 
 #: name of the HDF5 group that holds a specialisation in the native weights file
 GROUP = "specialization"
@@ -64,7 +64,7 @@ def calibrate(model: Any, windows: np.ndarray, normalized: bool = False,
 
 
 #: a window goes to the full network when an LSTM output reaches this share of the bound above
-#: which the full network refuses to answer (``sqrt(max) / 4``, :class:`tpnet_ref.fast_numpy.NumpyHead`): a margin
+#: which the full network refuses to answer (``sqrt(max) / 4``, :class:`tpnet_ref.engines.numpy_engine.NumpyHead`): a margin
 #: for the two networks' different rounding
 LIMIT_SHARE = 0.5
 
@@ -560,7 +560,7 @@ class _Run1:
 
 
 class SpecialisedHead:
-    """The :class:`tpnet_ref.heads.Head` of a specialised model: the :class:`SceneHead` on every
+    """The :class:`tpnet_ref.engines.interface.Head` of a specialised model: the :class:`SceneHead` on every
     window, the full network on the windows it flags: the first of the heads ``full`` (fastest
     first, the last one takes any batch) that runs that many; outputs ``(B, n_out, dim)``
     (``out_shape``). ``counts`` (a dict with "windows" and "fallbacks", shared with the model)

@@ -2,7 +2,7 @@
 
 The same network as :mod:`tpnet_ref.reference` (and tested against it), computed the fast way:
 
-- the weights in the model's unit order (:mod:`tpnet_ref.unit_order`: most used units first),
+- the weights in the model's unit order (:mod:`tpnet_ref.engines.unit_order`: most used units first),
   so every product reads only the weight rows up to the last unit that is non-zero somewhere
   in its input (a ReLU network's activations are mostly zeros; :func:`~tpnet_ref.layers.used_columns`);
 - each BiLSTM's two directions fused (:func:`~tpnet_ref.layers.fuse_bilstm`), their input
@@ -11,7 +11,7 @@ The same network as :mod:`tpnet_ref.reference` (and tested against it), computed
 - the feature extractor on blocks of whole frames of about :data:`BLOCK_POINTS` points.
 
 :class:`NumpyFeatures` is the feature extractor every engine uses; :class:`NumpyHead` is the
-prediction network behind the :class:`tpnet_ref.heads.Head` interface, the head that takes any
+prediction network behind the :class:`tpnet_ref.engines.interface.Head` interface, the head that takes any
 batch and the one the others fall back to.
 """
 from __future__ import annotations
@@ -21,9 +21,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import layers as L
+from .. import layers as L
 from .blas import two_threads
-from .checks import overflow_error
+from ..checks import overflow_error
 
 #: points per block of the feature extractor (activations of a block stay in cache)
 BLOCK_POINTS = 2048
@@ -32,7 +32,7 @@ _POOL: list[Any] = []
 
 def _pair(fn: Any, parts: list[tuple]) -> list:
     """``[fn(*p) for p in parts]``, the second half of ``parts`` on a second thread when the
-    calling block may take one (:func:`tpnet_ref.blas.two_threads`); the same results either way
+    calling block may take one (:func:`tpnet_ref.engines.blas.two_threads`); the same results either way
     (each part is computed by the same code, whichever thread runs it)."""
     if len(parts) < 2 or not two_threads():
         return [fn(*p) for p in parts]
@@ -134,7 +134,7 @@ class NumpyFeatures:
 
 
 class NumpyHead:
-    """The prediction network in NumPy (the :class:`tpnet_ref.heads.Head` that runs any batch):
+    """The prediction network in NumPy (the :class:`tpnet_ref.engines.interface.Head` that runs any batch):
     each BiLSTM's direction's gate columns, recurrent rows and bias, the next layer's kernel rows,
     the LayerNorm's gamma and beta and the output layer's rows follow the unit order."""
 
@@ -234,7 +234,7 @@ class NumpyHead:
 def file_order_lstms(config: Any, params: dict[str, np.ndarray]
                      ) -> list[tuple[L.FusedBiLSTM, np.ndarray, np.ndarray]]:
     """Each BiLSTM's fused weights and LayerNorm ``(gamma, beta)``, units in the file's order
-    (for measuring units' use: :func:`tpnet_ref.unit_order.measure`)."""
+    (for measuring units' use: :func:`tpnet_ref.engines.unit_order.measure`)."""
     p = params
     return [(L.fuse_bilstm(*(tuple(p[f"lstm{i}.{d}.{k}"] for k in ("kernel", "recurrent", "bias"))
                              for d in ("fwd", "bwd")), block_rows=config.m),

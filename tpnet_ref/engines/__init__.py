@@ -1,0 +1,14 @@
+"""The engines: the ways to run TP-Net, behind one interface.
+
+* :mod:`.interface`     the :class:`~tpnet_ref.engines.interface.Head` interface; which head runs
+                        a batch (``build``, ``for_batch``), the engine names
+* :mod:`.numpy_engine`  the NumPy engine: the feature extractor every engine uses, the NumPy head
+* :mod:`.numba_engine`  the Numba engine (``engine="numba"``; the ``metrics`` extra)
+* :mod:`.specialised`   the scene-specialised head (``model.specialize``)
+* :mod:`.unit_order`    each layer's units laid out most used first
+* :mod:`.blas`          the BLAS under NumPy (one thread), the thread policy, the batch split
+
+Every engine gives the result of :mod:`tpnet_ref.reference` up to rounding; only speed and the
+order of the sums differ. Nothing is imported here: the Numba engine loads numba when a model
+asks for it.
+"""
