@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from tpnet_ref import reference
+from tpnet_ref.engines import reference
 from tpnet_ref.checks import check_windows
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 

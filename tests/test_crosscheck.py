@@ -16,7 +16,7 @@ import pytest
 
 import tpnet_ref
 from tpnet_ref import crosscheck as X
-from tpnet_ref import reference
+from tpnet_ref.engines import reference
 from tpnet_ref.cli import main
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 

@@ -1,5 +1,5 @@
 """tpnet_ref.engines.interface: which head runs a batch, and the interface every head keeps (each head's
-numbers are checked against the reference in tests/test_reference.py)."""
+numbers are checked against the reference in tests/test_engines_reference.py)."""
 from __future__ import annotations
 
 import numpy as np

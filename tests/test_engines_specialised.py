@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import tpnet_ref
 from tpnet_ref import data as D
-from tpnet_ref import layers as L
+from tpnet_ref.engines import layers as L
 from tpnet_ref import native
 from tpnet_ref.engines import specialised as S
 from tpnet_ref.engines import unit_order as U

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import tpnet_ref
-from tpnet_ref import layers as L
+from tpnet_ref.engines import layers as L
 from tpnet_ref import native
 from tpnet_ref.engines import specialised as S
 from tpnet_ref.engines import unit_order as U

@@ -21,7 +21,7 @@ import pytest
 pytest.importorskip("numba")
 pytest.importorskip("torch")
 
-import tpnet_ref.layers as L  # noqa: E402
+import tpnet_ref.engines.layers as L  # noqa: E402
 import tpnet_ref.model as M  # noqa: E402
 from property_helpers import MS, Implementations  # noqa: E402
 from tpnet_ref import testing  # noqa: E402

@@ -8,7 +8,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tpnet_ref import layers as L  # noqa: E402
+from tpnet_ref.engines import layers as L  # noqa: E402
 from tpnet_ref.model import TPNetConfig, init_random, param_shapes  # noqa: E402
 from tpnet_ref import load  # noqa: E402
 from tpnet_ref.torch_model import TorchTPNet  # noqa: E402

@@ -123,7 +123,7 @@ def example_window() -> _np.ndarray:
 
 
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
-_LAZY = ("config", "checks", "layers", "model", "extras", "engines", "weights", "metrics", "sim",
+_LAZY = ("config", "checks", "model", "extras", "engines", "weights", "metrics", "sim",
          "data", "protocol", "evaluation", "training", "onnx_peer", "observe", "testing")
 
 # ------------------------------------------------------------------ old import paths
@@ -138,6 +138,10 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "specialize": ("engines.specialised",),
     "unit_order": ("engines.unit_order",),
     "blas": ("engines.blas",),
+    "layers": ("engines.layers",),
+    "reference": ("engines.reference",),
+    "recursive": ("engines.rollout",),
+    "compile_watch": ("engines.compile_watch",),
 }
 #: names renamed on the way: ``"old module.old name": "new module.new name"``
 _RENAMED: dict[str, str] = {}

@@ -1,6 +1,6 @@
 """Where does a port diverge? Conformance vectors and the layer-by-layer comparison.
 
-:func:`tpnet_ref.reference.forward` records every named intermediate of the forward pass
+:func:`tpnet_ref.engines.reference.forward` records every named intermediate of the forward pass
 (``trace=``); this module turns those traces into files another implementation can test
 against and compares a port's own trace with them, naming the first layer that disagrees:
 
@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from . import reference
+from .engines import reference
 from .config import TPNetConfig
 
 FORMAT = "tpnet-conformance-vectors"
@@ -48,7 +48,7 @@ MAX_TRACE_KEYS = 100_000
 
 # --------------------------------------------------------------------------- the layers
 def layer_names(config: TPNetConfig) -> list[str]:
-    """The names :func:`tpnet_ref.reference.forward` records, in forward order."""
+    """The names :func:`tpnet_ref.engines.reference.forward` records, in forward order."""
     names = ["input", "input.normalized"]
     if config.input_transform_trained:
         names += ["input_tnet.transform", "input.transformed"]

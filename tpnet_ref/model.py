@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .engines import interface as H
-from . import recursive as R
+from .engines import rollout as R
 from .engines import specialised as S
 from .engines import unit_order as U
 from .engines.blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401

@@ -8,7 +8,7 @@ reads; a window is a list of ``m`` float64 arrays) and test it with hypothesis:
 - :func:`permutation_invariant` -- permuting each frame's points independently (the
   ``(N!)^m`` per-frame permutations) changes the output by at most ``tol``;
 - :func:`agrees_with_reference` -- the output is within a tolerance of
-  :func:`tpnet_ref.reference.forward` of a :class:`~tpnet_ref.model.TPNet`'s parameters in
+  :func:`tpnet_ref.engines.reference.forward` of a :class:`~tpnet_ref.model.TPNet`'s parameters in
   float64: by default measured on each window from float32 rounding
   (:func:`measured_tolerance`, the rule of ``tpnet vectors``), or a fixed ``tol``;
 - :func:`frame_order_matters`, :func:`one_point_matters` -- the non-vacuity checks: reversing or
@@ -305,7 +305,7 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
                           windows: Any = None, normalized: bool = False,
                           max_examples: int = 50, seed: int | None = None) -> float:
     """Check that ``fn(window)`` is within a tolerance (max absolute difference) of
-    :func:`tpnet_ref.reference.forward` with ``model``'s config and parameters in float64
+    :func:`tpnet_ref.engines.reference.forward` with ``model``'s config and parameters in float64
     (``model``: a :class:`~tpnet_ref.model.TPNet`, e.g. :func:`tpnet_ref.load` of the weights
     ``fn`` runs). ``tol``: a fixed tolerance; ``None`` (the default) measures one on each window
     from float32 rounding (:func:`measured_tolerance`, the rule ``tpnet vectors`` gives each
@@ -314,7 +314,8 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
     windows and outputs in model coordinates (default: world units). Returns the largest
     difference seen; raises :class:`PropertyFailure` on the minimal window beyond the
     tolerance."""
-    from . import crosscheck, reference
+    from . import crosscheck
+    from .engines import reference
     params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
     config = model.config
     strategy = windows if windows is not None else _window_strategy(

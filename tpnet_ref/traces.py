@@ -1,5 +1,5 @@
 """The layer-by-layer trace of every implementation the project runs, named as the reference's
-(:func:`tpnet_ref.reference.forward` with ``trace=``; docs/crosscheck.md lists the names):
+(:func:`tpnet_ref.engines.reference.forward` with ``trace=``; docs/crosscheck.md lists the names):
 
 - :func:`torch_trace` -- a :class:`~tpnet_ref.torch_model.TorchTPNet` (or a port built on it)
   observed through forward hooks and pre-hooks on its modules, so what is recorded is what the

@@ -27,7 +27,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import tpnet_ref
-import tpnet_ref.layers as L
+import tpnet_ref.engines.layers as L
 from _common import machine, scene_windows
 from tpnet_ref.engines.blas import one_thread
 

@@ -21,7 +21,8 @@ import warnings
 import numpy as np
 
 import _common
-from tpnet_ref import reference, testing
+from tpnet_ref.engines import reference
+from tpnet_ref import testing
 from tpnet_ref.model import init_random
 
 

@@ -8,7 +8,7 @@
 * :mod:`.unit_order`    each layer's units laid out most used first
 * :mod:`.blas`          the BLAS under NumPy (one thread), the thread policy, the batch split
 
-Every engine gives the result of :mod:`tpnet_ref.reference` up to rounding; only speed and the
+Every engine gives the result of :mod:`tpnet_ref.engines.reference` up to rounding; only speed and the
 order of the sums differ. Nothing is imported here: the Numba engine loads numba when a model
 asks for it.
 """

@@ -1,8 +1,8 @@
 """The prediction network's heads: one small interface, several ways to run it.
 
 A head runs TP-Net's prediction network (three BiLSTMs with LayerNorm, the sigmoid output layer)
-on the frames' global features. Every head gives the result of :mod:`tpnet_ref.reference` up to
-rounding (``tests/test_reference.py`` checks each one at the released shape); only speed and
+on the frames' global features. Every head gives the result of :mod:`tpnet_ref.engines.reference` up to
+rounding (``tests/test_engines_reference.py`` checks each one at the released shape); only speed and
 the order of the sums differ.
 
 =============  ========================================  ==================  ==================

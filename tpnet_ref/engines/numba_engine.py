@@ -3,8 +3,8 @@ network (BiLSTMs, LayerNorms, head) as one compiled function, :class:`NumbaHead`
 batch, and its feature extractor as another, :class:`NumbaFeatures`, for batches of up to
 :data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH` windows. ``TPNet(..., engine="numba")`` or
 ``model.with_engine("numba")``; needs numba (the ``metrics`` extra). The NumPy path
-(:func:`tpnet_ref.layers.bilstm_steps`, :func:`tpnet_ref.layers.project_layer_norm`,
-:class:`tpnet_ref.engines.numpy_engine.NumpyFeatures`, specified by :mod:`tpnet_ref.reference`) is the
+(:func:`tpnet_ref.engines.layers.bilstm_steps`, :func:`tpnet_ref.engines.layers.project_layer_norm`,
+:class:`tpnet_ref.engines.numpy_engine.NumpyFeatures`, specified by :mod:`tpnet_ref.engines.reference`) is the
 reference; ``tests/test_engines_numba.py`` checks they agree.
 
 What it does that NumPy cannot:
@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import compile_watch
+from . import compile_watch
 from .blas import in_one_thread, two_threads
 from ..checks import overflow_error
 from ..extras import require
@@ -631,7 +631,7 @@ def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _finish_frame(pool, bl, gw, gb, zero, out, f):
     """``out[f] = relu(relu(pool + bl) @ gw + gb)``: the MLP's last bias and ReLU after the max
-    (as :func:`tpnet_ref.layers.mlp_max`: the same numbers), then the global layer."""
+    (as :func:`tpnet_ref.engines.layers.mlp_max`: the same numbers), then the global layer."""
     cl = pool.shape[1]
     for j in range(cl):
         v = pool[0, j] + bl[j]
@@ -742,7 +742,7 @@ _PARALLEL = threading.Lock()
 
 def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...]) -> bool:
     """Whether the two-thread ``kernel`` may run on ``args``: always where two-thread kernels
-    are compiled on demand (:data:`tpnet_ref.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, the
+    are compiled on demand (:data:`tpnet_ref.engines.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, the
     library's default);
     else (``tpnet demo``, ``predict``, ``animate``) only if numba has it for these argument
     types, compiled in this process or in its cache (loaded then), so that a short command never

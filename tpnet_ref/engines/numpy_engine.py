@@ -1,13 +1,13 @@
 """The NumPy fast path: TP-Net's feature extractor and prediction network laid out for speed.
 
-The same network as :mod:`tpnet_ref.reference` (and tested against it), computed the fast way:
+The same network as :mod:`tpnet_ref.engines.reference` (and tested against it), computed the fast way:
 
 - the weights in the model's unit order (:mod:`tpnet_ref.engines.unit_order`: most used units first),
   so every product reads only the weight rows up to the last unit that is non-zero somewhere
-  in its input (a ReLU network's activations are mostly zeros; :func:`~tpnet_ref.layers.used_columns`);
-- each BiLSTM's two directions fused (:func:`~tpnet_ref.layers.fuse_bilstm`), their input
+  in its input (a ReLU network's activations are mostly zeros; :func:`~tpnet_ref.engines.layers.used_columns`);
+- each BiLSTM's two directions fused (:func:`~tpnet_ref.engines.layers.fuse_bilstm`), their input
   projection as stacked column blocks, LayerNorm folded into the next layer's input projection
-  (:func:`~tpnet_ref.layers.project_layer_norm`);
+  (:func:`~tpnet_ref.engines.layers.project_layer_norm`);
 - the feature extractor on blocks of whole frames of about :data:`BLOCK_POINTS` points.
 
 :class:`NumpyFeatures` is the feature extractor every engine uses; :class:`NumpyHead` is the
@@ -21,7 +21,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .. import layers as L
+from . import layers as L
 from .blas import two_threads
 from ..checks import overflow_error
 

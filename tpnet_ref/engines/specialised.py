@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .. import layers as L
+from . import layers as L
 from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 from .unit_order import measure
 from ..hdf5 import read_vectors, write_vectors
@@ -133,7 +133,7 @@ class SceneHead:
     Like the full NumPy engine it reads only the weight rows that non-zero inputs multiply:
     computed units in the model's unit order (most used first), each recurrent product cut
     after its direction's last non-zero state unit, the input projection of both directions
-    after the last non-zero input (as column blocks, see :func:`tpnet_ref.layers.fuse_bilstm`),
+    after the last non-zero input (as column blocks, see :func:`tpnet_ref.engines.layers.fuse_bilstm`),
     LayerNorm folded into the next input projection. One window (B = 1) runs on buffers kept
     per thread (:class:`_Run1`)."""
 
@@ -247,7 +247,7 @@ class SceneHead:
         return mean, (1.0 / np.sqrt(var + self.eps)).astype(self.dtype, copy=False)
 
     def _project(self, ly: _Layer, xa: np.ndarray, k: int, out: np.ndarray) -> None:
-        """``out (R, Wp) = xa[:, :k] @ kernel[:k]`` (:func:`tpnet_ref.layers.project_spans`:
+        """``out (R, Wp) = xa[:, :k] @ kernel[:k]`` (:func:`tpnet_ref.engines.layers.project_spans`:
         one stacked product over the kernel's column blocks when each is small enough)."""
         L.project_spans(xa, ly.kernel, ly.blocks, [(0, k)], out=out)
 

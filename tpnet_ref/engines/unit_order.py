@@ -3,7 +3,7 @@
 A ReLU TP-Net's activations are mostly exact zeros (shipped m = 4 model on the scene's windows:
 about 80 % of the global features, 65-75 % of every BiLSTM's outputs), and mostly the same
 units stay zero from window to window. The NumPy engine reads only the weight rows up to the
-last non-zero unit of each product (:func:`tpnet_ref.layers.used_columns`), which is exact on
+last non-zero unit of each product (:func:`tpnet_ref.engines.layers.used_columns`), which is exact on
 every input whatever the order. With the units laid out most-used first, that prefix is short on
 the windows the order was measured on, so a prediction reads a fraction of the weights.
 
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import layers as L
+from . import layers as L
 from ..checks import check_window
 from .numpy_engine import file_order_lstms
 from ..hdf5 import read_vectors, write_vectors

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..engines.blas import describe as blas_describe
 from ..engines.blas import one_thread
-from ..compile_watch import COMPILING, CompileWatch
+from ..engines.compile_watch import COMPILING, CompileWatch
 from ..config import normalize
 from ..model import load
 from ..protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
@@ -45,7 +45,7 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
 
     The first line says what it does, at once; a run that compiles Numba kernels (the first
     after install) says so when it starts compiling, and the compile time is a line of its own
-    in the report (:class:`~tpnet_ref.compile_watch.CompileWatch`), not part of the rollout's.
+    in the report (:class:`~tpnet_ref.engines.compile_watch.CompileWatch`), not part of the rollout's.
 
     Raises ``FileNotFoundError`` (from :func:`tpnet_ref.load`) when there are no weights.
     Returns the numbers printed: ``errors[h][method]`` -> the error dict of

@@ -1,4 +1,4 @@
-"""tpnet_ref.reference, the readable forward pass, is the oracle: first checked against the
+"""tpnet_ref.engines.reference, the readable forward pass, is the oracle: first checked against the
 scalar implementation of tests/reference_python.py, then every fast path the model runs
 (NumPy engine, Numba engine, scene-specialised network; units in the file's order and in the
 shipped unit order; float32 and float64) is compared with it at the released shape."""
@@ -11,7 +11,7 @@ import pytest
 
 import reference_python as scalar
 import tpnet_ref
-from tpnet_ref import reference
+from tpnet_ref.engines import reference
 from tpnet_ref.config import TPNetConfig
 from tpnet_ref.model import init_random
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .engines.blas import in_one_thread, one_thread
+from .blas import in_one_thread, one_thread
 
 
 def rollout(model: Any, frames: list[np.ndarray], batch: int, normalized: bool,

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .engines.blas import BLOCK_COLUMNS, SMALL_PRODUCT
+from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 
 #: :func:`bilstm_steps` runs one direction after the other when one direction's recurrent
 #: weights take this many bytes or more (the 2 MB L2 of a Sapphire Rapids core: the released
@@ -312,9 +312,9 @@ def bilstm_fused(x: np.ndarray, kernel: np.ndarray, recurrent: np.ndarray, bias:
     and for tests: the NumPy head (:mod:`tpnet_ref.engines.numpy_engine`) runs its two parts itself, the
     input projection (:func:`project_spans` / :func:`project_layer_norm`, LayerNorm folded) and
     :func:`bilstm_steps`. Its specification is :func:`lstm` (one direction, written for reading)
-    and :func:`bidirectional_lstm`; ``tests/test_layers.py`` checks that this function equals
-    them, and ``tests/test_reference.py`` checks the head the model runs against
-    :mod:`tpnet_ref.reference`.
+    and :func:`bidirectional_lstm`; ``tests/test_engines_layers.py`` checks that this function equals
+    them, and ``tests/test_engines_reference.py`` checks the head the model runs against
+    :mod:`tpnet_ref.engines.reference`.
     ``xp`` ``(T, B, 8u)``, when given, is the input projection ``x @ kernel`` (without the bias)
     computed beforehand, e.g. one frame at a time by a rollout; ``x`` then only gives the shapes.
     """

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tpnet_ref import layers as L
+from tpnet_ref.engines import layers as L
 from tpnet_ref.engines.blas import BLOCK_COLUMNS, SMALL_PRODUCT, one_thread
 
 

@@ -9,7 +9,7 @@ One window of ``m`` frames, each an unordered set of ``N_t`` points ``(N_t, dim)
     (G_1 .. G_m) -> BiLSTM 512 -> LN -> BiLSTM 256 -> LN -> BiLSTM 256 (last state) -> LN
       -> FC 512 -> n_out * dim, sigmoid -> (n_out, dim) -> denormalise
 
-Built only from the readable functions of :mod:`tpnet_ref.layers` (``lstm`` one direction at a
+Built only from the readable functions of :mod:`tpnet_ref.engines.layers` (``lstm`` one direction at a
 time, every gate in Keras order). No zero-skipping, no fused weights, no canonical point order,
 no threads: max-pooling makes the result invariant to each frame's point order in exact
 arithmetic (the fast paths sort each frame to make it bit-exact). Runs in the dtype of
@@ -28,7 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from . import layers as L
-from .config import TPNetConfig
+from ..config import TPNetConfig
 
 
 def forward(config: TPNetConfig, params: dict[str, np.ndarray],

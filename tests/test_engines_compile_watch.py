@@ -1,4 +1,4 @@
-"""Numba compilations announced and timed (tpnet_ref.compile_watch): a first run after install
+"""Numba compilations announced and timed (tpnet_ref.engines.compile_watch): a first run after install
 says at once what it does and that it compiles, reports the compile time on a line of its own,
 and gives the same bits as a later run that loads the kernels from numba's cache."""
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 numba = pytest.importorskip("numba")
 pytest.importorskip("h5py")
 
-from tpnet_ref.compile_watch import COMPILING, CompileWatch  # noqa: E402
+from tpnet_ref.engines.compile_watch import COMPILING, CompileWatch  # noqa: E402
 from evaluation_helpers import small_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -43,7 +43,7 @@ def test_watch_announces_once_and_times_only_compilations():
 
 
 def test_a_missing_two_thread_kernel_is_found_missing_not_compiled(monkeypatch):
-    from tpnet_ref import compile_watch
+    from tpnet_ref.engines import compile_watch
     from tpnet_ref.engines import numba_engine as EN
 
     @numba.njit(parallel=True)
