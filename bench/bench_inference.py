@@ -56,7 +56,7 @@ import numpy as np  # noqa: E402
 
 import tpnet_ref  # noqa: E402
 from _common import TEST_CASE_B1, machine, scene_windows  # noqa: E402
-from tpnet_ref.engines.blas import adaptive  # noqa: E402
+from tpnet_ref.engines.thread_policy import adaptive  # noqa: E402
 from tpnet_ref.checks import OutsideTrainingRangeWarning  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
 
@@ -318,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {label}: idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
                   f"-> {ratio:.2f}x (median of {BUSY_ROUNDS} rounds' busy/idle: "
                   + ", ".join(f"{b / i:.2f}" for b, i in zip(busy_t, idle_t)) + ")")
-            print(f"    plan of the policy (tpnet_ref.engines.blas.adaptive) at each block's end: "
+            print(f"    plan of the policy (tpnet_ref.engines.thread_policy.adaptive) at each block's end: "
                   f"idle {', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
             return ratio
 

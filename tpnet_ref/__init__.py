@@ -137,7 +137,7 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "engine_numba": ("engines.numba_engine",),
     "specialize": ("engines.specialised",),
     "unit_order": ("engines.unit_order",),
-    "blas": ("engines.blas",),
+    "blas": ("engines.blas", "engines.thread_policy", "engines.load_monitor", "engines.batch_split"),
     "layers": ("engines.layers",),
     "reference": ("engines.reference",),
     "recursive": ("engines.rollout",),

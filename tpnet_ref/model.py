@@ -22,8 +22,9 @@ from .engines import interface as H
 from .engines import rollout as R
 from .engines import specialised as S
 from .engines import unit_order as U
-from .engines.blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
-                   split_batch, two_threads)
+from .engines.batch_split import SPLIT_CHUNK, SPLIT_MIN_BATCH, split_batch  # noqa: F401
+from .engines.thread_policy import adaptive, two_threads
+from .engines.blas import in_one_thread, one_thread  # noqa: F401
 from .checks import (NonFiniteResultError, check_params, check_window, check_windows,
                      warn_about_input)
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params

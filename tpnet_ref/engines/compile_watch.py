@@ -10,7 +10,7 @@ counted once), ``w.count`` the kernels compiled. Loads from the cache are not co
 numba is imported only if it is installed; without it the block runs unwatched (0 s).
 
 The Numba engine has each kernel in two versions, one thread and two (the same bits); the thread
-policy (:mod:`tpnet_ref.engines.blas`) tries the two-thread plan whenever a second core looks free, in
+policy (:mod:`tpnet_ref.engines.thread_policy`) tries the two-thread plan whenever a second core looks free, in
 any run. :data:`TWO_THREAD_KERNELS_ON_DEMAND` True (the library's default: a long-lived process
 gains from them) compiles a two-thread kernel when that plan first runs; ``tpnet demo``,
 ``predict`` and ``animate`` set it False: the two-thread kernels run only where numba already has

@@ -51,7 +51,8 @@ from typing import Any
 import numpy as np
 
 from . import compile_watch
-from .blas import in_one_thread, two_threads
+from .blas import in_one_thread
+from .thread_policy import two_threads
 from ..checks import overflow_error
 from ..extras import require
 
@@ -803,7 +804,7 @@ class NumbaHead:
     :class:`tpnet_ref.engines.interface.Head` "numba": ``params`` in the file's order (``model.params``),
     ``unit_order`` the model's (:mod:`tpnet_ref.engines.unit_order`; None: the file's order) -- only the
     layout, and so the order of the sums, depends on it. Its calls take the second thread that
-    :data:`tpnet_ref.engines.blas.adaptive` offers (``threaded``); the bits do not depend on it."""
+    :data:`tpnet_ref.engines.thread_policy.adaptive` offers (``threaded``); the bits do not depend on it."""
 
     name = "numba"
     threaded = True

@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import layers as L
-from .blas import two_threads
+from .thread_policy import two_threads
 from ..checks import overflow_error
 
 #: points per block of the feature extractor (activations of a block stay in cache)
@@ -32,7 +32,7 @@ _POOL: list[Any] = []
 
 def _pair(fn: Any, parts: list[tuple]) -> list:
     """``[fn(*p) for p in parts]``, the second half of ``parts`` on a second thread when the
-    calling block may take one (:func:`tpnet_ref.engines.blas.two_threads`); the same results either way
+    calling block may take one (:func:`tpnet_ref.engines.thread_policy.two_threads`); the same results either way
     (each part is computed by the same code, whichever thread runs it)."""
     if len(parts) < 2 or not two_threads():
         return [fn(*p) for p in parts]

@@ -5,7 +5,7 @@
 the feature extractor exactly once (``tests/test_model.py``,
 ``test_rollout_computes_each_frame_feature_once``), and BiLSTM 1's input projection of each frame
 is computed once too. Every step reruns the prediction network on the last ``m`` rows. The
-thread plan is chosen per step (:data:`tpnet_ref.engines.blas.adaptive`), which never changes a bit.
+thread plan is chosen per step (:data:`tpnet_ref.engines.thread_policy.adaptive`), which never changes a bit.
 """
 from __future__ import annotations
 

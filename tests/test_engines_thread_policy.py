@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import threadpoolctl
 
-from tpnet_ref.engines import blas
+from tpnet_ref.engines import blas, thread_policy
 from tpnet_ref.model import init_random
 
 
@@ -17,7 +17,7 @@ def _blas_threads() -> list[int]:
     return [d["num_threads"] for d in threadpoolctl.threadpool_info() if d["user_api"] == "blas"]
 
 
-def _run(policy: blas.ThreadPolicy, kind, latency: dict[int, float], calls: int) -> list[int]:
+def _run(policy: thread_policy.ThreadPolicy, kind, latency: dict[int, float], calls: int) -> list[int]:
     """Drive the policy with fake latencies per choice; returns the choices made."""
     out = []
     for _ in range(calls):
@@ -28,7 +28,7 @@ def _run(policy: blas.ThreadPolicy, kind, latency: dict[int, float], calls: int)
 
 
 def test_policy_runs_the_faster_choice_and_probes_the_other():
-    p = blas.ThreadPolicy(probe_every=8, keep=4)
+    p = thread_policy.ThreadPolicy(probe_every=8, keep=4)
     choices = _run(p, "k", {1: 5.0, 0: 4.0}, 4 + 80)     # all threads faster (an idle machine)
     assert p.preferred("k") == 0
     steady = choices[4:]
@@ -37,7 +37,7 @@ def test_policy_runs_the_faster_choice_and_probes_the_other():
 
 
 def test_policy_follows_a_change_of_load_within_a_few_calls():
-    p = blas.ThreadPolicy(probe_every=8, keep=4)
+    p = thread_policy.ThreadPolicy(probe_every=8, keep=4)
     _run(p, "k", {1: 5.0, 0: 4.0}, 40)
     assert p.preferred("k") == 0
     later = _run(p, "k", {1: 5.5, 0: 40.0}, 20)          # the other core got busy
@@ -50,7 +50,7 @@ def test_policy_follows_a_change_of_load_within_a_few_calls():
 
 
 def test_losing_probes_get_rarer():
-    p = blas.ThreadPolicy(probe_every=8, keep=4)
+    p = thread_policy.ThreadPolicy(probe_every=8, keep=4)
     choices = _run(p, "k", {1: 5.0, 0: 100.0}, 4 + 2000)
     probes = choices[4:].count(0)
     assert 0 < probes < 2000 // 8 // 4                   # backed off: far fewer than every 8th
@@ -60,7 +60,7 @@ def test_losing_probes_get_rarer():
 def test_a_small_win_of_the_blas_threads_keeps_one_thread_and_their_probes_get_rare():
     """Two threads 5 % faster (within the margin): one thread runs, the steadier choice beside
     a busy core, and the two-thread probes back off as losing ones do."""
-    p = blas.ThreadPolicy(probe_every=8, keep=4, margin=0.1)
+    p = thread_policy.ThreadPolicy(probe_every=8, keep=4, margin=0.1)
     choices = _run(p, "k", {1: 5.0, 0: 4.75}, 4 + 2000)
     assert p.preferred("k") == 1
     assert 0 < choices[4:].count(0) < 2000 // 8 // 4
@@ -75,22 +75,22 @@ def test_every_plan_runs_a_one_thread_blas_and_restores_the_threads():
     before = _blas_threads()
     with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
         with blas.one_thread():
-            with blas.adaptive("stand aside") as choice:     # nested: one thread, no choice
-                assert choice == -1 and not blas.two_threads()
+            with thread_policy.adaptive("stand aside") as choice:     # nested: one thread, no choice
+                assert choice == -1 and not thread_policy.two_threads()
                 assert all(n == 1 for n in _blas_threads())
         seen = set()
         for _ in range(12):
-            with blas.adaptive("restores") as choice:
+            with thread_policy.adaptive("restores") as choice:
                 seen.add(choice)
                 assert all(n == 1 for n in _blas_threads())  # both plans: a one-thread BLAS
-                assert blas.two_threads() == (choice == 0)
-            assert all(n == 2 for n in _blas_threads()) and not blas.two_threads()
+                assert thread_policy.two_threads() == (choice == 0)
+            assert all(n == 2 for n in _blas_threads()) and not thread_policy.two_threads()
         assert seen == {0, 1}                               # both plans were tried
     assert _blas_threads() == before
 
 
 def test_environment_fixes_the_choice(monkeypatch):
-    p = blas.ThreadPolicy()
+    p = thread_policy.ThreadPolicy()
     for var, one, two in (("TPNET_THREADS", "1", "2"), ("TPNET_BLAS_THREADS", "1", "all")):
         monkeypatch.setenv(var, one)
         assert {p.choose("k") for _ in range(20)} == {1}
@@ -147,7 +147,7 @@ def test_a_two_thread_probe_is_measured_after_a_warm_up_call():
     """Waking the second thread's sleeping workers makes the first two-thread call after a run
     of one-thread calls slower: that call is not recorded, so two threads that are faster once
     awake win."""
-    p = blas.ThreadPolicy(probe_every=8, keep=4, margin=0.1)
+    p = thread_policy.ThreadPolicy(probe_every=8, keep=4, margin=0.1)
     _run(p, "k", {1: 5.0, 0: 6.0}, 40)                  # two threads slower: one thread runs
     assert p.preferred("k") == 1
     prev, choices = 1, []
