@@ -209,6 +209,8 @@ def test_numpy_engine_imports_no_numba(tmp_path):
 # (products over the non-zero inputs only, LayerNorm folded into BiLSTM 2/3's projections)
 
 from tpnet_ref.engines import numba_engine as EN  # noqa: E402
+from tpnet_ref.engines import numba_lstm as NL  # noqa: E402
+from tpnet_ref.engines import numba_products as NP  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -387,7 +389,7 @@ def test_product_reads_only_non_zero_inputs_and_rows_are_independent(dtype, rows
     x = x.astype(dtype)
     bsz = rows // steps
     out = np.empty((rows, 2, kern.shape[1]), dtype=dtype)
-    EN._project_dir(x, kern, out[:, 1], steps, bsz)
+    NP.project_dir(x, kern, out[:, 1], steps, bsz)
     got = out[:, 1]
     tol = 1e-4 if dtype == np.float32 else 1e-12
     np.testing.assert_allclose(got[:, :n], x.astype(float) @ w.astype(dtype).astype(float),
@@ -396,14 +398,14 @@ def test_product_reads_only_non_zero_inputs_and_rows_are_independent(dtype, rows
     assert np.all(got[rows // 2] == 0) and not np.signbit(got[rows // 2]).any()
     for r in range(rows):
         alone = np.empty((1, 2, kern.shape[1]), dtype=dtype)
-        EN._project_dir(x[r:r + 1], kern, alone[:, 1], 1, 1)
+        NP.project_dir(x[r:r + 1], kern, alone[:, 1], 1, 1)
         assert np.array_equal(alone[0, 1], got[r]), r
     other = np.empty_like(out)                          # grouped as one window of R steps
-    EN._project_dir(x, kern, other[:, 1], rows, 1)
+    NP.project_dir(x, kern, other[:, 1], rows, 1)
     assert np.array_equal(other[:, 1], got)
     poisoned = x.copy()
     poisoned[0, 3] = np.nan
-    EN._project_dir(poisoned, kern, other[:, 1], steps, bsz)
+    NP.project_dir(poisoned, kern, other[:, 1], steps, bsz)
     assert np.isnan(other[0, 1]).any()
     assert np.array_equal(other[1:, 1], got[1:])
 
@@ -417,8 +419,8 @@ def test_vectorised_exp_and_sigmoid_are_within_a_few_ulp(dtype):
     @njit
     def run(t, e, s, one):
         for i in range(t.shape[0]):
-            e[i] = EN._exp_neg(-abs(t[i]))
-            s[i] = EN._sigmoid(t[i], one)
+            e[i] = NL._exp_neg(-abs(t[i]))
+            s[i] = NL._sigmoid(t[i], one)
 
     rng = np.random.default_rng(22)
     t = np.concatenate([rng.standard_normal(20000) * 3, rng.uniform(-800, 800, 20000),

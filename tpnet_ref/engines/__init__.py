@@ -3,7 +3,9 @@
 * :mod:`.interface`     the :class:`~tpnet_ref.engines.interface.Head` interface; which head runs
                         a batch (``build``, ``for_batch``), the engine names
 * :mod:`.numpy_engine`  the NumPy engine: the feature extractor every engine uses, the NumPy head
-* :mod:`.numba_engine`  the Numba engine (``engine="numba"``; the ``metrics`` extra)
+* :mod:`.numba_engine`  the Numba engine (``engine="numba"``; the ``metrics`` extra), its kernels
+                        by stage: :mod:`.numba_products` (the product), :mod:`.numba_lstm` (the
+                        prediction network), :mod:`.numba_features` (the feature extractor)
 * :mod:`.specialised`   the scene-specialised head (``model.specialize``)
 * :mod:`.unit_order`    each layer's units laid out most used first
 * :mod:`.blas`          the BLAS under NumPy (one thread), the thread policy, the batch split
