@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     calls = {"numpy": lambda w: npy.predict(w, normalized=True),
              "numba": lambda w: nb.predict(w, normalized=True)}
     if not args.no_ort:
-        from tpnet_ref.onnx_peer import onnx_session
+        from tpnet_ref.conformance.onnx_peer import onnx_session
         sess = onnx_session(npy, threads=args.ort_threads)
         calls["onnxruntime"] = lambda w: sess.run(None, {"window": w[None]})
     feats = [npy.window_features(w[None], normalized=True) for w in ws]

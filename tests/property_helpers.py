@@ -29,10 +29,10 @@ QUARTER = dataclasses.replace(TPNetConfig(), mlp1=(16, 16), mlp2=(32, 64, 128),
 def onnx_export_session(model: TPNet, n_points: int):
     """An onnxruntime session of ``model``'s ONNX export (float32, ``n_points`` per frame).
 
-    The one place the tests export ONNX: today :func:`tpnet_ref.onnx_peer.onnx_session`
+    The one place the tests export ONNX: today :func:`tpnet_ref.conformance.onnx_peer.onnx_session`
     (``build_onnx`` + onnxruntime); the ``tpnet export onnx`` command (issue 38) can replace it
     here without touching a test."""
-    from tpnet_ref.onnx_peer import onnx_session
+    from tpnet_ref.conformance.onnx_peer import onnx_session
     return onnx_session(model, n_points, threads=1)
 
 

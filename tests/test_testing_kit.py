@@ -244,21 +244,21 @@ def test_the_onnx_export_passes_the_default_tolerance(shipped):
 def test_the_measured_tolerance_is_the_vectors_rule_on_the_output(impl):
     """measured_tolerance is crosscheck's rule (SAFETY x the float32 gap + FLOOR x max(1, |y|))
     for the output: world units, or head.sigmoid in model coordinates."""
-    from tpnet_ref import crosscheck
+    from tpnet_ref.conformance import tolerances
     model = impl.base["float32"]
     w = [np.random.default_rng(t).normal(20.0, 2.0, (30, 2)) for t in range(4)]
     p64 = {k: np.asarray(v, np.float64) for k, v in model.params.items()}
-    want = crosscheck.trace(model.config, p64, w)
-    gaps = crosscheck.measure_gaps(model.config, p64, w, want)
+    want = tolerances.trace(model.config, p64, w)
+    gaps = tolerances.measure_gaps(model.config, p64, w, want)
     world = testing.measured_tolerance(model, w)
-    assert world == crosscheck.SAFETY * gaps["output"] + crosscheck.FLOOR * max(
+    assert world == tolerances.SAFETY * gaps["output"] + tolerances.FLOOR * max(
         1.0, float(np.abs(want["output"]).max()))
     lo, hi = model.config.norm_lo, model.config.norm_hi
     u = [(f - lo) / (hi - lo) for f in w]
     back = [f * (hi - lo) + lo for f in u]     # what the check traces: u in world units again
-    gaps = crosscheck.measure_gaps(model.config, p64, back)
+    gaps = tolerances.measure_gaps(model.config, p64, back)
     unit = testing.measured_tolerance(model, u, normalized=True)
-    assert unit == crosscheck.SAFETY * gaps["head.sigmoid"] + crosscheck.FLOOR
+    assert unit == tolerances.SAFETY * gaps["head.sigmoid"] + tolerances.FLOOR
     assert 0 < unit < world < 1e-3
 
 

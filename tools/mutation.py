@@ -49,19 +49,20 @@ TRIAGE = ROOT / "tools" / "mutation_triage.json"
 
 #: module (its file: :func:`source`) -> the test files that cover it, fastest first
 MODULES = {
-    # (the trace's own test of tests/test_crosscheck.py: the rest of that file builds vectors)
+    # (the trace's own test of tests/test_conformance.py: the rest of that file builds vectors)
     "reference": ["tests/test_engines_reference.py", "tests/test_engines_layers.py",
-                  "tests/test_crosscheck.py::test_trace_names_in_order_and_result_unchanged"],
+                  "tests/test_conformance.py::test_trace_names_in_order_and_result_unchanged"],
     "layers": ["tests/test_engines_layers.py", "tests/test_engines_reference.py"],
     "checks": ["tests/test_checks.py", "tests/test_checks_scattered.py", "tests/test_model.py"],
     "native": ["tests/test_native.py", "tests/test_integrity.py"],
     "hdf5": ["tests/test_hdf5.py", "tests/test_untrusted_files.py", "tests/test_native.py"],
     # (tests/test_invariance.py runs the same checkers on more networks: 70 s more a mutant)
     "testing": ["tests/test_testing_kit.py"],
-    "onnx_peer": ["tests/test_onnx_export.py", "tests/test_crosscheck_onnx.py"],
+    "onnx_peer": ["tests/test_conformance_onnx_peer.py", "tests/test_conformance_onnx.py"],
 }
 #: the modules whose file is not tpnet_ref/<name>.py: their place in the package
-PLACES = {"reference": "engines/reference", "layers": "engines/layers"}
+PLACES = {"reference": "engines/reference", "layers": "engines/layers",
+          "onnx_peer": "conformance/onnx_peer"}
 
 
 def source(module: str) -> str:

@@ -124,7 +124,7 @@ def example_window() -> _np.ndarray:
 
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
 _LAZY = ("config", "checks", "model", "extras", "engines", "weights", "metrics", "sim",
-         "data", "protocol", "evaluation", "training", "onnx_peer", "observe", "testing")
+         "data", "protocol", "evaluation", "training", "conformance", "observe", "testing")
 
 # ------------------------------------------------------------------ old import paths
 #: modules that moved, by their old name under ``tpnet_ref``: the modules that hold their names
@@ -143,9 +143,16 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "reference": ("engines.reference",),
     "recursive": ("engines.rollout",),
     "compile_watch": ("engines.compile_watch",),
+    "crosscheck": ("conformance.layer_names", "conformance.tolerances", "conformance.cases",
+                   "conformance.vectors", "conformance.compare", "conformance.report"),
+    "traces": ("conformance.traces",),
+    "onnx_peer": ("conformance.onnx_peer",),
 }
 #: names renamed on the way: ``"old module.old name": "new module.new name"``
-_RENAMED: dict[str, str] = {}
+_RENAMED: dict[str, str] = {
+    "crosscheck.read_vectors": "conformance.vectors.read_conformance_vectors",
+    "crosscheck.write_vectors": "conformance.vectors.write_conformance_vectors",
+}
 
 
 class _OldPaths(_importlib_abc.MetaPathFinder, _importlib_abc.Loader):

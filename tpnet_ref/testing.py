@@ -272,26 +272,26 @@ def permutation_invariant(fn: Callable[[Window], Any], windows: Any = None, tol:
 def measured_tolerance(model: Any, window: Window, normalized: bool = False,
                        expected: dict[str, np.ndarray] | None = None) -> float:
     """The default tolerance of :func:`agrees_with_reference` on one window: the rule of
-    ``tpnet vectors`` (:func:`tpnet_ref.crosscheck.measure_gaps` and
-    :func:`~tpnet_ref.crosscheck.tolerances_from`) for the last layer, ``SAFETY`` (8) x the
+    ``tpnet vectors`` (:func:`tpnet_ref.conformance.tolerances.measure_gaps` and
+    :func:`~tpnet_ref.conformance.tolerances.tolerances_from`) for the last layer, ``SAFETY`` (8) x the
     largest gap between the reference in float32 and in float64 on this window (the window as
     is, moved by one float32 ulp, its points reversed) + ``FLOOR`` (2^-20) x max(1, the
     output's largest magnitude); in model coordinates (``head.sigmoid``) when ``normalized``,
     else in world units (``output``). ``expected``: the window's float64 trace, if known."""
-    from . import crosscheck
+    from .conformance import tolerances
     config = model.config
     params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
     world = _world(window, config) if normalized else window
-    want = expected if expected is not None else crosscheck.trace(config, params, world)
+    want = expected if expected is not None else tolerances.trace(config, params, world)
     return _measured(config, params, world, want, normalized)
 
 
 def _measured(config: Any, params: dict[str, np.ndarray], world: Window,
               expected: dict[str, np.ndarray], normalized: bool) -> float:
-    from . import crosscheck
+    from .conformance import tolerances
     key = "head.sigmoid" if normalized else "output"
-    gaps = crosscheck.measure_gaps(config, params, world, expected)
-    return crosscheck.tolerances_from({key: gaps[key]},
+    gaps = tolerances.measure_gaps(config, params, world, expected)
+    return tolerances.tolerances_from({key: gaps[key]},
                                       {key: float(np.abs(expected[key]).max())})[key]
 
 
@@ -314,7 +314,7 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
     windows and outputs in model coordinates (default: world units). Returns the largest
     difference seen; raises :class:`PropertyFailure` on the minimal window beyond the
     tolerance."""
-    from . import crosscheck
+    from .conformance import tolerances
     from .engines import reference
     params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
     config = model.config
@@ -326,7 +326,7 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
     def prop(w: Window) -> None:
         if tol is None:
             world = _world(w, config) if normalized else w
-            expected = crosscheck.trace(config, params, world)
+            expected = tolerances.trace(config, params, world)
             want = expected[key]
             limit = _measured(config, params, world, expected, normalized)
             tols[0], tols[1] = min(tols[0], limit), max(tols[1], limit)

@@ -41,7 +41,7 @@ def torch_predict(model):
 
 
 def onnx_predict(model, n_points):
-    from tpnet_ref.onnx_peer import onnx_session
+    from tpnet_ref.conformance.onnx_peer import onnx_session
     sess = onnx_session(model, n_points, threads=1)
 
     def onnx_export(window):

@@ -17,7 +17,7 @@ arithmetic (the fast paths sort each frame to make it bit-exact). Runs in the dt
 :func:`tpnet_ref.config.param_shapes`.
 
 ``trace``: a dict that receives every named intermediate in forward order, the result unchanged
-(docs/crosscheck.md lists the names, shapes and meanings; :mod:`tpnet_ref.crosscheck` compares
+(docs/crosscheck.md lists the names, shapes and meanings; :mod:`tpnet_ref.conformance` compares
 them). Per-point layers are ``(P, C)``, the frames' points one frame after another; per-frame
 ones ``(m, C)``; each LSTM direction ``(m, u)``, row ``t`` its output at time step ``t``.
 """

@@ -232,7 +232,7 @@ def _time_onnx(t: _Timer, name: str, model: Any) -> None:
             or importlib.util.find_spec("onnx") is None:
         t.skip(name, "onnx/onnxruntime not installed")
         return
-    from ..onnx_peer import onnx_session     # the crosscheck extra
+    from ..conformance.onnx_peer import onnx_session     # the crosscheck extra
     sess = onnx_session(model, n_points=t.inputs.shape[2])
 
     def run(x: np.ndarray) -> np.ndarray:

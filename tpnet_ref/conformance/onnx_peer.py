@@ -11,7 +11,7 @@ normalisation and its inverse are in the graph). The batch is dynamic, and N too
 
 The graph computes what :meth:`TPNet.predict_batch` computes, without its input checks and
 without the canonical point order (max-pooling is invariant: the results differ by rounding
-only, ``tests/test_onnx_export.py``).
+only, ``tests/test_conformance_onnx_peer.py``).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import os
 
 import numpy as np
 
-from .extras import require
+from ..extras import require
 
 
 def _ifco_to_iofc(a: np.ndarray) -> np.ndarray:

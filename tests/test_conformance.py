@@ -15,9 +15,13 @@ import numpy as np
 import pytest
 
 import tpnet_ref
-from tpnet_ref import crosscheck as X
 from tpnet_ref.engines import reference
 from tpnet_ref.cli import main
+from tpnet_ref.conformance.compare import compare, compare_case, first_divergence
+from tpnet_ref.conformance.layer_names import layer_names, layer_shapes
+from tpnet_ref.conformance.tolerances import measure_tolerances, trace
+from tpnet_ref.conformance.vectors import (Vectors, read_conformance_vectors, save_trace,
+                                           write_conformance_vectors)
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,12 +62,12 @@ def test_trace_names_in_order_and_result_unchanged(cfg, dtype):
     window = [rng.uniform(5, 40, (n, 2)) for n in (30, 17, 30, 4)]
     tr: dict = {}
     y = reference.forward(cfg, model.params, window, trace=tr)
-    assert list(tr) == X.layer_names(cfg)
+    assert list(tr) == layer_names(cfg)
     assert np.array_equal(y, reference.forward(cfg, model.params, window))
     assert np.array_equal(tr["output"], y)
     assert all(v.dtype == np.dtype(dtype) for v in tr.values())
     P = 30 + 17 + 30 + 4
-    for name, shape in X.layer_shapes(cfg).items():
+    for name, shape in layer_shapes(cfg).items():
         want = tuple(P if d == "P" else cfg.m if d == "m" else d for d in shape)
         assert tr[name].shape == want, name
     # the named intermediates are what the layers compute
@@ -88,7 +92,7 @@ def test_vectors_read_back_by_a_plain_numpy_reader(vectors_dir, quarter):
     man = json.loads((vectors_dir / "manifest.json").read_text())
     arrays = plain_npz(vectors_dir / "vectors.npz")
     layers = [e["name"] for e in man["layers"]]
-    assert layers == X.layer_names(quarter.config)
+    assert layers == layer_names(quarter.config)
     assert [c["name"] for c in man["cases"]] == ["scene1", "scene2", "shuffled", "ragged",
                                                  "edge_low", "edge_high", "rollout1",
                                                  "rollout2", "rollout3"]
@@ -114,10 +118,10 @@ def test_vectors_read_back_by_a_plain_numpy_reader(vectors_dir, quarter):
 
 
 def test_the_readers_own_vectors(vectors_dir, quarter):
-    v = X.read_vectors(vectors_dir)
+    v = read_conformance_vectors(vectors_dir)
     assert v.config == quarter.config
-    res = X.compare(v, {c: v.arrays[c] for c in v.cases})
-    assert X.first_divergence(res, v.layers) is None
+    res = compare(v, {c: v.arrays[c] for c in v.cases})
+    assert first_divergence(res, v.layers) is None
     assert all(r.layers[-1].max_abs == 0 for r in res)
 
 
@@ -148,7 +152,7 @@ def test_torch_state_dict_agrees(vectors_dir, quarter, tmp_path):
 def test_onnx_export_agrees(vectors_dir, quarter, tmp_path):
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
-    from tpnet_ref.onnx_peer import export_onnx
+    from tpnet_ref.conformance.onnx_peer import export_onnx
     export_onnx(quarter, tmp_path / "q.onnx")
     rc, out, err = run_cli("crosscheck", "--vectors", vectors_dir, "--model", tmp_path / "q.onnx")
     assert rc == 0, out + err
@@ -165,17 +169,17 @@ def test_keras_checkpoint_agrees(tmp_path):
     from tpnet_ref.weights.keras import import_keras_h5
     src = ROOT / "tests" / "fixtures" / "tf2_released.h5"
     model = import_keras_h5(src)
-    X.write_vectors(model.config, model.params, tmp_path / "v")
+    write_conformance_vectors(model.config, model.params, tmp_path / "v")
     rc, out, err = run_cli("crosscheck", "--vectors", tmp_path / "v", "--model", src)
     assert rc == 0, out + err
     assert "Keras" in out and "all 9 case(s) agree" in out
 
 
-def _window_vectors(model: TPNet, window: list[np.ndarray]) -> X.Vectors:
+def _window_vectors(model: TPNet, window: list[np.ndarray]) -> Vectors:
     """Vectors of one window with tolerances measured on it (the same rule as tpnet vectors)."""
-    want = X.trace(model.config, model.params, window)
-    tol, _ = X.measure_tolerances(model.config, model.params, [window], [want])
-    return X.Vectors(Path("."), {}, model.config, X.layer_names(model.config), tol,
+    want = trace(model.config, model.params, window)
+    tol, _ = measure_tolerances(model.config, model.params, [window], [want])
+    return Vectors(Path("."), {}, model.config, layer_names(model.config), tol,
                      {"w": {"counts": [len(f) for f in window]}}, {"w": want})
 
 
@@ -184,10 +188,10 @@ def test_honest_paths_on_hypothesis_windows(quarter):
     pytest.importorskip("onnxruntime")
     from hypothesis import HealthCheck, given, settings
 
-    from tpnet_ref.onnx_peer import build_onnx
+    from tpnet_ref.conformance.onnx_peer import build_onnx
     from tpnet_ref.testing import windows
     from tpnet_ref.torch_model import TorchTPNet
-    from tpnet_ref.traces import onnx_trace, onnx_trace_session, torch_trace
+    from tpnet_ref.conformance.traces import onnx_trace, onnx_trace_session, torch_trace
 
     torch.set_num_threads(1)
     net = TorchTPNet.from_numpy(quarter).eval()
@@ -202,7 +206,7 @@ def test_honest_paths_on_hypothesis_windows(quarter):
         v = _window_vectors(quarter, window)
         for label, tr in (("torch", torch_trace(net, window)),
                           ("onnx", onnx_trace(None, window, quarter.config, sess))):
-            r = X.compare_case(v, "w", tr)
+            r = compare_case(v, "w", tr)
             assert r.first is None, (label, r.first)
 
     check()
@@ -300,11 +304,11 @@ SEEDED = {  # bug -> (the layer it must be named at, where it must start)
 @pytest.mark.parametrize("bug", list(SEEDED))
 def test_seeded_bug_named_at_its_first_layer(bug, vectors_dir, quarter, tmp_path):
     pytest.importorskip("torch")
-    from tpnet_ref.traces import torch_trace
+    from tpnet_ref.conformance.traces import torch_trace
 
     net = _seeded_port(quarter, bug)
-    v = X.read_vectors(vectors_dir)
-    X.save_trace(tmp_path / "port.npz", {c: torch_trace(net, v.window(c)) for c in v.cases})
+    v = read_conformance_vectors(vectors_dir)
+    save_trace(tmp_path / "port.npz", {c: torch_trace(net, v.window(c)) for c in v.cases})
     rc, out, err = run_cli("crosscheck", "--vectors", vectors_dir, "--trace",
                            tmp_path / "port.npz", "--json")
     assert rc == 1, out + err
@@ -324,16 +328,16 @@ def test_seeded_bug_named_at_its_first_layer(bug, vectors_dir, quarter, tmp_path
 def test_honest_port_trace_file_agrees(vectors_dir, quarter, tmp_path):
     pytest.importorskip("torch")
     from tpnet_ref.torch_model import TorchTPNet
-    from tpnet_ref.traces import torch_trace
+    from tpnet_ref.conformance.traces import torch_trace
 
     net = TorchTPNet.from_numpy(quarter).eval()
-    v = X.read_vectors(vectors_dir)
+    v = read_conformance_vectors(vectors_dir)
     traces = {c: torch_trace(net, v.window(c)) for c in v.cases}
     # a port may leave layers out and give per-point layers as (m, N, C) with a batch axis
     for t in traces.values():
         del t["lstm1.concat"]
     traces["scene1"]["mlp1.0"] = traces["scene1"]["mlp1.0"].reshape(1, 4, 30, -1)
-    X.save_trace(tmp_path / "port.npz", traces)
+    save_trace(tmp_path / "port.npz", traces)
     rc, out, err = run_cli("crosscheck", "--vectors", vectors_dir, "--trace",
                            tmp_path / "port.npz")
     assert rc == 0, out + err
@@ -349,17 +353,17 @@ def _one_line_error(rc: int, err: str, *words: str) -> None:
 
 
 def test_bad_input_is_one_line(vectors_dir, tmp_path):
-    v = X.read_vectors(vectors_dir)
+    v = read_conformance_vectors(vectors_dir)
     good = {c: dict(v.arrays[c]) for c in v.cases}
 
-    X.save_trace(tmp_path / "unknown.npz", {"scene1": {"mlp9.0": np.zeros(3)}})
+    save_trace(tmp_path / "unknown.npz", {"scene1": {"mlp9.0": np.zeros(3)}})
     _one_line_error(*run_cli("crosscheck", "--vectors", vectors_dir, "--trace",
                              tmp_path / "unknown.npz")[::2], "unknown key", "scene1.mlp9.0")
-    X.save_trace(tmp_path / "case.npz", {"scene9": {"output": np.zeros((30, 2))}})
+    save_trace(tmp_path / "case.npz", {"scene9": {"output": np.zeros((30, 2))}})
     _one_line_error(*run_cli("crosscheck", "--vectors", vectors_dir, "--trace",
                              tmp_path / "case.npz")[::2], "unknown key", "scene9.output")
     bad = {"scene1": {"mlp1.0": good["scene1"]["mlp1.0"][:, :3]}}
-    X.save_trace(tmp_path / "shape.npz", bad)
+    save_trace(tmp_path / "shape.npz", bad)
     _one_line_error(*run_cli("crosscheck", "--vectors", vectors_dir, "--trace",
                              tmp_path / "shape.npz")[::2], "scene1.mlp1.0", "shape")
     _one_line_error(*run_cli("crosscheck", "--vectors", vectors_dir, "--trace",

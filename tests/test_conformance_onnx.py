@@ -1,6 +1,6 @@
 """The NumPy forward pass against onnxruntime, an independent implementation of the same ops.
 
-The graph is built by ``tpnet_ref.onnx_peer`` from the NumPy model's weights: onnxruntime's own
+The graph is built by ``tpnet_ref.conformance.onnx_peer`` from the NumPy model's weights: onnxruntime's own
 LSTM kernel (activations Sigmoid/Relu/Relu, gates converted to ONNX order i,o,f,c), its ReduceMax
 and LayerNormalization. Agreement within 1e-5 checks gate order, the ReLU cell, the backward
 direction's alignment, the final-output convention and LayerNorm eps against code we did not write.
@@ -14,7 +14,7 @@ pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
 from tpnet_ref.model import TPNetConfig, init_random  # noqa: E402
-from tpnet_ref.onnx_peer import onnx_session  # noqa: E402
+from tpnet_ref.conformance.onnx_peer import onnx_session  # noqa: E402
 
 
 @pytest.mark.parametrize("cfg", [

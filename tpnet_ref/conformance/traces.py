@@ -4,7 +4,7 @@
 - :func:`torch_trace` -- a :class:`~tpnet_ref.torch_model.TorchTPNet` (or a port built on it)
   observed through forward hooks and pre-hooks on its modules, so what is recorded is what the
   module computed, bugs included;
-- :func:`onnx_trace` -- a graph written by :mod:`tpnet_ref.onnx_peer` run by onnxruntime with
+- :func:`onnx_trace` -- a graph written by :mod:`tpnet_ref.conformance.onnx_peer` run by onnxruntime with
   every traced intermediate marked as a graph output (as Polygraphy's ``--onnx-outputs mark
   all`` does), found by the initializers its layers read;
 - :func:`keras_trace` -- a Keras 3 model built from the parameters (the ``keras`` extra; the
@@ -13,7 +13,7 @@
   what they expose cheaply (each frame's global feature, the head's output, the prediction).
 
 Each takes one window (``m`` frames ``(N_t, dim)``, world units) and returns ``{layer: array}``
-in the shapes of :func:`tpnet_ref.crosscheck.layer_shapes`. A framework that takes frames of
+in the shapes of :func:`tpnet_ref.conformance.layer_names.layer_shapes`. A framework that takes frames of
 one size gets a ragged window padded by repeating each short frame's first point: max-pooling
 is unchanged, and the padded rows are dropped from the per-point layers.
 """
@@ -26,9 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from .config import TPNetConfig
-from .crosscheck import Vectors, check_same_network, layer_names, layer_shapes
-from .extras import require
+from ..config import TPNetConfig
+from .vectors import Vectors, check_same_network
+from .layer_names import layer_names, layer_shapes
+from ..extras import require
 
 
 def _padded(frames: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
@@ -133,8 +134,8 @@ def torch_trace(net: Any, window: Any) -> dict[str, np.ndarray]:
 def torch_model(path: str | os.PathLike) -> Any:
     """A float32 :class:`~tpnet_ref.torch_model.TorchTPNet` from a state dict file (read with
     ``torch.load(weights_only=True)`` only)."""
-    from .torch_model import TorchTPNet
-    from .weights.torch import import_torch
+    from ..torch_model import TorchTPNet
+    from ..weights.torch import import_torch
     return TorchTPNet.from_numpy(import_torch(path, dtype="float32")).eval()
 
 
@@ -142,7 +143,7 @@ def torch_model(path: str | os.PathLike) -> Any:
 def onnx_outputs(proto: Any, config: TPNetConfig) -> tuple[dict[str, str], bool]:
     """The graph's tensor for each traced layer (``{layer: tensor name}``) and whether it takes
     world units. Layers are found by the initializers they read (``mlp1.0_w_*`` ...): the
-    graphs :func:`tpnet_ref.onnx_peer.build_onnx` writes."""
+    graphs :func:`tpnet_ref.conformance.onnx_peer.build_onnx` writes."""
     g = proto.graph
     inits = {i.name for i in g.initializer}
     consumers: dict[str, list[Any]] = {}
@@ -402,9 +403,9 @@ def model_tracer(path: str | os.PathLike, vectors: Vectors, engine: str = "numpy
     file (the ``keras`` extra) or a native weights file (the ``engine``'s trace)."""
     import zipfile
 
-    from . import hdf5
-    from .model import load
-    from .native import is_native
+    from .. import hdf5
+    from ..model import load
+    from ..native import is_native
 
     config = vectors.config
     p = Path(path)
@@ -417,7 +418,7 @@ def model_tracer(path: str | os.PathLike, vectors: Vectors, engine: str = "numpy
         check_same_network(vectors, model.config, f"model {p}")
         return f"native weights file, {engine} engine", lambda w: engine_trace(model, w)
     if head == hdf5.HDF5_MAGIC or (zipfile.is_zipfile(p) and _is_keras_zip(p)):
-        from .weights.keras import import_keras_h5
+        from ..weights.keras import import_keras_h5
         tp = import_keras_h5(p, dtype="float32")
         check_same_network(vectors, tp.config, f"model {p}")
         os.environ.setdefault("KERAS_BACKEND", "torch")     # the keras extra's backend

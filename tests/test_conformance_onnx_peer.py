@@ -1,4 +1,4 @@
-"""``tpnet export onnx`` (tpnet_ref.cli.export, tpnet_ref.onnx_peer.export_onnx): the written
+"""``tpnet export onnx`` (tpnet_ref.cli.export, tpnet_ref.conformance.onnx_peer.export_onnx): the written
 file, run by onnxruntime, gives what ``predict_batch`` gives, in world units, for any batch and
 any number of points per frame."""
 from __future__ import annotations
