@@ -9,7 +9,7 @@
 Every peer runs the same weights, the shipped m = 4 model (N = 30, identity transform nets),
 on the same windows of the scene (simulated held-out test cases, normalised; only timed, never
 used to choose anything): tpnet_ref float32 and float64, onnxruntime (graph built by
-``tpnet_ref.conformance.onnx_peer``), PyTorch eager (``tpnet_ref.torch_model``). Peers that are not
+``tpnet_ref.conformance.onnx_peer``), PyTorch eager (``tpnet_ref.training.torch_model``). Peers that are not
 installed are skipped and said so. The NumPy engine reads only the weight rows of units that are
 non-zero (exact on every input), so its speed depends on the input: the same comparison on a
 random network of the released shape with uniform random input is printed too. The default
@@ -98,7 +98,7 @@ def torch_peer(model):
     """A callable running the PyTorch model on a normalised batch, or None if unavailable."""
     try:
         import torch
-        from tpnet_ref.torch_model import TorchTPNet
+        from tpnet_ref.training.torch_model import TorchTPNet
     except ImportError as exc:
         return None, f"skipped ({exc})"
     net = TorchTPNet.from_numpy(model).eval()

@@ -91,12 +91,12 @@ class Implementations:
 
     def torch_module(self, dtype: str):
         if dtype not in self._torch:
-            from tpnet_ref.torch_model import TorchTPNet
+            from tpnet_ref.training.torch_model import TorchTPNet
             self._torch[dtype] = TorchTPNet.from_numpy(self.base[dtype]).eval()
         return self._torch[dtype]
 
     def torch(self, dtype: str):
-        """:class:`tpnet_ref.torch_model.TorchTPNet` (no sort of its own): ``forward`` on equal
+        """:class:`tpnet_ref.training.torch_model.TorchTPNet` (no sort of its own): ``forward`` on equal
         frames, ``frame_features`` frame by frame and ``sequence_head`` on ragged ones."""
         import torch
         net, base = self.torch_module(dtype), self.base[dtype]

@@ -142,7 +142,7 @@ def test_native_file_engines_agree(vectors_dir):
 
 def test_torch_state_dict_agrees(vectors_dir, quarter, tmp_path):
     torch = pytest.importorskip("torch")
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     torch.save(TorchTPNet.from_numpy(quarter).state_dict(), tmp_path / "q.pt")
     rc, rep = crosscheck_json(vectors_dir, "--model", tmp_path / "q.pt")
     assert rc == 0 and rep["first_divergence"] is None, rep
@@ -190,7 +190,7 @@ def test_honest_paths_on_hypothesis_windows(quarter):
 
     from tpnet_ref.conformance.onnx_peer import build_onnx
     from tpnet_ref.testing import windows
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     from tpnet_ref.conformance.traces import onnx_trace, onnx_trace_session, torch_trace
 
     torch.set_num_threads(1)
@@ -216,7 +216,7 @@ def test_honest_paths_on_hypothesis_windows(quarter):
 def _seeded_port(model: TPNet, bug: str):
     """A PyTorch port of ``model`` with one bug (docs/crosscheck.md, "Seeded bugs")."""
     torch = pytest.importorskip("torch")
-    from tpnet_ref.torch_model import BiLSTM, TorchTPNet
+    from tpnet_ref.training.torch_model import BiLSTM, TorchTPNet
 
     cfg = model.config
     if bug == "layer_norm_eps":
@@ -327,7 +327,7 @@ def test_seeded_bug_named_at_its_first_layer(bug, vectors_dir, quarter, tmp_path
 
 def test_honest_port_trace_file_agrees(vectors_dir, quarter, tmp_path):
     pytest.importorskip("torch")
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     from tpnet_ref.conformance.traces import torch_trace
 
     net = TorchTPNet.from_numpy(quarter).eval()

@@ -199,7 +199,7 @@ def _torch_port(net, name):
 
 def test_the_default_tolerance_catches_a_layer_norm_epsilon_that_1e_4_lets_through(shipped):
     pytest.importorskip("torch")
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     net = TorchTPNet.from_numpy(shipped).eval()
     assert net.ln2.eps == shipped.config.layer_norm_eps == 1e-3
     net.ln2.eps = 1e-5                                    # the planted bug
@@ -217,7 +217,7 @@ def test_the_default_tolerance_catches_a_layer_norm_epsilon_that_1e_4_lets_throu
 
 def test_honest_ports_pass_the_default_tolerance(shipped):
     pytest.importorskip("torch")
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     port = _torch_port(TorchTPNet.from_numpy(shipped).eval(), "honest")
     frames = testing.windows(m=4, ragged=False, normalized=True)
     got = testing.agrees_with_reference(port, shipped, windows=frames, normalized=True,

@@ -117,7 +117,7 @@ def _model_only(path):
 
 
 def test_keras_initialisation_is_the_released_codes():
-    from tpnet_ref.torch_model import BiLSTM, TorchTPNet, init_keras
+    from tpnet_ref.training.torch_model import BiLSTM, TorchTPNet, init_keras
 
     torch.manual_seed(0)
     net = TorchTPNet(R.size_config("quarter"))
@@ -225,7 +225,7 @@ def test_a_released_run_trains_and_logs_dead_units(released, long_grid, tmp_path
 
 
 def test_dead_units_counts_a_layer_that_is_off_everywhere():
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     from tpnet_ref.training.loop import dead_units
 
     torch.manual_seed(0)

@@ -329,7 +329,7 @@ def test_torch_pickle_payload_never_runs(tmp_path, capsys):
 
 def test_torch_damaged_and_oversized(tmp_path, monkeypatch):
     import tpnet_ref.hdf5 as H
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     from tpnet_ref.weights.torch import import_torch
 
     p = tmp_path / "a.pt"

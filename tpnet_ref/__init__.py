@@ -147,6 +147,7 @@ _MOVED: dict[str, tuple[str, ...]] = {
                    "conformance.vectors", "conformance.compare", "conformance.report"),
     "traces": ("conformance.traces",),
     "onnx_peer": ("conformance.onnx_peer",),
+    "torch_model": ("training.torch_model",),
 }
 #: names renamed on the way: ``"old module.old name": "new module.new name"``
 _RENAMED: dict[str, str] = {

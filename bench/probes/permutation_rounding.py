@@ -29,7 +29,7 @@ from tpnet_ref.model import init_random
 def torch_predict(model):
     """``TorchTPNet`` of ``model`` as window -> points (frame by frame: ragged windows too)."""
     import torch
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     net = TorchTPNet.from_numpy(model).eval()
 
     def pytorch(window):

@@ -1,7 +1,7 @@
 """The layer-by-layer trace of every implementation the project runs, named as the reference's
 (:func:`tpnet_ref.engines.reference.forward` with ``trace=``; docs/crosscheck.md lists the names):
 
-- :func:`torch_trace` -- a :class:`~tpnet_ref.torch_model.TorchTPNet` (or a port built on it)
+- :func:`torch_trace` -- a :class:`~tpnet_ref.training.torch_model.TorchTPNet` (or a port built on it)
   observed through forward hooks and pre-hooks on its modules, so what is recorded is what the
   module computed, bugs included;
 - :func:`onnx_trace` -- a graph written by :mod:`tpnet_ref.conformance.onnx_peer` run by onnxruntime with
@@ -47,7 +47,7 @@ def _unpad(a: np.ndarray, counts: list[int]) -> np.ndarray:
 
 # --------------------------------------------------------------------------- PyTorch
 def torch_trace(net: Any, window: Any) -> dict[str, np.ndarray]:
-    """The trace of a :class:`~tpnet_ref.torch_model.TorchTPNet` (any subclass, any dtype).
+    """The trace of a :class:`~tpnet_ref.training.torch_model.TorchTPNet` (any subclass, any dtype).
 
     Observed with hooks: a per-point layer's output after its activation is the input of the
     module that reads it next (a forward pre-hook); ``pooled`` the input of the global FC;
@@ -132,9 +132,9 @@ def torch_trace(net: Any, window: Any) -> dict[str, np.ndarray]:
 
 
 def torch_model(path: str | os.PathLike) -> Any:
-    """A float32 :class:`~tpnet_ref.torch_model.TorchTPNet` from a state dict file (read with
+    """A float32 :class:`~tpnet_ref.training.torch_model.TorchTPNet` from a state dict file (read with
     ``torch.load(weights_only=True)`` only)."""
-    from ..torch_model import TorchTPNet
+    from ..training.torch_model import TorchTPNet
     from ..weights.torch import import_torch
     return TorchTPNet.from_numpy(import_torch(path, dtype="float32")).eval()
 

@@ -215,7 +215,7 @@ def _time_torch(t: _Timer, name: str, model: Any) -> None:
         t.skip(name, "PyTorch not installed")
         return
     import torch
-    from ..torch_model import TorchTPNet
+    from ..training.torch_model import TorchTPNet
     net = TorchTPNet.from_numpy(model).eval()
     xb = torch.from_numpy(np.ascontiguousarray(t.inputs, dtype=np.float32))
 

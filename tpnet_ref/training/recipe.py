@@ -19,7 +19,7 @@ input coordinates (never on the targets; i.i.d. or a random walk over the input 
 first K − G predictions without gradient, the loss over the last G alone). Validation is a
 held-out set of whole training-grid *trajectories* (``val_fraction``), always scored over all
 ``rollout`` predictions; the 60 test cases are never read. Everything here is NumPy and h5py:
-torch is needed by :mod:`~tpnet_ref.training.loop` only.
+torch is needed by the loop and its step only (:mod:`~tpnet_ref.training.loop`).
 """
 from __future__ import annotations
 

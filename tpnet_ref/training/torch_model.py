@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from .config import TPNetConfig, param_shapes
-from .extras import require
-from .model import TPNet
-from .weights.torch import TORCH_FORMAT, native_to_torch_state, torch_state_to_native
+from ..config import TPNetConfig, param_shapes
+from ..extras import require
+from ..model import TPNet
+from ..weights.torch import TORCH_FORMAT, native_to_torch_state, torch_state_to_native
 
 torch = require("torch", "train")
 nn = torch.nn
