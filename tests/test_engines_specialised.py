@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import tpnet_ref
 from tpnet_ref import data as D
 from tpnet_ref.engines import layers as L
-from tpnet_ref import native
+from tpnet_ref.weights import native
 from tpnet_ref.engines import specialised as S
 from tpnet_ref.engines import unit_order as U
 from tpnet_ref.checks import NonFiniteResultError

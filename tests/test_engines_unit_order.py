@@ -10,7 +10,7 @@ import pytest
 
 import tpnet_ref
 from tpnet_ref.engines import layers as L
-from tpnet_ref import native
+from tpnet_ref.weights import native
 from tpnet_ref.engines import specialised as S
 from tpnet_ref.engines import unit_order as U
 from tpnet_ref.model import TPNetConfig, init_random

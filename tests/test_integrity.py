@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 
 import tpnet_ref
-from tpnet_ref import native
+from tpnet_ref.weights import native
 from tpnet_ref.engines import specialised as S
 from tpnet_ref.engines import unit_order as U
 from tpnet_ref.cli import main
 from tpnet_ref.model import init_random
-from tpnet_ref.provenance import absolute_paths, portable_path, scrub
+from tpnet_ref.weights.provenance import absolute_paths, portable_path, scrub
 
 from ring_helpers import SMALL, rings
 

@@ -17,7 +17,7 @@ from tpnet_ref.training import loop as L  # noqa: E402
 from tpnet_ref.training import native_export as NE  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
 from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
-from tpnet_ref.provenance import absolute_paths, file_sha256, portable_path  # noqa: E402
+from tpnet_ref.weights.provenance import absolute_paths, file_sha256, portable_path  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
 

@@ -46,7 +46,7 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
     if path is None:
         if m == 4 and size == "full":
             return _load_file(None, dtype, engine)
-        from .native import shipped_weights_path
+        from .weights.native import shipped_weights_path
         path = shipped_weights_path(m, size)
     elif m != 4 or size != "full":
         raise ValueError("load: give either a path or m= / size= (a shipped model), not both")
@@ -116,9 +116,9 @@ def rollout_batch(windows: _Any, steps: int, model: TPNet | None = None,
 
 def example_window() -> _np.ndarray:
     """A real m = 4 window to start from: ``(4, 30, 2)`` world units, four frames of a simulated
-    training-grid scene 4 simulation steps apart (:mod:`tpnet_ref.shipped`)."""
+    training-grid scene 4 simulation steps apart (:mod:`tpnet_ref.weights.shipped`)."""
     from importlib.resources import files
-    with files("tpnet_ref.shipped").joinpath("example_window.npy").open("rb") as f:
+    with files("tpnet_ref.weights.shipped").joinpath("example_window.npy").open("rb") as f:
         return _np.load(f, allow_pickle=False)
 
 
@@ -148,6 +148,9 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "traces": ("conformance.traces",),
     "onnx_peer": ("conformance.onnx_peer",),
     "torch_model": ("training.torch_model",),
+    "native": ("weights.native",),
+    "hdf5": ("weights.hdf5",),
+    "provenance": ("weights.provenance",),
 }
 #: names renamed on the way: ``"old module.old name": "new module.new name"``
 _RENAMED: dict[str, str] = {

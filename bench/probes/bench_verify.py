@@ -16,7 +16,7 @@ import h5py
 
 import _common
 import tpnet_ref
-from tpnet_ref import native
+from tpnet_ref.weights import native
 
 
 def main(argv: list[str]) -> int:

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..provenance import portable_path
+from ..weights.provenance import portable_path
 from .files import load_npy, output_path
 
 

@@ -403,9 +403,9 @@ def model_tracer(path: str | os.PathLike, vectors: Vectors, engine: str = "numpy
     file (the ``keras`` extra) or a native weights file (the ``engine``'s trace)."""
     import zipfile
 
-    from .. import hdf5
+    from ..weights import hdf5
     from ..model import load
-    from ..native import is_native
+    from ..weights.native import is_native
 
     config = vectors.config
     p = Path(path)

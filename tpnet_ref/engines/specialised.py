@@ -42,8 +42,8 @@ import numpy as np
 from . import layers as L
 from .blas import BLOCK_COLUMNS, SMALL_PRODUCT
 from .unit_order import measure
-from ..hdf5 import read_vectors, write_vectors
-from ..native import seal
+from ..weights.hdf5 import read_vectors, write_vectors
+from ..weights.native import seal
 
 #: name of the HDF5 group that holds a specialisation in the native weights file
 GROUP = "specialization"
@@ -600,7 +600,7 @@ def fraction_used(used: dict[str, np.ndarray]) -> dict[str, tuple[int, int]]:
 # ------------------------------------------------------------------ native file
 def group(used: dict[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The masks as the native file's ``specialization`` group: ``(attrs, {mask: uint8
-    array})`` (:func:`tpnet_ref.native.write_native`'s ``groups``)."""
+    array})`` (:func:`tpnet_ref.weights.native.write_native`'s ``groups``)."""
     return {"format": FORMAT}, {k: np.asarray(v, dtype=np.uint8) for k, v in used.items()}
 
 
@@ -615,7 +615,7 @@ def write(path: str | os.PathLike, used: dict[str, np.ndarray], **attrs: Any) ->
 def read(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
     """The masks of a native weights file's ``specialization`` group, or None without one. The
     file is untrusted: links, external storage and oversized datasets are refused
-    (:mod:`tpnet_ref.hdf5`)."""
+    (:mod:`tpnet_ref.weights.hdf5`)."""
     masks = read_vectors(path, GROUP, FORMAT, "mask", kinds="uib")
     if masks is None:
         return None

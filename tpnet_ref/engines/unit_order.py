@@ -28,8 +28,8 @@ import numpy as np
 from . import layers as L
 from ..checks import check_window
 from .numpy_engine import file_order_lstms
-from ..hdf5 import read_vectors, write_vectors
-from ..native import seal
+from ..weights.hdf5 import read_vectors, write_vectors
+from ..weights.native import seal
 
 #: name of the HDF5 group that holds a unit order in the native weights file
 GROUP = "unit_order"
@@ -126,7 +126,7 @@ def from_use(use: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 # ------------------------------------------------------------------ native file
 def group(order: dict[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """``order`` as the native file's ``unit_order`` group: ``(attrs, {layer: int32 array})``
-    (:func:`tpnet_ref.native.write_native`'s ``groups``)."""
+    (:func:`tpnet_ref.weights.native.write_native`'s ``groups``)."""
     return {"format": FORMAT}, {k: np.asarray(v, dtype=np.int32) for k, v in order.items()}
 
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..extras import require
-from ..provenance import file_sha256
+from ..weights.provenance import file_sha256
 from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, load_checkpoint, load_parent,
                          load_parent_optimizer,
                          save_checkpoint)

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from ..extras import require
-from ..provenance import portable_path, scrub_text
+from ..weights.provenance import portable_path, scrub_text
 from ..weights.torch import import_torch
 from .checkpoint import load_checkpoint
 from .torch_model import TorchTPNet
@@ -40,7 +40,7 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
     inh = state.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
                                   "epochs": 0.0})
     # every file named as the repository names it (or by file name), never by this machine's
-    # absolute path (tpnet_ref.provenance); the data also by its SHA-256
+    # absolute path (tpnet_ref.weights.provenance); the data also by its SHA-256
     prov = {"source": portable_path(source), "producer": "tpnet_ref.training",
             "recipe": scrub_text(json.dumps(state.get("recipe", {}), sort_keys=True)),
             "training_steps": int(state.get("step", 0)) + int(inh["steps"]),

@@ -28,9 +28,9 @@ import numpy as np
 from ..config import TPNetConfig, param_shapes
 from ..extras import require
 from ..model import TPNet
-from ..provenance import portable_path
-from .. import hdf5
-from ..hdf5 import check_shape
+from .provenance import portable_path
+from . import hdf5
+from .hdf5 import check_shape
 
 #: tag stored in ``_extra_state`` of :class:`~tpnet_ref.training.torch_model.TorchTPNet`
 TORCH_FORMAT = "tpnet_ref-torch"

@@ -35,13 +35,13 @@ order and other groups kept) in another storage.
 
 :func:`write_native` / :func:`read_native` work on plain ``(config, {name: array}, meta)``;
 :class:`tpnet_ref.model.TPNet` is built on them (``TPNet.save``, ``tpnet_ref.load``). A file is
-untrusted input: it is read through the guards of :mod:`tpnet_ref.hdf5` (no links, sizes
+untrusted input: it is read through the guards of :mod:`tpnet_ref.weights.hdf5` (no links, sizes
 checked before reading, no NaN/Inf, nothing unpickled).
 
 Shipped models (``weights/MODEL_CARD.md``): ``tpnet-m{3,4,5}.h5`` (the paper's network size) and
 the reduced sizes ``tpnet-m4-{size}.h5`` (the same architecture at smaller widths, for lower
 latency), looked up by :func:`shipped_weights_path` in ``$TPNET_WEIGHTS_DIR``, then in the
-installed wheel (``tpnet_ref/shipped/``, which carries the default m = 4 file only), then in the
+installed wheel (``tpnet_ref/weights/shipped/``, which carries the default m = 4 file only), then in the
 repository checkout's ``weights/``. ``tpnet-m3.h5`` and ``tpnet-m5.h5`` are not tracked in git
 (the tracked tree must leave room for a checkpoint on a GPU machine, ``weights/README.md``):
 ``tools/restore_weights.sh`` puts them back, bit-identical, from the repository's history.
@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from .config import TPNetConfig, param_shapes
+from ..config import TPNetConfig, param_shapes
 from . import hdf5
 
 FORMAT = "tpnet_ref-weights"
@@ -73,8 +73,8 @@ _STORAGE_ATTRS = ("storage", "storage_rounding")
 #: the storages :func:`write_native` knows besides the plain compute dtype (``None``)
 STORAGES = ("gzip",)
 
-_PACKAGE_DIR = Path(__file__).resolve().parent              # tpnet_ref/
-SHIPPED_DIR = _PACKAGE_DIR / "shipped"                       # inside an installed wheel
+_PACKAGE_DIR = Path(__file__).resolve().parent.parent       # tpnet_ref/
+SHIPPED_DIR = _PACKAGE_DIR / "weights" / "shipped"           # inside an installed wheel
 REPO_WEIGHTS_DIR = _PACKAGE_DIR.parent / "weights"           # in a repository checkout
 SHIPPED_M = (3, 4, 5)
 #: the network sizes shipped besides the paper's (``full``), m = 4 only: ``tpnet-m4-{size}.h5``
@@ -87,7 +87,7 @@ RESTORE_COMMAND = "bash tools/restore_weights.sh"
 # ------------------------------------------------------------------------ shipped models
 def weights_dir() -> Path:
     """Where the default model is read from: ``$TPNET_WEIGHTS_DIR``, else the installed wheel's
-    ``tpnet_ref/shipped/`` if it exists, else the repository's ``weights/``."""
+    ``tpnet_ref/weights/shipped/`` if it exists, else the repository's ``weights/``."""
     env = os.environ.get("TPNET_WEIGHTS_DIR")
     if env:
         return Path(env)
@@ -100,7 +100,7 @@ def shipped_weights_path(m: int = 4, size: str = "full") -> Path:
     network ``size`` (:data:`SHIPPED_SIZES`, m = 4 only), ``tpnet-m4-{size}.h5``.
 
     Looked up in ``$TPNET_WEIGHTS_DIR`` when set (and only there), else in the installed wheel's
-    ``tpnet_ref/shipped/``, else in the repository's ``weights/``. Raises a one-line
+    ``tpnet_ref/weights/shipped/``, else in the repository's ``weights/``. Raises a one-line
     ``FileNotFoundError`` when the file is in none of them (a wheel carries m = 4 only; a
     checkout without m = 3 and 5 is told the command that restores them).
     """
@@ -361,7 +361,7 @@ def is_native(path: str | os.PathLike) -> bool:
 @hdf5.damaged_file_is_value_error
 def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndarray], dict[str, Any]]:
     """Read a native weights file -> ``(config, {name: array in the stored dtype}, meta)``
-    (compressed or not: :mod:`tpnet_ref.hdf5` decodes gzip and shuffle).
+    (compressed or not: :mod:`tpnet_ref.weights.hdf5` decodes gzip and shuffle).
 
     ``meta``: the root attributes (provenance, and ``storage`` / ``storage_rounding`` when the
     file has them) as plain Python values, plus ``path`` and, when the file has one, its

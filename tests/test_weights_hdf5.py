@@ -1,4 +1,4 @@
-"""tpnet_ref.hdf5: the guards every reader of an untrusted HDF5 file goes through, one by one --
+"""tpnet_ref.weights.hdf5: the guards every reader of an untrusted HDF5 file goes through, one by one --
 links, outside storage, declared sizes before reading, dtypes and shapes, NaN, damaged files."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 
 h5py = pytest.importorskip("h5py")
 
-from tpnet_ref import hdf5  # noqa: E402
+from tpnet_ref.weights import hdf5  # noqa: E402
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ that wrote it; the data file is identified by its SHA-256 (``data_sha256``) inst
 (``tpnet scrub-provenance SRC DST``): every absolute path in its root attributes (also inside
 their JSON: the chain of training runs) becomes :func:`portable_path` of it, the parameters,
 config, unit order and masks are written back unchanged (checked bit for bit before the file
-replaces ``DST``) and the file gets its content digest (:mod:`tpnet_ref.native`).
+replaces ``DST``) and the file gets its content digest (:mod:`tpnet_ref.weights.native`).
 """
 from __future__ import annotations
 
