@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tpnet_ref.weights.native import SHIPPED_SIZES
+from tpnet_ref.weights.shipped import SHIPPED_SIZES
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONAL = ("numba", "llvmlite", "scipy", "pymunk", "torch", "matplotlib", "tqdm", "onnxruntime",

@@ -54,95 +54,15 @@ def test_write_casts_to_the_requested_dtype_and_refuses_misfits(tmp_path):
         native.write_native(tmp_path / "b.h5", TINY, params, "float16")
 
 
-def test_native_module_depends_only_on_config_and_the_guards():
+def test_native_module_depends_only_on_config_the_guards_and_the_shipped_names():
     """native.py is what tpnet_ref.model is built on: it must not import the model (no cycle)."""
     tree = ast.parse(Path(native.__file__).read_text())
     local = {("." * n.level) + (n.module or "") for n in ast.walk(tree)
              if isinstance(n, ast.ImportFrom) and n.level > 0}
-    assert local == {"..config", "."}                                   # ..config, . (hdf5)
+    assert local == {"..config", ".", ".shipped"}               # ..config, . (hdf5), .shipped
     names = {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 1
              and not n.module for a in n.names}
     assert names == {"hdf5"}
-
-
-def _shipped(tmp_path, monkeypatch, wheel, repo):
-    """A fake wheel dir holding ``wheel`` and a fake repository weights/ holding ``repo``."""
-    w, r = tmp_path / "shipped", tmp_path / "weights"
-    for d, ms in ((w, wheel), (r, repo)):
-        d.mkdir()
-        for m in ms:
-            (d / f"tpnet-m{m}.h5").write_bytes(b"")
-    monkeypatch.setattr(native, "SHIPPED_DIR", w)
-    monkeypatch.setattr(native, "REPO_WEIGHTS_DIR", r)
-    monkeypatch.delenv("TPNET_WEIGHTS_DIR", raising=False)
-    return w, r
-
-
-def test_shipped_lookup_prefers_env_then_wheel_then_repository(tmp_path, monkeypatch):
-    w, r = _shipped(tmp_path, monkeypatch, wheel=[4], repo=[3, 4, 5])
-    assert native.default_weights_path() == w / "tpnet-m4.h5"
-    assert native.shipped_weights_path(3) == r / "tpnet-m3.h5"      # the wheel has m = 4 only
-    assert native.weights_dir() == w
-    env = tmp_path / "env"
-    env.mkdir()
-    (env / "tpnet-m4.h5").write_bytes(b"")
-    monkeypatch.setenv("TPNET_WEIGHTS_DIR", str(env))
-    assert native.default_weights_path() == env / "tpnet-m4.h5"
-    assert native.weights_dir() == env
-    with pytest.raises(FileNotFoundError, match="no shipped weights tpnet-m5.h5 in .*env"):
-        native.shipped_weights_path(5)                                  # no silent fallback
-
-
-def test_missing_model_in_a_wheel_install_is_one_line(tmp_path, monkeypatch):
-    _shipped(tmp_path, monkeypatch, wheel=[4], repo=[])
-    (tmp_path / "weights").rmdir()                                       # no repository checkout
-    with pytest.raises(FileNotFoundError) as exc:
-        native.shipped_weights_path(3)
-    msg = str(exc.value)
-    assert "\n" not in msg and "pass the path" in msg and "TPNET_WEIGHTS_DIR" in msg
-    assert native.shipped_weights_path(4).parent.name == "shipped"
-    with pytest.raises(ValueError, match="m = 3, 4 and 5"):
-        native.shipped_weights_path(6)
-
-
-def test_reduced_sizes_and_untracked_files_are_found_or_named(tmp_path, monkeypatch):
-    w, r = _shipped(tmp_path, monkeypatch, wheel=[4], repo=[4])
-    for size in native.SHIPPED_SIZES:
-        (r / f"tpnet-m4-{size}.h5").write_bytes(b"")
-        assert native.shipped_weights_path(4, size) == r / f"tpnet-m4-{size}.h5"
-        with pytest.raises(ValueError, match="m = 4 only"):
-            native.shipped_weights_path(3, size)
-    assert native.shipped_weights_path(4, "full") == w / "tpnet-m4.h5"
-    with pytest.raises(ValueError, match="no model is shipped at size='huge'"):
-        native.shipped_weights_path(4, "huge")
-    with pytest.raises(FileNotFoundError, match="tools/restore_weights.sh") as exc:
-        native.shipped_weights_path(5)                  # not tracked by git: the command says how
-    assert "\n" not in str(exc.value)
-
-
-@pytest.mark.parametrize("name", sorted(native.UNTRACKED))
-def test_loading_a_missing_untracked_file_by_path_names_the_restore_command(tmp_path, name):
-    """``load("weights/tpnet-m3.h5")`` in a checkout without it says what ``load(m=3)`` says."""
-    import tpnet_ref
-    with pytest.raises(FileNotFoundError, match=r"weights file not found: .*tpnet-m\d\.h5 \(git "
-                       r"does not track .*`bash tools/restore_weights.sh`") as exc:
-        tpnet_ref.load(tmp_path / "weights" / name)
-    assert "\n" not in str(exc.value)
-    with pytest.raises(FileNotFoundError) as exc:        # any other missing file: the path only
-        tpnet_ref.load(tmp_path / "weights" / "mine.h5")
-    assert str(exc.value) == f"weights file not found: {tmp_path / 'weights' / 'mine.h5'}"
-
-
-def test_load_by_size_reads_the_shipped_file(tmp_path, monkeypatch):
-    import tpnet_ref
-    _shipped(tmp_path, monkeypatch, wheel=[], repo=[])
-    cfg = TINY
-    size = native.SHIPPED_SIZES[0]
-    native.write_native(tmp_path / "weights" / f"tpnet-m4-{size}.h5", cfg, _params(cfg))
-    model = tpnet_ref.load(size=size)
-    assert model.config == cfg
-    with pytest.raises(ValueError, match="either a path or m= / size="):
-        tpnet_ref.load(tmp_path / "weights" / f"tpnet-m4-{size}.h5", size=size)
 
 
 def test_describe_is_a_short_readable_summary(tmp_path):

@@ -37,7 +37,7 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
     ``full`` (the paper's widths; the default, m = 4) or a reduced size shipped for m = 4
     (``"half"``, ``"quarter"``: every width halved or quartered, faster, less accurate;
     ``weights/MODEL_CARD.md``),
-    found by :func:`tpnet_ref.native.shipped_weights_path`. ``m`` and ``size`` are only
+    found by :func:`tpnet_ref.weights.shipped.shipped_weights_path`. ``m`` and ``size`` are only
     for the shipped files: with a ``path`` they must stay at their defaults.
 
     ``engine``: "auto" (the default: the compiled Numba head where numba is installed, else the
@@ -46,7 +46,7 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
     if path is None:
         if m == 4 and size == "full":
             return _load_file(None, dtype, engine)
-        from .weights.native import shipped_weights_path
+        from .weights.shipped import shipped_weights_path
         path = shipped_weights_path(m, size)
     elif m != 4 or size != "full":
         raise ValueError("load: give either a path or m= / size= (a shipped model), not both")
@@ -148,7 +148,7 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "traces": ("conformance.traces",),
     "onnx_peer": ("conformance.onnx_peer",),
     "torch_model": ("training.torch_model",),
-    "native": ("weights.native",),
+    "native": ("weights.native", "weights.shipped"),
     "hdf5": ("weights.hdf5",),
     "provenance": ("weights.provenance",),
 }

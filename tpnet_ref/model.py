@@ -30,7 +30,8 @@ from .checks import (NonFiniteResultError, check_params, check_window, check_win
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
 from .engines.numpy_engine import BLOCK_POINTS, NumpyFeatures
 from .engines.interface import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
-from .weights.native import default_weights_path, read_native, write_native
+from .weights.shipped import default_weights_path
+from .weights.native import read_native, write_native
 from .point_order import SMALL_SORT, canonical_order  # noqa: F401  (re-exported)
 
 class TPNet:

@@ -44,7 +44,8 @@ def add_cli(sub: Any) -> None:
 def _cli_info(args: Any) -> int:
     import json
 
-    from ..weights.native import UnverifiedFileWarning, default_weights_path, describe, read_native
+    from ..weights.native import UnverifiedFileWarning, describe, read_native
+    from ..weights.shipped import default_weights_path
     path = args.weights or default_weights_path()
     with warnings.catch_warnings(record=True) as caught:   # damage is an error (exit 2)
         warnings.simplefilter("always", UnverifiedFileWarning)

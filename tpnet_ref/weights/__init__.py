@@ -7,6 +7,8 @@ Below the model, in the inference core (NumPy and h5py only):
   ``read_native`` / ``describe``), its storage and its content digest.
 - :mod:`~tpnet_ref.weights.hdf5`: the guards every reader uses on untrusted HDF5 and zip files.
 - :mod:`~tpnet_ref.weights.provenance`: what a file says of where it came from.
+- :mod:`~tpnet_ref.weights.shipped`: the shipped models and where they are looked up (the
+  package data that carries them in a wheel).
 
 Above the model (they build a ``TPNet``):
 
@@ -27,8 +29,9 @@ from typing import Any
 _NAMES = {
     "import_checkpoint": "convert", "import_keras_h5": "keras", "import_torch": "torch",
     **{name: "native" for name in ("write_native", "read_native", "is_native", "describe",
-                                   "weights_dir", "shipped_weights_path",
-                                   "default_weights_path", "FORMAT", "FORMAT_VERSION")},
+                                   "FORMAT", "FORMAT_VERSION")},
+    **{name: "shipped" for name in ("weights_dir", "shipped_weights_path",
+                                    "default_weights_path")},
 }
 
 

@@ -1,6 +1,6 @@
 """The shipped models (weights/tpnet-m{3,4,5}.h5): m = 4 is what `tpnet_ref.load()` returns; each
 says where it came from, and what it reaches on the 60 held-out cases (docs/spec.md §5 protocol, 80
-predictions)."""
+predictions); where they are looked up (environment, wheel, repository)."""
 from __future__ import annotations
 
 import json
@@ -13,8 +13,9 @@ import pytest
 import tpnet_ref
 from tpnet_ref import evaluation as E
 from tpnet_ref.sim.cases import TEST_CASES
-from tpnet_ref.model import TPNetConfig
+from tpnet_ref.model import TPNetConfig, init_random
 from tpnet_ref.weights import default_weights_path, shipped_weights_path
+from tpnet_ref.weights import shipped as lookup
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -182,3 +183,84 @@ def test_shipped_rollout_stays_finite_and_in_the_box(rollouts):
     _, _, pred = rollouts
     assert np.isfinite(pred).all()
     assert pred.min() >= 0.0 and pred.max() <= 1.0       # sigmoid head, normalised box
+
+
+# ------------------------------------------------------------------ the lookup
+def _shipped(tmp_path, monkeypatch, wheel, repo):
+    """A fake wheel dir holding ``wheel`` and a fake repository weights/ holding ``repo``."""
+    w, r = tmp_path / "shipped", tmp_path / "weights"
+    for d, ms in ((w, wheel), (r, repo)):
+        d.mkdir()
+        for m in ms:
+            (d / f"tpnet-m{m}.h5").write_bytes(b"")
+    monkeypatch.setattr(lookup, "SHIPPED_DIR", w)
+    monkeypatch.setattr(lookup, "REPO_WEIGHTS_DIR", r)
+    monkeypatch.delenv("TPNET_WEIGHTS_DIR", raising=False)
+    return w, r
+
+
+def test_shipped_lookup_prefers_env_then_wheel_then_repository(tmp_path, monkeypatch):
+    w, r = _shipped(tmp_path, monkeypatch, wheel=[4], repo=[3, 4, 5])
+    assert lookup.default_weights_path() == w / "tpnet-m4.h5"
+    assert lookup.shipped_weights_path(3) == r / "tpnet-m3.h5"      # the wheel has m = 4 only
+    assert lookup.weights_dir() == w
+    env = tmp_path / "env"
+    env.mkdir()
+    (env / "tpnet-m4.h5").write_bytes(b"")
+    monkeypatch.setenv("TPNET_WEIGHTS_DIR", str(env))
+    assert lookup.default_weights_path() == env / "tpnet-m4.h5"
+    assert lookup.weights_dir() == env
+    with pytest.raises(FileNotFoundError, match="no shipped weights tpnet-m5.h5 in .*env"):
+        lookup.shipped_weights_path(5)                                  # no silent fallback
+
+
+def test_missing_model_in_a_wheel_install_is_one_line(tmp_path, monkeypatch):
+    _shipped(tmp_path, monkeypatch, wheel=[4], repo=[])
+    (tmp_path / "weights").rmdir()                                       # no repository checkout
+    with pytest.raises(FileNotFoundError) as exc:
+        lookup.shipped_weights_path(3)
+    msg = str(exc.value)
+    assert "\n" not in msg and "pass the path" in msg and "TPNET_WEIGHTS_DIR" in msg
+    assert lookup.shipped_weights_path(4).parent.name == "shipped"
+    with pytest.raises(ValueError, match="m = 3, 4 and 5"):
+        lookup.shipped_weights_path(6)
+
+
+def test_reduced_sizes_and_untracked_files_are_found_or_named(tmp_path, monkeypatch):
+    w, r = _shipped(tmp_path, monkeypatch, wheel=[4], repo=[4])
+    for size in lookup.SHIPPED_SIZES:
+        (r / f"tpnet-m4-{size}.h5").write_bytes(b"")
+        assert lookup.shipped_weights_path(4, size) == r / f"tpnet-m4-{size}.h5"
+        with pytest.raises(ValueError, match="m = 4 only"):
+            lookup.shipped_weights_path(3, size)
+    assert lookup.shipped_weights_path(4, "full") == w / "tpnet-m4.h5"
+    with pytest.raises(ValueError, match="no model is shipped at size='huge'"):
+        lookup.shipped_weights_path(4, "huge")
+    with pytest.raises(FileNotFoundError, match="tools/restore_weights.sh") as exc:
+        lookup.shipped_weights_path(5)                  # not tracked by git: the command says how
+    assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("name", sorted(lookup.UNTRACKED))
+def test_loading_a_missing_untracked_file_by_path_names_the_restore_command(tmp_path, name):
+    """``load("weights/tpnet-m3.h5")`` in a checkout without it says what ``load(m=3)`` says."""
+    import tpnet_ref
+    with pytest.raises(FileNotFoundError, match=r"weights file not found: .*tpnet-m\d\.h5 \(git "
+                       r"does not track .*`bash tools/restore_weights.sh`") as exc:
+        tpnet_ref.load(tmp_path / "weights" / name)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(FileNotFoundError) as exc:        # any other missing file: the path only
+        tpnet_ref.load(tmp_path / "weights" / "mine.h5")
+    assert str(exc.value) == f"weights file not found: {tmp_path / 'weights' / 'mine.h5'}"
+
+
+def test_load_by_size_reads_the_shipped_file(tmp_path, monkeypatch):
+    import tpnet_ref
+    _shipped(tmp_path, monkeypatch, wheel=[], repo=[])
+    cfg = TPNetConfig(mlp1=(4, 4), mlp2=(4, 8), global_features=6, lstm_units=(5, 3), n_out=7)
+    size = lookup.SHIPPED_SIZES[0]
+    init_random(cfg).save(tmp_path / "weights" / f"tpnet-m4-{size}.h5")
+    model = tpnet_ref.load(size=size)
+    assert model.config == cfg
+    with pytest.raises(ValueError, match="either a path or m= / size="):
+        tpnet_ref.load(tmp_path / "weights" / f"tpnet-m4-{size}.h5", size=size)
