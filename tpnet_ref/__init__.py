@@ -143,6 +143,7 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "reference": ("engines.reference",),
     "recursive": ("engines.rollout",),
     "compile_watch": ("engines.compile_watch",),
+    "_chamfer_kernels": ("metrics.chamfer_kernels",),
     "crosscheck": ("conformance.layer_names", "conformance.tolerances", "conformance.cases",
                    "conformance.vectors", "conformance.compare", "conformance.report"),
     "traces": ("conformance.traces",),

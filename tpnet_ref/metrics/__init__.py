@@ -39,8 +39,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .checks import NonFiniteResultError, as_point_sets
-from .extras import require
+from ..checks import NonFiniteResultError, as_point_sets
+from ..extras import require
 
 __all__ = ["position_error", "shape_error", "chamfer_loss", "VARIANTS"]
 
@@ -66,8 +66,8 @@ _HUGE = 1e150
 
 def _kernels():
     require("numba", "metrics")   # one line naming the extra when numba is missing
-    from . import _chamfer_kernels  # imports numba; compiled code is cached on disk
-    return _chamfer_kernels
+    from . import chamfer_kernels  # imports numba; compiled code is cached on disk
+    return chamfer_kernels
 
 
 def _check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
