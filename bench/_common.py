@@ -48,7 +48,7 @@ def scene_windows(model) -> tuple[np.ndarray, np.ndarray]:
     cases (the scene's inputs; only timed, never used to choose anything): test case
     :data:`TEST_CASE_B1`'s first window, and 32 windows spread over each of the first 8 test
     cases. The B = 1 benches time ``x256[::4]`` (64 windows)."""
-    from tpnet_ref.protocol import FRAME_EVERY
+    from tpnet_ref.sim.protocol import FRAME_EVERY
     from tpnet_ref.sim.cases import TEST_CASES
     from tpnet_ref.sim.scene import simulate
     m = model.config.m

@@ -34,7 +34,7 @@ import numpy as np
 
 from tpnet_ref import load
 from tpnet_ref.evaluation.run import batched_rollout, errors
-from tpnet_ref.protocol import split_protocol
+from tpnet_ref.sim.protocol import split_protocol
 from tpnet_ref.training.recipe import Recipe, WindowData
 
 ROOT = Path(__file__).resolve().parents[1]

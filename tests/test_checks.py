@@ -320,7 +320,7 @@ def test_a_body_in_free_fall_shows_its_frame_spacing(rows_apart, flagged):
 
 
 def test_the_free_fall_constants_are_the_scenes_and_the_protocols():
-    from tpnet_ref import protocol
+    from tpnet_ref.sim import protocol
     from tpnet_ref.checks import FRAME_ROWS, GRAVITY, SIM_DT
     from tpnet_ref.sim.scene import SceneParams
     assert (FRAME_ROWS, SIM_DT) == (protocol.FRAME_EVERY, protocol.REFERENCE_DT)

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import tpnet_ref
-from tpnet_ref import data as D
+from tpnet_ref.sim import dataset as D
 from tpnet_ref.engines import layers as L
 from tpnet_ref.weights import native
 from tpnet_ref.engines import specialised as S
@@ -166,8 +166,8 @@ def test_float64_specialisation_and_tanh_refused():
 def test_calibration_windows_are_training_grid_windows_and_own_rollouts(monkeypatch):
     """Every window of each picked training-grid trajectory, then every window of the model's own
     rollout from its first m frames; no held-out test case is ever simulated."""
-    from tpnet_ref.data import train_grid
-    from tpnet_ref.protocol import FRAME_EVERY
+    from tpnet_ref.sim.dataset import train_grid
+    from tpnet_ref.sim.protocol import FRAME_EVERY
     from tpnet_ref.sim import TEST_CASES, scene
     small = dict(input_tnet_mlp=(4, 8), input_tnet_fc=(8,), mlp1=(8, 8), feature_tnet_mlp=(8,),
                  feature_tnet_fc=(8,), mlp2=(16, 32), global_features=16, lstm_units=(16, 8, 8))

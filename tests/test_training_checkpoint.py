@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 
 import tpnet_ref  # noqa: E402
 from tpnet_ref import cli  # noqa: E402
-from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref.sim import dataset as D  # noqa: E402
 from tpnet_ref.training import checkpoint as C  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
 from tpnet_ref.training import native_export as NE  # noqa: E402

@@ -11,7 +11,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref.sim import dataset as D  # noqa: E402
 from tpnet_ref.config import NORM_HI, NORM_LO  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
 

@@ -124,7 +124,7 @@ def example_window() -> _np.ndarray:
 
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
 _LAZY = ("config", "checks", "model", "extras", "engines", "weights", "metrics", "sim",
-         "data", "protocol", "evaluation", "training", "conformance", "observe", "testing")
+         "evaluation", "training", "conformance", "observe", "testing")
 
 # ------------------------------------------------------------------ old import paths
 #: modules that moved, by their old name under ``tpnet_ref``: the modules that hold their names
@@ -152,6 +152,9 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "native": ("weights.native", "weights.shipped"),
     "hdf5": ("weights.hdf5",),
     "provenance": ("weights.provenance",),
+    "data": ("sim.dataset",),
+    "protocol": ("sim.protocol",),
+    "sim.render": ("observe.render",),
 }
 #: names renamed on the way: ``"old module.old name": "new module.new name"``
 _RENAMED: dict[str, str] = {

@@ -24,7 +24,7 @@ from tpnet_ref.conformance.onnx_peer import export_onnx
 
 
 def _windows(model):
-    from tpnet_ref.protocol import FRAME_EVERY
+    from tpnet_ref.sim.protocol import FRAME_EVERY
     from tpnet_ref.sim.cases import TEST_CASES
     from tpnet_ref.sim.scene import simulate
     wins = []

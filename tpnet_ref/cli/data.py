@@ -40,7 +40,7 @@ def add_cli(sub: Any) -> None:
 def _cli_generate(args: Any) -> int:
     import numpy as np
 
-    from ..data import generate, train_grid
+    from ..sim.dataset import generate, train_grid
     from ..sim.cases import TEST_CASES
     from ..sim.scene import SceneParams
     grid = train_grid(args.forces, args.angles, args.positions)

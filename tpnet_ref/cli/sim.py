@@ -1,5 +1,5 @@
 """``tpnet sim run``, ``tpnet sim show`` and ``tpnet sim render``: one trajectory of the scene to a
-.npy file, a PNG, or a video / PNG frames from a synthetic camera (:mod:`tpnet_ref.sim.render`)."""
+.npy file, a PNG, or a video / PNG frames from a synthetic camera (:mod:`tpnet_ref.observe.render`)."""
 from __future__ import annotations
 
 from typing import Any
@@ -96,7 +96,7 @@ def _cli_show(args: Any) -> int:
 
 
 def _cli_render(args: Any) -> int:
-    from ..sim.render import RenderSettings, output_paths, write_render
+    from ..observe.render import RenderSettings, output_paths, write_render
     settings = RenderSettings(size=args.size, fps=args.fps, noise=args.noise,
                               texture=args.texture, distractors=args.distractors, seed=args.seed)
     if args.steps < 2:

@@ -58,14 +58,14 @@ def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool,
     """At most ``--max-windows`` windows from ``src`` (or simulated training-grid ones), whether
     they are normalised, and a description for the provenance."""
     if src is None:
-        from ..data import calibration_windows
+        from ..sim.dataset import calibration_windows
         n = args.trajectories
         windows, normalized = calibration_windows(model, n), False
         what = f"{n} training-grid trajectories + rollouts"
     elif src.suffix == ".npy":
         windows, normalized, what = load_npy(str(src), "source"), False, portable_path(src)
     else:
-        from ..data import load_windows
+        from ..sim.dataset import load_windows
         windows, _ = load_windows(str(src), "train", normalized=True)
         normalized, what = True, f"{portable_path(src)} (training windows)"
     return np.asarray(windows)[:args.max_windows], normalized, what

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import normalize
 from ..model import load
-from ..protocol import FRAME_EVERY, SIM_ROWS, order_points, split_protocol
+from ..sim.protocol import FRAME_EVERY, SIM_ROWS, order_points, split_protocol
 from ..sim import simulate
 from .demo import DEMO_CASE
 from .plots import BOX, _plt, _walls

@@ -17,7 +17,7 @@ from ..engines.blas import one_thread
 from ..engines.compile_watch import COMPILING, CompileWatch
 from ..config import normalize
 from ..model import load
-from ..protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
+from ..sim.protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
     split_protocol
 from ..sim import simulate
 from .plots import plot_demo

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..extras import require
-from ..protocol import HORIZONS
+from ..sim.protocol import HORIZONS
 from .run import HEADLINE, Curve, table_horizons
 from .timing import TimingRow
 

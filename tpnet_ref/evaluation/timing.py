@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..config import normalize
-from ..protocol import FRAME_EVERY, REFERENCE_DT, constant_velocity, copy_last, split_protocol
+from ..sim.protocol import FRAME_EVERY, REFERENCE_DT, constant_velocity, copy_last, split_protocol
 from .run import ModelSpec, batched_rollout, errors, progress_bar
 
 #: training-grid trajectories the scene-specialised row is calibrated on (shipped m = 4 model:
@@ -80,7 +80,7 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
     ``specialized``: also a row "<label> NumPy float32, scene-specialised" for each model: the
     float32 network specialised (:meth:`TPNet.specialize`) on the windows of
     ``calibration_trajectories`` simulated training-grid trajectories and the model's own
-    rollouts from them (:func:`tpnet_ref.data.calibration_windows`; never the test cases),
+    rollouts from them (:func:`tpnet_ref.sim.dataset.calibration_windows`; never the test cases),
     calibrated before and outside the timed part, timed like the float32 row. Its note gives the
     calibration, the fraction of the timed windows that fell back to the full network and the
     largest difference from the float32 row's predictions.
@@ -166,7 +166,7 @@ def _time_specialised(t: _Timer, name: str, model: Any, calibration_trajectories
     if model.config.lstm_activation != "relu":
         t.skip(name, "not a ReLU-LSTM network: no unit stays exactly zero")
         return
-    from ..data import calibration_windows
+    from ..sim.dataset import calibration_windows
     inputs, horizon = t.inputs, t.horizon
     t0 = time.perf_counter()
     with warnings.catch_warnings():        # training-range warnings of the rollouts

@@ -42,12 +42,12 @@ from typing import Any
 
 import numpy as np
 
-from .checks import as_real_array, check_finite
-from .config import NORM_HI, NORM_LO, normalize
-from .extras import require
+from ..checks import as_real_array, check_finite
+from ..config import NORM_HI, NORM_LO, normalize
+from ..extras import require
 from .protocol import FRAME_EVERY, SIM_ROWS
-from .sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
-from .sim.scene import SceneParams, simulate, validate_params
+from .cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+from .scene import SceneParams, simulate, validate_params
 
 FORMAT = "tpnet_ref.data/3"
 #: the convention of files written before it was recorded
@@ -450,7 +450,7 @@ def calibration_cases(n_trajectories: int = 36, seed: int = 0) -> np.ndarray:
     """``(n, 4)`` (force, angle_deg, x, y): ``n_trajectories`` training-grid cases
     (:func:`train_grid`) drawn without replacement with ``seed``; never a held-out
     test case (any grid row equal to one is left out)."""
-    from .sim.cases import TEST_CASES
+    from .cases import TEST_CASES
     grid = train_grid()
     test = np.asarray(TEST_CASES, dtype=float)
     grid = grid[~(grid[:, None, :] == test[None]).all(axis=2).any(axis=1)]

@@ -13,7 +13,9 @@ straight into :func:`tpnet_ref.predict` / :func:`tpnet_ref.rollout`:
 * :func:`points_from_image`: background subtraction + threshold + :func:`points_from_mask`;
 * :func:`drop_outliers`: the points that belong to the body (one compact blob of known size);
 * :func:`frames_at_model_rate` / :func:`model_rate_indices`: the video frames nearest to the
-  model's frame interval, 4 simulator steps of 1/45 s.
+  model's frame interval, 4 simulator steps of 1/45 s;
+* :mod:`tpnet_ref.observe.render`: the other way round, a synthetic camera filming the scene
+  (``tpnet sim render``), what the path above is tested on.
 
 The contour (decided and measured; docs/robustness.md has the effect of each choice):
 
@@ -51,10 +53,10 @@ from typing import Any
 
 import numpy as np
 
-from .checks import (BODY_LINK_FACTOR, BODY_LINK_MIN, BODY_MAX_RADIUS, BODY_SPUR_FACTOR,
+from ..checks import (BODY_LINK_FACTOR, BODY_LINK_MIN, BODY_MAX_RADIUS, BODY_SPUR_FACTOR,
                      as_point_set, as_real_array, body_outliers, check_finite)
-from .extras import require
-from .protocol import FRAME_EVERY, REFERENCE_DT
+from ..extras import require
+from ..sim.protocol import FRAME_EVERY, REFERENCE_DT
 
 #: the scene's free area (docs/spec.md §5): inner faces of the walls and the top of the floor
 WALL_LO = 1.0

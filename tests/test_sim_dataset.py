@@ -1,4 +1,4 @@
-"""Dataset generation and reading (tpnet_ref.data) on a tiny grid."""
+"""Dataset generation and reading (tpnet_ref.sim.dataset) on a tiny grid."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 h5py = pytest.importorskip("h5py")
 
-from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref.sim import dataset as D  # noqa: E402
 from tpnet_ref.config import NORM_HI, NORM_LO, normalize  # noqa: E402
 from tpnet_ref.sim import simulate  # noqa: E402
 from tpnet_ref.sim.cases import TEST_CASES, TRAIN_POSITIONS  # noqa: E402

@@ -1,4 +1,4 @@
-"""tpnet_ref.protocol: frame indexing of the protocol, the two baselines, the input orderings.
+"""tpnet_ref.sim.protocol: frame indexing of the protocol, the two baselines, the input orderings.
 """
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("h5py")
 
 from tpnet_ref import evaluation as E  # noqa: E402
-from tpnet_ref import protocol as P  # noqa: E402
+from tpnet_ref.sim import protocol as P  # noqa: E402
 
 
 

@@ -30,8 +30,8 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..extras import require
-from ..observe import Camera
-from .scene import SceneParams
+from . import Camera
+from ..sim.scene import SceneParams
 
 #: colours (BGR, OpenCV's order): walls, the body
 WALL_BGR = (80, 80, 80)
