@@ -24,7 +24,7 @@ def add_cli(sub: Any) -> None:
         q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
         q.add_argument("--damping-ratio", type=float, default=0.0, help="spring damping ratio")
         q.add_argument("--wall-restitution", type=float, default=0.0, help="wall restitution")
-        _scene_flags(q)
+        add_scene_flags(q)
         if name == "show":
             q.add_argument("-o", "--output", required=True, help=".png file to write")
             q.add_argument("--every", type=int, default=4,
@@ -55,8 +55,9 @@ def add_cli(sub: Any) -> None:
             q.set_defaults(func=_cli_run)
 
 
-def _scene_flags(q: Any) -> None:
-    """``--impulse-point`` and ``--sleep``: the scene convention (default: the released code's)."""
+def add_scene_flags(q: Any) -> None:
+    """``--impulse-point`` and ``--sleep``: the scene convention (default: the released code's),
+    for ``tpnet sim`` and ``tpnet data generate``."""
     q.add_argument("--impulse-point", default="ring_centre",
                    choices=("ring_centre", "particle_centre"),
                    help="where the start impulse acts: ring_centre (released code: particles "
