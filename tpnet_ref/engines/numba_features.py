@@ -1,6 +1,23 @@
 """The Numba engine's feature extractor: each frame's points through the per-point MLP (the
 products by :func:`tpnet_ref.engines.numba_products.product`), their max, the global layer;
 :class:`tpnet_ref.engines.numba_engine.NumbaFeatures` calls them.
+
+Argument names (every kernel below)::
+
+    pts           the frames' points (P, dim), frame after frame, model coordinates, each frame
+                  in canonical order
+    starts, counts  each frame's first point and number of points (F,)
+    f0, f1        the frames f0 .. f1-1 to compute; f: one frame's row of out
+    p0, p1        the points p0 .. p1-1 of one frame (or of half of one)
+    w0, b0        the first per-point layer (dim, C0), (C0,)
+    ws, bs        the later per-point layers' weights and biases (tuples; each weight's rows
+                  padded to the previous layer's padded width)
+    bl            the last per-point layer's bias, added after the max
+    gw, gb        the global layer
+    pool          the running max over a frame's points (1, C)
+    out           the global features (F, k)
+    zero          0 in the model's dtype
+    dst, src, n   _max_into's rows and length
 """
 from __future__ import annotations
 
@@ -114,9 +131,9 @@ def frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out):
 
 @njit(cache=True, nogil=True, parallel=True)
 def features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
-    """:func:`frame_range` of every frame on two threads: two frames or more, in two halves; one frame
-    (a rollout's new frame), its points in two halves, whose maxes are then combined (exact:
-    a max of the same numbers, NaN kept)."""
+    """:func:`frame_range` of every frame on two threads: two frames or more, in two halves; one
+    frame (a rollout's new frame), its points in two halves, whose maxes are then combined
+    (exact: a max of the same numbers, NaN kept)."""
     nf = counts.shape[0]
     if nf > 1:
         half = (nf + 1) // 2

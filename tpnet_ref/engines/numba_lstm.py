@@ -3,6 +3,35 @@ into the next projection), the last LayerNorm and the output layer, compiled as 
 (:func:`head_serial`, :func:`head_parallel`), and BiLSTM 1's input projection
 (:func:`project_serial`, :func:`project_parallel`); :mod:`tpnet_ref.engines.numba_engine` lays the
 weights out and calls them.
+
+Argument names (every kernel below; rows are time-major, row t*B + b; each direction's gates
+i, f, c, o have u columns each, padded with zeros to N, whole 64-byte vectors)::
+
+    d             the direction: 0 forward, 1 backward
+    u, steps, bsz units per direction, T steps, B windows
+    x             a layer's input rows (T*B, C): the previous layer's output times LayerNorm's
+                  gamma (ReLU: the LayerNorm folded into the product), or its LayerNorm output
+                  (tanh); no rows for BiLSTM 1 (projected before)
+    kern, kernel  both directions' input kernels (2, C, N)
+    rec           both directions' recurrent matrices (2, u, N), row k what h[k] adds to the
+                  pre-activations (in _recur_dir: one direction's)
+    gk, cst       (2, N): gamma_{l-1} @ K_l and beta_{l-1} @ K_l + bias_l (the fold), or unused
+                  and bias_l (no fold); bias: BiLSTM 1's (2, N)
+    rr, rmu       per row, 1 / sqrt(var + eps) and rr * mean of the previous layer's output
+                  (the fold; empty: no fold)
+    xs, out       each direction's input projection with bias (T*B, 2, N)
+    hs            the layer's output h (T*B, 2u): forward at columns 0 .. u-1, backward at
+                  u .. 2u-1
+    src           rows to normalise; gamma, beta: LayerNorm's scale and shift
+    ab, z         one window's pre-activations from the recurrent product and from the input
+                  projection; c, h: its cell state and its output
+    relu          ReLU cell and output (else tanh)
+    one, zero     1 and 0 in the model's dtype; eps: LayerNorm's epsilon
+    limit         the ReLU output at which a layer counts as overflowed; li: the layer's index;
+                  bad: 0, or 1 + the first layer that overflowed
+    xp1 ... head_b  the whole network: BiLSTM 1's projection, per-layer tuples (kernels, recs,
+                  gks, csts, units, gammas, betas) and the output layer (head_w, head_b)
+    t             _exp_neg's exponent, <= 0
 """
 from __future__ import annotations
 

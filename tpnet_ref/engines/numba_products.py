@@ -1,8 +1,24 @@
 """The Numba engine's product kernel: ``x @ w`` reading only the weight rows that a non-zero
-input multiplies, each output one chain of fused multiply-adds (:mod:`tpnet_ref.engines.numba_engine`
-says why and how); shared by the prediction network's kernels
-(:mod:`tpnet_ref.engines.numba_lstm`) and the feature extractor's
-(:mod:`tpnet_ref.engines.numba_features`).
+input multiplies, each output one chain of fused multiply-adds
+(:mod:`tpnet_ref.engines.numba_engine` says why and how); shared by the prediction network's
+kernels (:mod:`tpnet_ref.engines.numba_lstm`) and the feature extractor's
+(:mod:`tpnet_ref.engines.numba_features`). numba's cache keys a compiled kernel to its own
+file's time stamp: after editing this file, delete the other two modules' cached kernels
+(``tpnet_ref/engines/__pycache__/numba_*``), which inline these.
+
+Argument names (every kernel below; rows are time-major where there are steps, row t*B + b)::
+
+    x             the input rows (R, C), the left operand
+    w, kern       a weight matrix (C, N), C-contiguous, N whole 64-byte vectors (kern: one
+                  direction's input kernel)
+    out           the result rows (R, N)
+    grp           row groups (G, 3): first row, stride between its rows, number of rows
+    r0, rs, g     one group's first row, stride and number of rows (rstep: rs)
+    act, ns       per group, the input columns non-zero in some row of the group, in increasing
+                  order (G, C), and how many of them there are (G,)
+    j, j0         where in a group's act a chain of weight rows starts
+    steps, bsz    T steps of B windows (R = T*B)
+    per_window    group each window's steps together (else runs of consecutive rows)
 """
 from __future__ import annotations
 
