@@ -28,6 +28,89 @@ def _ifco_to_iofc(a: np.ndarray) -> np.ndarray:
     return np.concatenate([i, o, f, c], axis=0)
 
 
+class _Graph:
+    """An ONNX graph being built from a model's float32 parameters: its nodes and initialisers,
+    named in the order they are made."""
+
+    def __init__(self, params: dict, helper, numpy_helper, n_points: int | None) -> None:
+        self.f32 = {k: np.asarray(v, dtype=np.float32) for k, v in params.items()}
+        self.helper, self.numpy_helper = helper, numpy_helper
+        self.nodes: list = []
+        self.inits: list = []
+        self.count = 0
+        self.n_points = n_points
+        self.n_dyn = None
+        if n_points is None:     # N from the input's shape: (F, N, C) reshapes take it at run time
+            self.n_dyn = self.op("Slice", [self.op("Shape", ["window"]),
+                                           self.const(np.array([2], np.int64), "start"),
+                                           self.const(np.array([3], np.int64), "end")])
+
+    def name(self, base: str) -> str:
+        self.count += 1
+        return f"{base}_{self.count}"
+
+    def const(self, arr: np.ndarray, base: str) -> str:
+        n = self.name(base)
+        self.inits.append(self.numpy_helper.from_array(np.asarray(arr), n))
+        return n
+
+    def op(self, kind: str, inputs: list[str], **attrs) -> str:
+        out = self.name(kind.lower())
+        self.nodes.append(self.helper.make_node(kind, inputs, [out], **attrs))
+        return out
+
+    def dense(self, x: str, prefix: str, act: str | None = "Relu") -> str:
+        y = self.op("Add", [self.op("MatMul", [x, self.const(self.f32[f"{prefix}.w"],
+                                                               prefix + "_w")]),
+                            self.const(self.f32[f"{prefix}.b"], prefix + "_b")])
+        return self.op(act, [y]) if act else y
+
+    def reshape(self, x: str, shape: list[int] | str) -> str:   # a list, or a shape tensor's name
+        return self.op("Reshape", [x, shape if isinstance(shape, str) else
+                                   self.const(np.array(shape, dtype=np.int64), "shape")])
+
+    def frames(self, channels: int) -> list[int] | str:   # the shape (F, N, channels)
+        if self.n_dyn is None:
+            return [-1, int(self.n_points), channels]
+        return self.op("Concat", [self.const(np.array([-1], np.int64), "minus_one"), self.n_dyn,
+                                  self.const(np.array([channels], np.int64), "channels")], axis=0)
+
+    def maxpool(self, x: str, channels: int) -> str:  # (F*N, C) -> (F, C)
+        return self.op("ReduceMax", [self.reshape(x, self.frames(channels))], axes=[1],
+                       keepdims=0)
+
+    def tnet(self, x: str, prefix: str, k: int, mlp, fc) -> str:  # (F*N, k) -> (F*N, k)
+        h = x
+        for i in range(len(mlp)):
+            h = self.dense(h, f"{prefix}.mlp.{i}")
+        g = self.maxpool(h, mlp[-1])
+        for i in range(len(fc)):
+            g = self.dense(g, f"{prefix}.fc.{i}")
+        t = self.reshape(self.dense(g, f"{prefix}.out", act=None), [-1, k, k])
+        return self.reshape(self.op("MatMul", [self.reshape(x, self.frames(k)), t]), [-1, k])
+
+    def bilstm(self, seq: str, li: int, u: int, act: str, last: bool, cfg) -> str:
+        """BiLSTM ``li`` (``u`` units per direction) and its LayerNorm on ``seq``; the sequence
+        ``(m, B, 2u)``, or after the ``last`` layer ``(B, 2u)``."""
+        f32 = self.f32
+        w = np.stack([_ifco_to_iofc(f32[f"lstm{li}.{d}.kernel"].T) for d in ("fwd", "bwd")])
+        r = np.stack([_ifco_to_iofc(f32[f"lstm{li}.{d}.recurrent"].T) for d in ("fwd", "bwd")])
+        b = np.stack([np.concatenate([_ifco_to_iofc(f32[f"lstm{li}.{d}.bias"]),
+                                      np.zeros(4 * u, np.float32)]) for d in ("fwd", "bwd")])
+        y, y_h = self.name("lstm_y"), self.name("lstm_yh")
+        self.nodes.append(self.helper.make_node(
+            "LSTM", [seq, self.const(w, "W"), self.const(r, "R"), self.const(b, "B")], [y, y_h],
+            hidden_size=u, direction="bidirectional",
+            activations=["Sigmoid", act, act, "Sigmoid", act, act]))
+        if not last:  # (m, 2, B, u) -> (m, B, 2u)
+            h = self.reshape(self.op("Transpose", [y], perm=[0, 2, 1, 3]), [cfg.m, -1, 2 * u])
+        else:  # Y_h (2, B, u): forward after the last step, backward after the whole sequence
+            h = self.reshape(self.op("Transpose", [y_h], perm=[1, 0, 2]), [-1, 2 * u])
+        return self.op("LayerNormalization", [h, self.const(f32[f"ln{li}.gamma"], "gamma"),
+                                              self.const(f32[f"ln{li}.beta"], "beta")],
+                       axis=-1, epsilon=float(cfg.layer_norm_eps))
+
+
 def build_onnx(model, n_points: int | None = 30, opset: int = 17, world_units: bool = False):
     """ONNX ``ModelProto`` computing ``model``'s forward pass in float32. The batch is dynamic;
     ``n_points`` fixes N in the declared input shape (None: dynamic, named "N");
@@ -35,103 +118,39 @@ def build_onnx(model, n_points: int | None = 30, opset: int = 17, world_units: b
     onnx = require("onnx", "onnx")
     from onnx import TensorProto, helper, numpy_helper
 
-    cfg, p = model.config, model.params
-    f32 = {k: np.asarray(v, dtype=np.float32) for k, v in p.items()}
-    nodes, inits = [], []
-    counter = [0]
-
-    def name(base: str) -> str:
-        counter[0] += 1
-        return f"{base}_{counter[0]}"
-
-    def const(arr: np.ndarray, base: str) -> str:
-        n = name(base)
-        inits.append(numpy_helper.from_array(np.asarray(arr), n))
-        return n
-
-    def op(kind: str, inputs: list[str], **attrs) -> str:
-        out = name(kind.lower())
-        nodes.append(helper.make_node(kind, inputs, [out], **attrs))
-        return out
-
-    def dense(x: str, prefix: str, act: str | None = "Relu") -> str:
-        y = op("Add", [op("MatMul", [x, const(f32[f"{prefix}.w"], prefix + "_w")]),
-                       const(f32[f"{prefix}.b"], prefix + "_b")])
-        return op(act, [y]) if act else y
-
-    def reshape(x: str, shape: list[int] | str) -> str:   # a list, or a shape tensor's name
-        return op("Reshape", [x, shape if isinstance(shape, str) else
-                              const(np.array(shape, dtype=np.int64), "shape")])
-
-    n_dyn = None
-    if n_points is None:     # N from the input's shape: (F, N, C) reshapes take it at run time
-        n_dyn = op("Slice", [op("Shape", ["window"]), const(np.array([2], np.int64), "start"),
-                             const(np.array([3], np.int64), "end")])
-
-    def frames(channels: int) -> list[int] | str:   # the shape (F, N, channels)
-        if n_dyn is None:
-            return [-1, int(n_points), channels]
-        return op("Concat", [const(np.array([-1], np.int64), "minus_one"), n_dyn,
-                             const(np.array([channels], np.int64), "channels")], axis=0)
-
-    def maxpool(x: str, channels: int) -> str:  # (F*N, C) -> (F, C)
-        return op("ReduceMax", [reshape(x, frames(channels))], axes=[1], keepdims=0)
-
-    def tnet(x: str, prefix: str, k: int, mlp, fc) -> str:  # (F*N, k) -> (F*N, k)
-        h = x
-        for i in range(len(mlp)):
-            h = dense(h, f"{prefix}.mlp.{i}")
-        g = maxpool(h, mlp[-1])
-        for i in range(len(fc)):
-            g = dense(g, f"{prefix}.fc.{i}")
-        t = reshape(dense(g, f"{prefix}.out", act=None), [-1, k, k])
-        return reshape(op("MatMul", [reshape(x, frames(k)), t]), [-1, k])
-
+    cfg = model.config
+    g = _Graph(model.params, helper, numpy_helper, n_points)
     x = "window"
     lo, scale = np.float32(cfg.norm_lo), np.float32(cfg.norm_hi - cfg.norm_lo)
     if world_units:      # (x - lo) / scale, as TPNet.normalize computes it
-        x = op("Div", [op("Sub", [x, const(lo, "norm_lo")]), const(scale, "norm_scale")])
-    x = reshape(x, [-1, cfg.dim])
+        x = g.op("Div", [g.op("Sub", [x, g.const(lo, "norm_lo")]), g.const(scale, "norm_scale")])
+    x = g.reshape(x, [-1, cfg.dim])
     if cfg.input_transform_trained:
-        x = tnet(x, "input_tnet", cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
+        x = g.tnet(x, "input_tnet", cfg.dim, cfg.input_tnet_mlp, cfg.input_tnet_fc)
     for i in range(len(cfg.mlp1)):
-        x = dense(x, f"mlp1.{i}")
+        x = g.dense(x, f"mlp1.{i}")
     if cfg.feature_transform_trained:
-        x = tnet(x, "feature_tnet", cfg.mlp1[-1], cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
+        x = g.tnet(x, "feature_tnet", cfg.mlp1[-1], cfg.feature_tnet_mlp, cfg.feature_tnet_fc)
     for i in range(len(cfg.mlp2)):
-        x = dense(x, f"mlp2.{i}")
-    g = dense(maxpool(x, cfg.mlp2[-1]), "global")
-    seq = op("Transpose", [reshape(g, [-1, cfg.m, cfg.global_features])], perm=[1, 0, 2])
+        x = g.dense(x, f"mlp2.{i}")
+    glob = g.dense(g.maxpool(x, cfg.mlp2[-1]), "global")
+    seq = g.op("Transpose", [g.reshape(glob, [-1, cfg.m, cfg.global_features])], perm=[1, 0, 2])
     act = "Relu" if cfg.lstm_activation == "relu" else "Tanh"
     n_layers = len(cfg.lstm_units)
     for li, u in enumerate(cfg.lstm_units, start=1):
-        w = np.stack([_ifco_to_iofc(f32[f"lstm{li}.{d}.kernel"].T) for d in ("fwd", "bwd")])
-        r = np.stack([_ifco_to_iofc(f32[f"lstm{li}.{d}.recurrent"].T) for d in ("fwd", "bwd")])
-        b = np.stack([np.concatenate([_ifco_to_iofc(f32[f"lstm{li}.{d}.bias"]),
-                                      np.zeros(4 * u, np.float32)]) for d in ("fwd", "bwd")])
-        y, y_h = name("lstm_y"), name("lstm_yh")
-        nodes.append(helper.make_node(
-            "LSTM", [seq, const(w, "W"), const(r, "R"), const(b, "B")], [y, y_h],
-            hidden_size=u, direction="bidirectional",
-            activations=["Sigmoid", act, act, "Sigmoid", act, act]))
-        if li < n_layers:  # (m, 2, B, u) -> (m, B, 2u)
-            h = reshape(op("Transpose", [y], perm=[0, 2, 1, 3]), [cfg.m, -1, 2 * u])
-        else:  # Y_h (2, B, u): forward after the last step, backward after the whole sequence
-            h = reshape(op("Transpose", [y_h], perm=[1, 0, 2]), [-1, 2 * u])
-        seq = op("LayerNormalization", [h, const(f32[f"ln{li}.gamma"], "gamma"),
-                                        const(f32[f"ln{li}.beta"], "beta")],
-                 axis=-1, epsilon=float(cfg.layer_norm_eps))
-    out = reshape(dense(seq, "head", act="Sigmoid"), [-1, cfg.n_out, cfg.dim])
+        seq = g.bilstm(seq, li, u, act, li == n_layers, cfg)
+    out = g.reshape(g.dense(seq, "head", act="Sigmoid"), [-1, cfg.n_out, cfg.dim])
     if world_units:      # y * scale + lo, as TPNet.denormalize
-        out = op("Add", [op("Mul", [out, const(scale, "norm_scale")]), const(lo, "norm_lo")])
-    nodes.append(helper.make_node("Identity", [out], ["prediction"]))
+        out = g.op("Add", [g.op("Mul", [out, g.const(scale, "norm_scale")]),
+                           g.const(lo, "norm_lo")])
+    g.nodes.append(helper.make_node("Identity", [out], ["prediction"]))
     n_in = "N" if n_points is None else int(n_points)
     graph = helper.make_graph(
-        nodes, "tpnet",
+        g.nodes, "tpnet",
         [helper.make_tensor_value_info("window", TensorProto.FLOAT, ["batch", cfg.m, n_in, cfg.dim])],
         [helper.make_tensor_value_info("prediction", TensorProto.FLOAT,
                                        ["batch", cfg.n_out, cfg.dim])],
-        inits)
+        g.inits)
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
     proto.ir_version = min(proto.ir_version, 9)
     onnx.checker.check_model(proto)

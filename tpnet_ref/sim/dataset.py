@@ -177,21 +177,8 @@ def _simulate_one(job: tuple[int, tuple[float, float, float, float], int, dict])
     return idx, simulate(f, a, x, y, steps, params=SceneParams(**scene))
 
 
-def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, *, m: int = 4,
-             steps: int = SIM_ROWS, seed: int = 0, workers: int = 1, whole: int = 0,
-             params: SceneParams | None = None, progress: bool = True,
-             windows: str = "model") -> dict:
-    """Simulate ``grid`` (``(T, 4)`` force, angle, x, y) and ``test_cases`` into HDF5 ``path``.
-
-    Resumable: an existing file with the same settings keeps its finished trajectories.
-    Deterministic: the simulation is deterministic and windows are drawn from
-    ``default_rng([seed, trajectory])``. ``whole`` trajectories (chosen with the seed) also
-    give every window start (the paper keeps 240 whole). ``windows="released"`` also keeps
-    every simulator row of the training trajectories (``/train/rows``, ~1 GB for the grid) and
-    the released preprocessing's windows (``/train/windows_released``, :func:`released_windows`:
-    ``whole`` trajectories give all their row starts and no sampled window). Returns counts."""
-    import h5py
-
+def _frames_of(m: Any, steps: Any, workers: Any, windows: Any, seed: Any, whole: Any) -> int:
+    """:func:`generate`'s arguments checked (one-line errors); the frames of a trajectory."""
     if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
         raise ValueError(f"m: must be a positive integer, got {m!r}")
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
@@ -207,6 +194,56 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     for name, v in (("seed", seed), ("whole", whole)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
             raise ValueError(f"{name}: must be a non-negative integer, got {v!r}")
+    return n_frames
+
+
+def _check_starts(splits: dict[str, np.ndarray], p: SceneParams) -> None:
+    """Every case's force >= 0 and, with walls, its start centre inside the box."""
+    reach = p.ring_radius - p.particle_radius
+    lo, hi = p.free_lo + reach, p.free_hi - reach
+    for split, cases in splits.items():
+        name = "grid" if split == "train" else "test_cases"
+        bad = np.flatnonzero(cases[:, 0] < 0)
+        if bad.size:
+            raise ValueError(f"{name}[{bad[0]}]: force must be >= 0, got {cases[bad[0], 0]}")
+        if p.walls:
+            bad = np.flatnonzero(((cases[:, 2:] < lo) | (cases[:, 2:] > hi)).any(axis=1))
+            if bad.size:
+                raise ValueError(f"{name}[{bad[0]}]: start centre {tuple(cases[bad[0], 2:])} puts "
+                                 f"the body outside the box; must be in [{lo:g}, {hi:g}]")
+
+
+def _create_split(g: Any, cases: np.ndarray, n_frames: int, n: int, rows: int | None) -> None:
+    """A split's datasets in a new file: its cases, positions, contacts, what is done; with
+    ``rows`` (the released windows) every simulator row too."""
+    t = len(cases)
+    g.create_dataset("params", data=cases)
+    shape = (t, n_frames, n, 2)
+    chunks = (1, n_frames, n, 2)
+    g.create_dataset("positions", shape=shape, dtype="f4", chunks=chunks)
+    g.create_dataset("normalized", shape=shape, dtype="f4", chunks=chunks)
+    g.create_dataset("contact", shape=(t, n_frames, 4), dtype=bool)
+    g.create_dataset("done", shape=(t,), dtype=bool)
+    if rows is not None:
+        g.create_dataset("rows", shape=(t, rows, n, 2), dtype="f4", chunks=(1, rows, n, 2))
+
+
+def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, *, m: int = 4,
+             steps: int = SIM_ROWS, seed: int = 0, workers: int = 1, whole: int = 0,
+             params: SceneParams | None = None, progress: bool = True,
+             windows: str = "model") -> dict:
+    """Simulate ``grid`` (``(T, 4)`` force, angle, x, y) and ``test_cases`` into HDF5 ``path``.
+
+    Resumable: an existing file with the same settings keeps its finished trajectories.
+    Deterministic: the simulation is deterministic and windows are drawn from
+    ``default_rng([seed, trajectory])``. ``whole`` trajectories (chosen with the seed) also
+    give every window start (the paper keeps 240 whole). ``windows="released"`` also keeps
+    every simulator row of the training trajectories (``/train/rows``, ~1 GB for the grid) and
+    the released preprocessing's windows (``/train/windows_released``, :func:`released_windows`:
+    ``whole`` trajectories give all their row starts and no sampled window). Returns counts."""
+    import h5py
+
+    n_frames = _frames_of(m, steps, workers, windows, seed, whole)
     p = SceneParams() if params is None else params
     validate_params(p)
     scene = dataclasses.asdict(p)
@@ -220,18 +257,7 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     splits = {"train": _cases(grid, "grid")}
     if test_cases is not None:
         splits["test"] = _cases(test_cases, "test_cases")
-    reach = p.ring_radius - p.particle_radius
-    lo, hi = p.free_lo + reach, p.free_hi - reach
-    for split, cases in splits.items():  # every case checked before the file is touched
-        name = "grid" if split == "train" else "test_cases"
-        bad = np.flatnonzero(cases[:, 0] < 0)
-        if bad.size:
-            raise ValueError(f"{name}[{bad[0]}]: force must be >= 0, got {cases[bad[0], 0]}")
-        if p.walls:
-            bad = np.flatnonzero(((cases[:, 2:] < lo) | (cases[:, 2:] > hi)).any(axis=1))
-            if bad.size:
-                raise ValueError(f"{name}[{bad[0]}]: start centre {tuple(cases[bad[0], 2:])} puts "
-                                 f"the body outside the box; must be in [{lo:g}, {hi:g}]")
+    _check_starts(splits, p)            # every case checked before the file is touched
     n = p.n_particles
     mode = "a" if os.path.exists(path) else "w"
     if mode == "w" and os.path.dirname(path):
@@ -258,16 +284,8 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
                 raise ValueError(f"{path}: /{split} holds another set of trajectories; "
                                  "use another file")
             if "params" not in g:
-                g.create_dataset("params", data=cases)
-                shape = (t, n_frames, n, 2)
-                chunks = (1, n_frames, n, 2)
-                g.create_dataset("positions", shape=shape, dtype="f4", chunks=chunks)
-                g.create_dataset("normalized", shape=shape, dtype="f4", chunks=chunks)
-                g.create_dataset("contact", shape=(t, n_frames, 4), dtype=bool)
-                g.create_dataset("done", shape=(t,), dtype=bool)
-                if split == "train" and windows == "released":
-                    g.create_dataset("rows", shape=(t, steps, n, 2), dtype="f4",
-                                     chunks=(1, steps, n, 2))
+                _create_split(g, cases, n_frames, n, steps if split == "train"
+                              and windows == "released" else None)
             done = g["done"][...]
             todo = [i for i in range(t) if not done[i]]
             counts[f"{split}_skipped"] = t - len(todo)
