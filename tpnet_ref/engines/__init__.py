@@ -6,7 +6,8 @@
 * :mod:`.numba_engine`  the Numba engine (``engine="numba"``; the ``metrics`` extra), its kernels
                         by stage: :mod:`.numba_products` (the product), :mod:`.numba_lstm` (the
                         prediction network), :mod:`.numba_features` (the feature extractor)
-* :mod:`.specialised`   the scene-specialised head (``model.specialize``)
+* :mod:`.specialised`   the scene-specialised head (``model.specialize``); its pass on one
+                        window in :mod:`.specialised_window`
 * :mod:`.unit_order`    each layer's units laid out most used first
 * :mod:`.blas`          the BLAS under NumPy (one thread), the thread policy, the batch split
 
