@@ -29,9 +29,9 @@ QUARTER = dataclasses.replace(TPNetConfig(), mlp1=(16, 16), mlp2=(32, 64, 128),
 def onnx_export_session(model: TPNet, n_points: int):
     """An onnxruntime session of ``model``'s ONNX export (float32, ``n_points`` per frame).
 
-    The one place the tests export ONNX: today :func:`tpnet_ref.conformance.onnx_peer.onnx_session`
-    (``build_onnx`` + onnxruntime); the ``tpnet export onnx`` command (issue 38) can replace it
-    here without touching a test."""
+    The one place the tests export ONNX (:func:`tpnet_ref.conformance.onnx_peer.onnx_session`:
+    ``build_onnx`` + onnxruntime): another export path replaces it here without touching a
+    test."""
     from tpnet_ref.conformance.onnx_peer import onnx_session
     return onnx_session(model, n_points, threads=1)
 

@@ -1,6 +1,6 @@
 """Every error a user can trigger through ``load``, ``predict``, ``predict_batch``, ``rollout`` and
 the ``tpnet`` command that gives advice is one line, and the advice works when followed: each test
-triggers the message, then does what it says (issue 47)."""
+triggers the message, then does what it says."""
 from __future__ import annotations
 
 import shutil

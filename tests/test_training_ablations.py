@@ -1,4 +1,4 @@
-"""The training ablations of issue 48: the pushforward trick (``--grad-steps``: the first K − G
+"""The training ablations: the pushforward trick (``--grad-steps``: the first K − G
 predictions of the K-step loss without gradient, the loss over the last G) and structured input
 noise (``--noise-kind walk``: a random walk over the input frames)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The authors' recipe as released (issue 48): the released preprocessing's windows, Keras
+"""The authors' recipe as released: the released preprocessing's windows, Keras
 initialisation, the ``--preset released`` options, and the dead units logged with validation."""
 from __future__ import annotations
 

@@ -57,7 +57,7 @@ def test_native_truncated(native):
 
 def test_native_byte_corruption_fuzz(native, tmp_path):
     """Random byte damage anywhere: a documented error or a finite model, never another
-    exception (h5py's RuntimeError from damaged metadata used to escape)."""
+    exception (h5py's RuntimeError from damaged metadata included)."""
     data = native.read_bytes()
     rng = np.random.default_rng(0)
     bad = tmp_path / "c.h5"

@@ -53,16 +53,16 @@ MODULES = {
     "reference": ["tests/test_engines_reference.py", "tests/test_engines_layers.py",
                   "tests/test_conformance.py::test_trace_names_in_order_and_result_unchanged"],
     "layers": ["tests/test_engines_layers.py", "tests/test_engines_reference.py"],
-    "checks": ["tests/test_checks.py", "tests/test_checks_scattered.py", "tests/test_model.py"],
+    "checks": ["tests/test_checks.py", "tests/test_model.py"],
     "native": ["tests/test_weights_native.py", "tests/test_integrity.py"],
     "hdf5": ["tests/test_weights_hdf5.py", "tests/test_untrusted_files.py", "tests/test_weights_native.py"],
     # (tests/test_invariance.py runs the same checkers on more networks: 70 s more a mutant)
-    "testing": ["tests/test_testing_kit.py"],
+    "testing": ["tests/test_testing.py"],
     "onnx_peer": ["tests/test_conformance_onnx_peer.py", "tests/test_conformance_onnx.py"],
 }
 #: the modules whose file is not tpnet_ref/<name>.py: their place in the package
 PLACES = {"reference": "engines/reference", "layers": "engines/layers",
-          "onnx_peer": "conformance/onnx_peer"}
+          "native": "weights/native", "hdf5": "weights/hdf5", "onnx_peer": "conformance/onnx_peer"}
 
 
 def source(module: str) -> str:

@@ -11,8 +11,8 @@ from ..checks import OutsideTrainingRangeWarning
 from ..engines.interface import resolve_engine
 
 #: ``tpnet predict`` runs the Numba engine (where installed) from this many steps on: below, a
-#: fresh process's cost of loading numba and its cached code (about 1 s, docs/deployment.md)
-#: is more than the ~1 ms a step it saves
+#: fresh process's cost of loading numba and its cached code (docs/deployment.md) is more than
+#: what it saves on the steps
 NUMBA_MIN_STEPS = 1000
 
 

@@ -1,9 +1,9 @@
 """The BLAS under NumPy, seen from tpnet_ref: always one thread, and which product shapes it runs fast.
 
 - Determinism. A multi-threaded BLAS cuts a product differently for different thread counts,
-  and some kernels (OpenBLAS's Haswell kernel, on AMD and Intel alike) then round it
-  differently: the same window gave two outputs within ten calls while a policy switched the
-  BLAS between one and two threads. So every product the model computes runs on a one-thread
+  and some kernels (OpenBLAS's Haswell kernel) then round it differently: a policy that
+  switched the BLAS between one and two threads would switch the bits of a result. So every
+  product the model computes runs on a one-thread
   BLAS (:func:`one_thread`), and the work is cut into BLAS calls by the input's shapes alone
   (a large batch in chunks of a fixed number of windows,
   :data:`tpnet_ref.engines.batch_split.SPLIT_CHUNK`). Threads only schedule calls that are
@@ -13,9 +13,9 @@
   :mod:`tpnet_ref.engines.load_monitor` (whether other processes take the other core).
 - Small products. The LSTMs' input projections are computed as a stack of column blocks of at
   most :data:`SMALL_PRODUCT` multiply-adds each, always: OpenBLAS multiplies such blocks without
-  packing them first (SkylakeX and later) and they are no slower elsewhere. This used to be
-  measured once per process, and a timing that decides how the work is cut decides its
-  rounding: on the Haswell kernel two processes cut it differently and disagreed.
+  packing them first (SkylakeX and later) and they are no slower elsewhere. No timing chooses
+  it: whatever decides how the work is cut decides its rounding, and a timing would differ
+  between processes.
 - :func:`describe` names the BLAS, its kernel and threads for benchmark reports: OpenBLAS picks
   its kernel when NumPy is imported, from the CPU or from ``OPENBLAS_CORETYPE``.
 """
@@ -34,8 +34,7 @@ SMALL_PRODUCT = 1_000_000
 
 #: and the blocks are at most this many columns wide: then each block's rows are 4 cache lines
 #: and the small kernel streams the weights from memory at about twice the rate it reaches on
-#: wider blocks (measured one thread, weights not in cache, 4 rows: 1024 x 2048 818 -> 426 us,
-#: 512 x 2048 488 -> 210 us, 128 x 4096 264 -> 149 us; in cache no slower)
+#: wider blocks (weights not in cache; in cache no slower)
 BLOCK_COLUMNS = 64
 
 _LOCK = threading.Lock()
@@ -70,9 +69,9 @@ def _controllers() -> list[Any]:
 def _set_threads(ctl: Any, n: int) -> None:
     """Set a BLAS library's thread count from whichever thread calls. threadpoolctl (3.x)
     lets only the first Python thread that set OpenBLAS's count (while it lives) change it and
-    silently ignores the others, so a prediction called from a worker thread left the
-    split-batch pool's products on two threads: 27 of 96 calls from 8 threads differed from
-    the serial bits by up to 1e-5 (issue 37, tests/test_concurrency.py). OpenBLAS's own setter
+    silently ignores the others, so a prediction called from a worker thread would leave the
+    split-batch pool's products on two threads, and their bits would differ from the serial
+    ones (tests/test_concurrency.py). OpenBLAS's own setter
     is process-wide, and :func:`one_thread` serialises every change under its lock."""
     getattr(ctl, "_real_set_num_threads", ctl.set_num_threads)(n)
 
@@ -80,7 +79,7 @@ def _set_threads(ctl: Any, n: int) -> None:
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """A one-thread BLAS inside the block (process-wide; the previous thread counts come back
-    when the last of any nested or concurrent blocks ends). About 1 us per block."""
+    when the last of any nested or concurrent blocks ends)."""
     ctls = _controllers()
     with _LOCK:
         if _STATE["depth"] == 0:

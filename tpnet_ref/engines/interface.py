@@ -36,8 +36,8 @@ from .numpy_engine import NumpyHead
 ENGINES = ("numpy", "numba", "auto")
 #: the numba head runs batches of every size (faster than the NumPy head at 1 to 64 windows, and
 #: free of the GIL, so a split batch's chunks run side by side); its compiled feature extractor
-#: takes batches of up to this many windows, larger ones NumPy's (BLAS products of many rows:
-#: 18 against 29 ms for 64 windows on one thread, docs/performance.md)
+#: takes batches of up to this many windows, larger ones NumPy's (BLAS products of many rows,
+#: faster there: docs/performance.md)
 ENGINE_MAX_BATCH = 8
 
 

@@ -44,8 +44,8 @@ def dense(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None,
         y = x @ w
     if activation == "relu" and b is not None:
         # relu(y + b) as max(y, -b) + b: the same bits (where y > -b both round y + b; elsewhere
-        # both give +0), and NumPy's maximum runs 2x faster with a row operand than with a
-        # scalar 0 (measured, NumPy 2.4)
+        # both give +0), and NumPy's maximum runs faster with a row operand than with a
+        # scalar 0
         np.maximum(y, -b, out=y)
         y += b
         return y
@@ -221,8 +221,8 @@ def project(x: np.ndarray, kernel: np.ndarray, blocks: np.ndarray | None = None,
     """``x (R, C) @ kernel (C, N)`` -> ``(R, N)``. With ``blocks`` (the kernel's columns in
     blocks, from :func:`fuse_bilstm`), ``small`` and ``R * C * nb <= SMALL_PRODUCT``, the same
     product as one stacked product over the blocks, each small enough for the BLAS to skip
-    packing the weights (measured 2-4x faster for R = 4 on OpenBLAS's SkylakeX kernel; the
-    model always asks for the blocks, so how the work is cut never depends on a timing)."""
+    packing the weights (faster on OpenBLAS's SkylakeX kernel and later; the model always asks
+    for the blocks, so how the work is cut never depends on a timing)."""
     return project_spans(x, kernel, blocks, [(0, x.shape[1])], small)
 
 
@@ -403,9 +403,9 @@ def bilstm_steps(xp: np.ndarray, recurrent: np.ndarray, bias: np.ndarray, steps:
     hs = np.empty((steps, 2, bsz, u), dtype=dt)         # h after each step
     # both directions advance together (half the calls), or, for one window whose recurrent
     # weights fill a core's L2 cache a direction, one direction after the other (the used rows
-    # of one direction then stay in cache from step to step: BiLSTM 1 of the released network
-    # 632 against 714 us on the Intel VM, bench/probes/numpy_two_threads.py; a batch reads each
-    # row once for all its windows anyway); the same operations on every number either way
+    # of one direction then stay in cache from step to step, bench/probes/numpy_two_threads.py;
+    # a batch reads each row once for all its windows anyway); the same operations on every
+    # number either way
     by_direction = bsz == 1 and recurrent[0].nbytes >= DIRECTION_MAJOR_BYTES
     for sel in ((slice(0, 1), slice(1, 2)) if by_direction else (slice(0, 2),)):
         advance_directions(xs[:, sel], hs[:, sel], c[sel], recurrent[sel], relu_act)

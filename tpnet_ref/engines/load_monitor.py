@@ -47,8 +47,7 @@ def _nice_counts() -> bool:
 
 class CoreMonitor:
     """How many cores other processes take now, from /proc/stat, read at most every
-    :data:`SAMPLE_S` seconds (one ``time.monotonic()`` per call in between; the read itself is
-    about 20 us). Other processes' time at normal priority is the busy time of all cores less
+    :data:`SAMPLE_S` seconds (one ``time.monotonic()`` per call in between). Other processes' time at normal priority is the busy time of all cores less
     this process's own (``os.times``); time of niced processes (a background job at ``nice 19``)
     does not count, since they yield the core to this one -- unless this process is niced itself
     or the kernel groups processes by session (autogroup), where they do not yield

@@ -169,8 +169,8 @@ def _two_threads(parallel: bool) -> bool:
     """Whether a call asked to run ``parallel`` takes the two-thread kernels now: only inside a
     :func:`tpnet_ref.engines.blas.one_thread` block (a one-thread BLAS), and one such call at a time.
     Beside a multi-threaded BLAS, whose threads spin between calls, numba's second thread waits
-    for a core (measured, 2 cores: predict 1.4 -> 8 ms, rollout 0.9 -> 16 ms per frame); beside
-    a one-thread BLAS it pays (predict 1.4 -> 1.2 ms, rollout 0.9 -> 0.6 ms per frame)."""
+    for a core and costs several times what it saves; beside a one-thread BLAS it pays
+    (docs/performance.md)."""
     return parallel and in_one_thread() and _PARALLEL.acquire(blocking=False)
 
 

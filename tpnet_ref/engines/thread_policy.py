@@ -63,7 +63,7 @@ class ThreadPolicy:
     sees the other core taken by another process, every call runs one thread without a probe;
     when it sees the machine change (taken, or free again), the latencies measured before are
     dropped, so the next few calls measure both plans afresh instead of trusting minutes-old
-    figures. Thread-safe; about 2 us per call.
+    figures. Thread-safe.
     """
 
     def __init__(self, probe_every: int = PROBE_EVERY, keep: int = KEEP,
@@ -111,9 +111,8 @@ class ThreadPolicy:
             st[2] = int(st[0] % st[1] == 0)
             if st[2] and best == 1:
                 # a probe of two threads after a run of one-thread calls: the second thread's
-                # workers have gone to sleep, and waking them costs the first call ~25 %
-                # (measured: 1.43 against 1.15 ms warm on this 2-core VM), which would make
-                # two threads look slower than they are. That call is not recorded; the next
+                # workers have gone to sleep, and waking them slows the first call, which would
+                # make two threads look slower than they are. That call is not recorded; the next
                 # one is the probe.
                 st[2:5] = [0, 1, 1]
                 return 0
@@ -154,7 +153,7 @@ class ThreadPolicy:
         the block); yields the choice (1, 0, or -1 when the policy stands aside: nested in
         another :func:`one_thread` block, or one core) and records the block's latency.
         ``held``: the caller holds a :func:`one_thread` block of its own around many such
-        blocks (a rollout's steps, ~30 us each saved) and was not itself nested in one when it
+        blocks (a rollout's steps) and was not itself nested in one when it
         took it: the policy chooses all the same."""
         if (in_one_thread() and not held) or cpu_count() < 2:
             with one_thread():

@@ -22,7 +22,7 @@ COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
 
 def resolve_compile(mode: str, device: str) -> str:
     """The compile mode a run uses on ``device`` (``auto``: ``reduce-overhead`` on CUDA, ``off``
-    on the CPU, where a compile of the full step gained 4 % for 50 s of compiling)."""
+    on the CPU, where compiling the full step costs more than it gains)."""
     if mode not in COMPILE_MODES:
         raise ValueError(f"compile must be one of {COMPILE_MODES}, got {mode!r}")
     if mode == "auto":
