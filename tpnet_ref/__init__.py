@@ -127,10 +127,11 @@ _LAZY = ("config", "checks", "model", "extras", "engines", "weights", "metrics",
          "evaluation", "training", "conformance", "observe", "testing")
 
 # ------------------------------------------------------------------ old import paths
-#: modules that moved, by their old name under ``tpnet_ref``: the modules that hold their names
-#: now. ``import tpnet_ref.heads``, ``from tpnet_ref.blas import one_thread`` and
-#: ``tpnet_ref.specialize`` still work until the next release, with a ``DeprecationWarning``
-#: naming the new place.
+#: modules that moved (docs/architecture.md draws where everything lives now), by their old name
+#: under ``tpnet_ref``: the modules that hold their names now. ``import tpnet_ref.heads``,
+#: ``from tpnet_ref.blas import one_thread``, ``tpnet_ref.specialize`` and objects pickled under
+#: an old path still work until the next release, with a ``DeprecationWarning`` naming the new
+#: place.
 _MOVED: dict[str, tuple[str, ...]] = {
     "heads": ("engines.interface",),
     "fast_numpy": ("engines.numpy_engine",),
@@ -138,7 +139,8 @@ _MOVED: dict[str, tuple[str, ...]] = {
                      "engines.numba_products"),
     "specialize": ("engines.specialised",),
     "unit_order": ("engines.unit_order",),
-    "blas": ("engines.blas", "engines.thread_policy", "engines.load_monitor", "engines.batch_split"),
+    "blas": ("engines.blas", "engines.thread_policy", "engines.load_monitor",
+             "engines.batch_split"),
     "layers": ("engines.layers",),
     "reference": ("engines.reference",),
     "recursive": ("engines.rollout",),
