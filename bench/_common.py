@@ -37,7 +37,7 @@ def load_average() -> str:
 
 def machine() -> str:
     """CPU, cores, Python, NumPy and the BLAS as loaded (library, version, kernel, threads)."""
-    from tpnet_ref.blas import describe
+    from tpnet_ref.engines.blas import describe
     return (f"{cpu_name()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
             f"NumPy {np.__version__} ({describe()}; OPENBLAS_CORETYPE="
             f"{os.environ.get('OPENBLAS_CORETYPE', 'unset')})")
@@ -48,7 +48,7 @@ def scene_windows(model) -> tuple[np.ndarray, np.ndarray]:
     cases (the scene's inputs; only timed, never used to choose anything): test case
     :data:`TEST_CASE_B1`'s first window, and 32 windows spread over each of the first 8 test
     cases. The B = 1 benches time ``x256[::4]`` (64 windows)."""
-    from tpnet_ref.protocol import FRAME_EVERY
+    from tpnet_ref.sim.protocol import FRAME_EVERY
     from tpnet_ref.sim.cases import TEST_CASES
     from tpnet_ref.sim.scene import simulate
     m = model.config.m

@@ -10,7 +10,7 @@ Inputs: ``_common.scene_windows`` (normalised windows of simulated test cases): 
 frames from test case 0's first window (onnxruntime: a loop of 80 calls); with ``--batches``,
 ``predict_batch`` of consecutive windows of ``x256`` in batches of those sizes (the Numba
 engine runs batches up to ``ENGINE_MAX_BATCH``). ``--one-thread``: everything inside
-:func:`tpnet_ref.blas.one_thread` (one-thread BLAS; the Numba engine then runs its serial
+:func:`tpnet_ref.engines.blas.one_thread` (one-thread BLAS; the Numba engine then runs its serial
 kernels, else the two directions of each layer on two threads). Prints the load average first:
 on a shared machine the figures are only comparable within one run.
 """
@@ -25,8 +25,8 @@ import numpy as np
 
 import tpnet_ref
 from _common import alternate, load_average, scene_windows
-from tpnet_ref.blas import one_thread
-from tpnet_ref.heads import ENGINE_MAX_BATCH
+from tpnet_ref.engines.blas import one_thread
+from tpnet_ref.engines.interface import ENGINE_MAX_BATCH
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.simplefilter("ignore")
     npy = tpnet_ref.load(engine="numpy")
     nb = npy.with_engine("numba")
-    from tpnet_ref.engine_numba import NumbaHead
+    from tpnet_ref.engines.numba_engine import NumbaHead
     class AskTwo(NumbaHead):                    # always asks for the two-thread kernels
         def project_rows(self, x, parallel=False, batch=1):
             return super().project_rows(x, True, batch)
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     calls = {"numpy": lambda w: npy.predict(w, normalized=True),
              "numba": lambda w: nb.predict(w, normalized=True)}
     if not args.no_ort:
-        from tpnet_ref.onnx_peer import onnx_session
+        from tpnet_ref.conformance.onnx_peer import onnx_session
         sess = onnx_session(npy, threads=args.ort_threads)
         calls["onnxruntime"] = lambda w: sess.run(None, {"window": w[None]})
     feats = [npy.window_features(w[None], normalized=True) for w in ws]

@@ -10,7 +10,7 @@
 Every peer runs the same weights, the shipped m = 4 model (N = 30, identity transform nets),
 on the same windows of the scene (simulated held-out test cases, normalised; only timed, never
 used to choose anything): tpnet_ref float32 and float64, onnxruntime (graph built by
-``tpnet_ref.onnx_peer``), PyTorch eager (``tpnet_ref.torch_model``). Peers that are not
+``tpnet_ref.conformance.onnx_peer``), PyTorch eager (``tpnet_ref.training.torch_model``). Peers that are not
 installed are skipped and said so. The NumPy engine reads only the weight rows of units that are
 non-zero (exact on every input), so its speed depends on the input: the same comparison on a
 random network of the released shape with uniform random input is printed too. The default
@@ -57,7 +57,7 @@ import numpy as np  # noqa: E402
 
 import tpnet_ref  # noqa: E402
 from _common import TEST_CASE_B1, load_average, machine, scene_windows  # noqa: E402
-from tpnet_ref.blas import adaptive  # noqa: E402
+from tpnet_ref.engines.thread_policy import adaptive  # noqa: E402
 from tpnet_ref.checks import OutsideTrainingRangeWarning  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
 
@@ -99,7 +99,7 @@ def torch_peer(model):
     """A callable running the PyTorch model on a normalised batch, or None if unavailable."""
     try:
         import torch
-        from tpnet_ref.torch_model import TorchTPNet
+        from tpnet_ref.training.torch_model import TorchTPNet
     except ImportError as exc:
         return None, f"skipped ({exc})"
     net = TorchTPNet.from_numpy(model).eval()
@@ -115,7 +115,7 @@ def torch_peer(model):
 def onnx_peer(model):
     try:
         import onnxruntime as ort
-        from tpnet_ref.onnx_peer import onnx_session
+        from tpnet_ref.conformance.onnx_peer import onnx_session
     except ImportError as exc:
         return None, f"skipped ({exc})"
     sess = onnx_session(model, threads=THREADS)
@@ -165,7 +165,7 @@ def sizes(rounds: int, block: float) -> dict:
     onnxruntime on that size's own export (``tpnet export onnx``: world units in and out), in
     one run: B = 1 on a ring of the scene and on random points, B = 8, an 80-frame rollout
     against onnxruntime looping its graph, and what the input checks cost of the ring's call."""
-    from tpnet_ref.onnx_peer import onnx_session
+    from tpnet_ref.conformance.onnx_peer import onnx_session
     ring = np.asarray(tpnet_ref.example_window(), dtype=np.float32)           # (4, 30, 2)
     rng = np.random.default_rng(0)
     rand = (1.1438 + 42.7124 * rng.uniform(0.1, 0.9, (4, 30, 2))).astype(np.float32)
@@ -394,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {label}: idle {np.median(idle_t) * 1e3:.3f} ms, busy {np.median(busy_t) * 1e3:.3f} ms "
                   f"-> {ratio:.2f}x (median of {BUSY_ROUNDS} rounds' busy/idle: "
                   + ", ".join(f"{b / i:.2f}" for b, i in zip(busy_t, idle_t)) + ")")
-            print(f"    plan of the policy (tpnet_ref.blas.adaptive) at each block's end: "
+            print(f"    plan of the policy (tpnet_ref.engines.thread_policy.adaptive) at each block's end: "
                   f"idle {', '.join(chose['idle'])}; busy {', '.join(chose['busy'])}")
             return ratio
 

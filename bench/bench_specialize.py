@@ -22,10 +22,10 @@ import warnings
 import numpy as np
 
 import tpnet_ref
-from tpnet_ref import data as D
-from tpnet_ref import specialize as S
+from tpnet_ref.sim import dataset as D
+from tpnet_ref.engines import specialised as S
 from tpnet_ref.model import ENGINE_MAX_BATCH
-from tpnet_ref.protocol import FRAME_EVERY
+from tpnet_ref.sim.protocol import FRAME_EVERY
 from tpnet_ref.sim.cases import TEST_CASES
 from tpnet_ref.sim.scene import simulate
 

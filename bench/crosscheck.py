@@ -43,7 +43,7 @@ def ring_windows(b: int, m: int = 4, n: int = 30, seed: int = 0) -> np.ndarray:
 def torch_check(steps: int = 80) -> None:
     import torch
 
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
 
     torch.set_num_threads(2)
     for trained in (False, True):

@@ -34,7 +34,7 @@ import numpy as np
 
 from tpnet_ref import load
 from tpnet_ref.evaluation.run import batched_rollout, errors
-from tpnet_ref.protocol import split_protocol
+from tpnet_ref.sim.protocol import split_protocol
 from tpnet_ref.training.recipe import Recipe, WindowData
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         r["cpu_h"] = (r["wall_s"] - r["gpu_s"]) / 3600.0
     rate = args.rate
     if rate is None:
-        from tpnet_ref.training.loop import bench, choose_precision
+        from tpnet_ref.training.throughput import bench, choose_precision
         from tpnet_ref.training.recipe import size_config
         prec, timing = choose_precision("auto", "cpu", size_config("full"), 128, 8, 2)
         rate = timing.get(prec) or bench(size_config("full"), batch=128, rollouts=(8,),

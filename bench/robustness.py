@@ -48,7 +48,7 @@ def _stray(frame: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _contour(size: int, n: int = 30, **kw):
-    from tpnet_ref.sim.render import RenderSettings, body_mask
+    from tpnet_ref.observe.render import RenderSettings, body_mask
     cam = RenderSettings(size=size).camera
 
     def fn(win, rng, case):
@@ -59,7 +59,7 @@ def _contour(size: int, n: int = 30, **kw):
 def _video(size: int = 640, distractors: int = 3, noise: float = 3.0):
     import cv2
 
-    from tpnet_ref.sim.render import RenderSettings, background, render_frames
+    from tpnet_ref.observe.render import RenderSettings, background, render_frames
     tmp = Path(tempfile.mkdtemp(prefix="tpnet-robustness-"))
 
     def fn(win, rng, case):
@@ -163,7 +163,7 @@ def geometry(trials: int = 12) -> None:
     of radius 2) at random positions and rotations: mean radius, its spread over the trials (the
     start point's aliasing) and the centroid error, with and without smoothing and offset
     correction."""
-    from tpnet_ref.sim.render import RenderSettings, body_mask
+    from tpnet_ref.observe.render import RenderSettings, body_mask
     from tpnet_ref.sim.scene import ring_positions
     print("| image | smoothing | offset correction | mean radius (true 2) | its spread (sd) over "
           "trials | centroid error |")

@@ -80,12 +80,12 @@ def _probe(calls: int) -> dict:
     from threadpoolctl import threadpool_info
 
     import tpnet_ref
-    from tpnet_ref import blas
+    from tpnet_ref.engines import thread_policy
     from tpnet_ref.model import init_random
 
     # the thread policy switches plans on every call (one thread, two threads, ...)
     plans = itertools.cycle((0, 1))
-    blas.adaptive.choose = lambda kind: next(plans)
+    thread_policy.adaptive.choose = lambda kind: next(plans)
 
     rng = np.random.default_rng(1)
     t = np.linspace(0, 2 * np.pi, 30, endpoint=False)

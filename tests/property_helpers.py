@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from tpnet_ref import reference
+from tpnet_ref.engines import reference
 from tpnet_ref.checks import check_windows
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
@@ -29,10 +29,10 @@ QUARTER = dataclasses.replace(TPNetConfig(), mlp1=(16, 16), mlp2=(32, 64, 128),
 def onnx_export_session(model: TPNet, n_points: int):
     """An onnxruntime session of ``model``'s ONNX export (float32, ``n_points`` per frame).
 
-    The one place the tests export ONNX: today :func:`tpnet_ref.onnx_peer.onnx_session`
-    (``build_onnx`` + onnxruntime); the ``tpnet export onnx`` command (issue 38) can replace it
-    here without touching a test."""
-    from tpnet_ref.onnx_peer import onnx_session
+    The one place the tests export ONNX (:func:`tpnet_ref.conformance.onnx_peer.onnx_session`:
+    ``build_onnx`` + onnxruntime): another export path replaces it here without touching a
+    test."""
+    from tpnet_ref.conformance.onnx_peer import onnx_session
     return onnx_session(model, n_points, threads=1)
 
 
@@ -91,12 +91,12 @@ class Implementations:
 
     def torch_module(self, dtype: str):
         if dtype not in self._torch:
-            from tpnet_ref.torch_model import TorchTPNet
+            from tpnet_ref.training.torch_model import TorchTPNet
             self._torch[dtype] = TorchTPNet.from_numpy(self.base[dtype]).eval()
         return self._torch[dtype]
 
     def torch(self, dtype: str):
-        """:class:`tpnet_ref.torch_model.TorchTPNet` (no sort of its own): ``forward`` on equal
+        """:class:`tpnet_ref.training.torch_model.TorchTPNet` (no sort of its own): ``forward`` on equal
         frames, ``frame_features`` frame by frame and ``sequence_head`` on ragged ones."""
         import torch
         net, base = self.torch_module(dtype), self.base[dtype]

@@ -1,6 +1,6 @@
 """TP-Net written out with Python floats and explicit loops, one scalar at a time.
 
-An implementation independent of ``tpnet_ref.layers``: no NumPy matrix algebra, every gate
+An implementation independent of ``tpnet_ref.engines.layers``: no NumPy matrix algebra, every gate
 sliced out by hand in Keras order (input, forget, cell, output), the backward LSTM run over the
 reversed sequence and re-aligned by hand, LayerNorm with the biased variance and eps inside the
 square root. Only meant for tiny networks (widths 1-3) in the tests.

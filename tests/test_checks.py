@@ -320,7 +320,7 @@ def test_a_body_in_free_fall_shows_its_frame_spacing(rows_apart, flagged):
 
 
 def test_the_free_fall_constants_are_the_scenes_and_the_protocols():
-    from tpnet_ref import protocol
+    from tpnet_ref.sim import protocol
     from tpnet_ref.checks import FRAME_ROWS, GRAVITY, SIM_DT
     from tpnet_ref.sim.scene import SceneParams
     assert (FRAME_ROWS, SIM_DT) == (protocol.FRAME_EVERY, protocol.REFERENCE_DT)
@@ -385,8 +385,8 @@ def test_the_dtype_rule_of_predict_docs_api():
 
 
 # ------------------------------------------------------------------ every behaviour, both sides
-# (issue 60: what a user sees of each rule, at and around its threshold; written from the
-# rules, not from a mutation sample)
+# (what a user sees of each rule, at and around its threshold; written from the rules, not
+# from a mutation sample)
 from hypothesis import given  # noqa: E402
 from hypothesis import settings as hsettings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
@@ -907,3 +907,58 @@ def test_two_frames_are_enough_to_judge_the_motion():
     assert "moves 0.02 world units per frame" in motion_problem(list(slow))
     assert motion_problem(np.stack([_ring() + [0.5 * i, 0.0] for i in range(2)])) is None
     assert [c for c, _ in _warned(list(slow))] == ["FrameSpacingWarning"]
+
+
+# ------------------------------------------------------------------ scattered points
+# The one-body test's shortcut: ``checks._cannot_hold_a_body`` decides in a few NumPy calls that a
+# frame holds no body of the scene's size, and ``window_body_problem`` says exactly what it says
+# without it, on rings, rings with strays, two blobs, arcs and scattered points.
+def _random_ring(rng, n=30, r=2.0, centre=(20.0, 20.0)):
+    a = np.sort(rng.uniform(0, 2 * np.pi, n))
+    return np.stack([centre[0] + r * np.cos(a), centre[1] + r * np.sin(a)], axis=1)
+
+
+def _windows(seed: int):
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(5, 40, 2)
+    ring = np.stack([_random_ring(rng, centre=c + [0.5 * t, 0]) for t in range(4)])
+    yield "ring", ring
+    stray = ring.copy()
+    stray[2, 5] += rng.uniform(3, 9, 2)
+    yield "ring with a stray point", stray
+    blob = ring.copy()
+    blob[1, :12] = c + rng.uniform(6, 12, 2) + rng.normal(0, 0.4, (12, 2))
+    yield "a second blob", blob
+    yield "random points", rng.uniform(1, 44, (4, 30, 2))
+    yield "random points, small box", rng.uniform(10, 10 + rng.uniform(5, 15), (4, 30, 2))
+    half = ring.copy()
+    half[:, 15:] = rng.uniform(1, 44, (4, 15, 2))
+    yield "half ring, half scattered", half
+    first_ok = rng.uniform(1, 44, (4, 30, 2))
+    first_ok[0] = stray[2]
+    yield "a stray frame, then scattered ones", first_ok
+    yield "a tiny ring", ring * 0.01 + 20
+    yield "few points", ring[:, :6]
+    yield "ragged", [ring[0], ring[1][:20], rng.uniform(1, 44, (25, 2)), ring[3]]
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_shortcut_changes_no_answer(seed, monkeypatch):
+    cases = list(_windows(seed))
+    fast = [C.window_body_problem(w if isinstance(w, np.ndarray) else list(w)) for _, w in cases]
+    monkeypatch.setattr(C, "_cannot_hold_a_body", lambda f: np.zeros(len(f), dtype=bool))
+    slow = [C.window_body_problem(w if isinstance(w, np.ndarray) else list(w)) for _, w in cases]
+    assert fast == slow, [name for (name, _), a, b in zip(cases, fast, slow) if a != b]
+
+
+def test_scattered_frames_are_decided_without_the_pairwise_test(monkeypatch):
+    rng = np.random.default_rng(0)
+    window = rng.uniform(1, 44, (4, 30, 2))
+    assert C._cannot_hold_a_body(window).all()
+    assert not C._cannot_hold_a_body(np.stack([_random_ring(rng) for _ in range(4)])).any()
+
+    def pairwise(*a, **k):
+        raise AssertionError("body_outliers ran on a scattered window")
+
+    monkeypatch.setattr(C, "body_outliers", pairwise)
+    assert C.window_body_problem(window) is None

@@ -1,5 +1,5 @@
 """``tpnet data generate`` (tpnet_ref.cli.data): a small real dataset, every flag reaching
-tpnet_ref.data.generate, and one-line errors for bad settings."""
+tpnet_ref.sim.dataset.generate, and one-line errors for bad settings."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,7 @@ import pytest
 
 h5py = pytest.importorskip("h5py")
 
-from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref.sim import dataset as D  # noqa: E402
 from tpnet_ref.cli import main  # noqa: E402
 from tpnet_ref.sim.cases import TEST_CASES, TRAIN_ANGLES_DEG, TRAIN_FORCES  # noqa: E402
 
@@ -32,7 +32,7 @@ def test_cli_generate(tmp_path):
 
 @pytest.fixture
 def calls(monkeypatch):
-    """tpnet_ref.data.generate replaced by a recorder: what the command asks for, without
+    """tpnet_ref.sim.dataset.generate replaced by a recorder: what the command asks for, without
     simulating."""
     got = []
 

@@ -1,4 +1,4 @@
-"""Every option of every ``tpnet`` command has help text and shows its default (issue 47): the
+"""Every option of every ``tpnet`` command has help text and shows its default: the
 test walks every parser that ``tpnet_ref.cli.build_parser`` builds."""
 from __future__ import annotations
 

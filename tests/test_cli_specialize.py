@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("h5py")
 
 import tpnet_ref  # noqa: E402
-from tpnet_ref import unit_order as U  # noqa: E402
+from tpnet_ref.engines import unit_order as U  # noqa: E402
 from tpnet_ref.cli import main  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
 from ring_helpers import SMALL, rings  # noqa: E402
@@ -91,9 +91,9 @@ def test_cli_sort_units_writes_the_same_network_ordered(tmp_path, capsys, small_
 
 def test_sort_units_without_a_source_simulates_training_grid_windows(tmp_path, capsys,
                                                                      small_weights, monkeypatch):
-    """No source: --trajectories training-grid trajectories (tpnet_ref.data.calibration_windows,
+    """No source: --trajectories training-grid trajectories (tpnet_ref.sim.dataset.calibration_windows,
     never the test cases); replaced here by a recording stand-in to stay fast."""
-    from tpnet_ref import data as D
+    from tpnet_ref.sim import dataset as D
     calls = []
 
     def fake(model, n, **kw):

@@ -52,7 +52,7 @@ def test_flags_fill_what_the_file_does_not_say(tmp_path, capsys):
 
 def test_import_torch_state_dict(tmp_path, capsys):
     torch = pytest.importorskip("torch")
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     cfg = TPNetConfig(mlp1=(8, 8), mlp2=(8, 16), global_features=16, lstm_units=(8, 8, 8),
                       input_tnet_mlp=(4,), input_tnet_fc=(4,), feature_tnet_mlp=(4,),
                       feature_tnet_fc=(4,))

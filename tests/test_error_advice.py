@@ -1,6 +1,6 @@
 """Every error a user can trigger through ``load``, ``predict``, ``predict_batch``, ``rollout`` and
 the ``tpnet`` command that gives advice is one line, and the advice works when followed: each test
-triggers the message, then does what it says (issue 47)."""
+triggers the message, then does what it says."""
 from __future__ import annotations
 
 import shutil
@@ -17,7 +17,7 @@ import tpnet_ref  # noqa: E402
 from tpnet_ref.checks import (NonFiniteResultError, NotOneBodyWarning,  # noqa: E402
                               OutsideTrainingRangeWarning)
 from tpnet_ref.cli import main  # noqa: E402
-from tpnet_ref.native import default_weights_path  # noqa: E402
+from tpnet_ref.weights.shipped import default_weights_path  # noqa: E402
 
 FIX = Path(__file__).parent / "fixtures"
 
@@ -111,7 +111,7 @@ def test_missing_shipped_weights_say_pass_a_path_or_set_the_folder(tmp_path, mon
     text = _one_line(err.value)
     assert "pass the path of a weights file" in text and "TPNET_WEIGHTS_DIR" in text
     monkeypatch.delenv("TPNET_WEIGHTS_DIR")
-    src = tpnet_ref.native.shipped_weights_path(4, "quarter")
+    src = tpnet_ref.weights.shipped.shipped_weights_path(4, "quarter")
     assert tpnet_ref.load(src, engine="numpy").config.m == 4             # a path
     shutil.copy(src, tmp_path / src.name)
     monkeypatch.setenv("TPNET_WEIGHTS_DIR", str(tmp_path))               # the folder
@@ -203,9 +203,9 @@ def test_frames_without_a_frame_rate_say_pass_fps_and_that_works(tmp_path, capsy
 
 def test_a_file_without_a_digest_says_scrub_provenance_and_that_adds_one(tmp_path, capsys):
     import h5py
-    from tpnet_ref.native import DIGEST_ATTR, UnverifiedFileWarning
+    from tpnet_ref.weights.native import DIGEST_ATTR, UnverifiedFileWarning
     src, dst = tmp_path / "old.h5", tmp_path / "new.h5"
-    shutil.copy(tpnet_ref.native.shipped_weights_path(4, "quarter"), src)
+    shutil.copy(tpnet_ref.weights.shipped.shipped_weights_path(4, "quarter"), src)
     with h5py.File(src, "r+") as f:                   # as written before digests existed
         del f.attrs[DIGEST_ATTR]
     with pytest.warns(UnverifiedFileWarning, match="`tpnet scrub-provenance SRC DST`") as rec:

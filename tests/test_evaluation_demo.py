@@ -53,7 +53,7 @@ def test_demo_returns_numbers(weights_file, tmp_path):
     assert set(r["errors"][1]) == {"TP-Net", "copy last", "const. velocity"}
     assert r["errors"][1]["TP-Net"]["Ep_released"] > 0
     assert r["errors"][1]["TP-Net"]["Ep_squared"] > 0
-    # the baselines are what tpnet_ref.protocol computes on the same case
+    # the baselines are what tpnet_ref.sim.protocol computes on the same case
     frames = E.normalize(E.simulate_cases([E.DEMO_CASE], 4 * 7 + 1, workers=1))
     inputs, truth = E.split_protocol(frames, 4, 3)
     want = E.errors(truth, E.copy_last(inputs, 3))["Ep_squared"][0, 2]

@@ -55,7 +55,7 @@ def test_eval_baselines_only_with_timing(tmp_path):
 
 
 def test_eval_from_dataset_file(tmp_path):
-    from tpnet_ref.data import generate, train_grid
+    from tpnet_ref.sim.dataset import generate, train_grid
     path = str(tmp_path / "d.h5")
     generate(path, train_grid(positions=1)[:1], np.asarray(E.TEST_CASES[:2]), steps=49,
              progress=False)

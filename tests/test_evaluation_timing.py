@@ -52,7 +52,7 @@ def test_timing_table_scene_specialised_row(frames3):
     """The float32 network specialised on training-grid trajectories: its own row, the float32
     row's errors, a note that names the calibration and the fallbacks; off by default."""
     from tpnet_ref.evaluation.timing import CALIBRATION_ROLLOUT
-    from tpnet_ref.data import calibration_windows
+    from tpnet_ref.sim.dataset import calibration_windows
     model = small_model(4, dtype="float32")
     cases = np.asarray(E.TEST_CASES[:3])
     kw = dict(m=4, horizon=3, repeats=1, peers=False, dt_factors=())

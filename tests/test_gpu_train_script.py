@@ -102,13 +102,13 @@ def test_unknown_subcommand_is_refused(tmp_path):
 
 def test_the_cli_lists_the_loops_compile_modes():
     from tpnet_ref.cli import train as cli_train
-    from tpnet_ref.training import loop
+    from tpnet_ref.training import precision
 
-    assert cli_train.COMPILE_MODES == loop.COMPILE_MODES
-    assert loop.resolve_compile("auto", "cuda") == "reduce-overhead"
-    assert loop.resolve_compile("auto", "cpu") == "off"
+    assert cli_train.COMPILE_MODES == precision.COMPILE_MODES
+    assert precision.resolve_compile("auto", "cuda") == "reduce-overhead"
+    assert precision.resolve_compile("auto", "cpu") == "off"
     with pytest.raises(ValueError, match="compile must be one of"):
-        loop.resolve_compile("fast", "cpu")
+        precision.resolve_compile("fast", "cpu")
 
 
 def test_a_state_over_the_devices_limits_goes_back_and_up_in_pieces(tmp_path):

@@ -1,4 +1,4 @@
-"""What ships names no machine and a damaged file is caught by name (issue 37).
+"""What ships names no machine and a damaged file is caught by name.
 
 - Every shipped weights file (``tpnet info --json``) and every tracked text file names no
   absolute path of a development machine; every shipped weights file carries a content digest.
@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 
 import tpnet_ref
-from tpnet_ref import native
-from tpnet_ref import specialize as S
-from tpnet_ref import unit_order as U
+from tpnet_ref.weights import native
+from tpnet_ref.engines import specialised as S
+from tpnet_ref.engines import unit_order as U
 from tpnet_ref.cli import main
 from tpnet_ref.model import init_random
-from tpnet_ref.provenance import absolute_paths, portable_path, scrub
+from tpnet_ref.weights.provenance import absolute_paths, portable_path, scrub
 
 from ring_helpers import SMALL, rings
 
@@ -70,7 +70,7 @@ def _strings(x):
 
 @pytest.mark.parametrize("name", [p.name for p in _shipped_files()])
 def test_shipped_weights_name_no_machine_path_and_carry_a_digest(name, capsys):
-    """Fails for a file written before issue 37 until it is rewritten with
+    """Fails for a file that records a machine's path, or lacks a digest, until it is rewritten with
     ``tpnet scrub-provenance weights/F weights/F`` (parameters bit-identical, checked)."""
     info = _info_json(REPO / "weights" / name, capsys)
     meta = {k: v for k, v in info["meta"].items() if k != "path"}    # path: where it was read

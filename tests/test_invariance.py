@@ -6,7 +6,7 @@ first; that holds for any network, symmetric or not. Here the sort is off
 :mod:`tpnet_ref.testing` run on the network itself -- ``reference.forward``, the NumPy and the
 Numba engine, the PyTorch model -- over ragged windows, spreads 1e-3..1e3, ties and duplicate
 points: a per-frame permutation changes the output by at most ``testing.TOLERANCE[dtype]``
-(world units; measured: no bit at all on this machine, ``bench/probes/permutation_rounding.py``).
+(world units; ``bench/probes/permutation_rounding.py`` measures what a permutation changes).
 
 Teeth: the same properties run on deliberately broken networks (:data:`MUTANTS`) and each one
 is caught; with the sort on, the network mutants pass the bit-exact pipeline check, which is why
@@ -21,7 +21,7 @@ import pytest
 pytest.importorskip("numba")
 pytest.importorskip("torch")
 
-import tpnet_ref.layers as L  # noqa: E402
+import tpnet_ref.engines.layers as L  # noqa: E402
 import tpnet_ref.model as M  # noqa: E402
 from property_helpers import MS, Implementations  # noqa: E402
 from tpnet_ref import testing  # noqa: E402

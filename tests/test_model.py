@@ -12,7 +12,7 @@ import tpnet_ref
 from tpnet_ref.config import NORM_HI, NORM_LO, TPNetConfig, param_shapes
 from tpnet_ref import model as M
 from tpnet_ref import point_order
-from tpnet_ref import reference
+from tpnet_ref.engines import reference
 from tpnet_ref.model import init_random
 
 
@@ -41,8 +41,8 @@ def model32(model64):
 @pytest.mark.parametrize("transforms", [True, False])
 def test_tiny_network_matches_the_reference(act, transforms):
     """The fast paths at a tiny shape with trained transform nets and ragged frames equal the
-    readable forward pass (tpnet_ref.reference, itself checked against the scalar code in
-    tests/test_reference.py)."""
+    readable forward pass (tpnet_ref.engines.reference, itself checked against the scalar code in
+    tests/test_engines_reference.py)."""
     cfg = dataclasses.replace(TINY, lstm_activation=act, input_transform_trained=transforms,
                               feature_transform_trained=transforms, layer_norm_eps=0.37)
     model = init_random(cfg, seed=11, dtype="float64", transform_scale=0.5)
@@ -73,7 +73,7 @@ def test_the_model_sees_gate_order_and_eps():
 
 def test_bidirectional_last_output_uses_backward_state_at_first_step():
     """return_sequences=False: backward half = backward LSTM after the whole reversed sequence."""
-    from tpnet_ref import layers as L
+    from tpnet_ref.engines import layers as L
     rng = np.random.default_rng(0)
     x = rng.normal(size=(2, 5, 3))
     w = [(rng.normal(size=(3, 8)), rng.normal(size=(2, 8)), rng.normal(size=8)) for _ in range(2)]
@@ -87,7 +87,7 @@ def test_bidirectional_last_output_uses_backward_state_at_first_step():
 
 
 def test_sigmoid_is_stable_at_extremes():
-    from tpnet_ref.layers import sigmoid
+    from tpnet_ref.engines.layers import sigmoid
     x = np.array([-1e4, -50.0, 0.0, 50.0, 1e4], dtype=np.float32)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
         y = sigmoid(x)

@@ -26,7 +26,7 @@ def test_the_modules_and_their_tests():
     assert set(m.MODULES) == {"reference", "layers", "checks", "native", "hdf5", "testing",
                               "onnx_peer"}
     for module, tests in m.MODULES.items():
-        assert (ROOT / "tpnet_ref" / f"{module}.py").is_file()
+        assert (ROOT / m.source(module)).is_file()
         assert tests and all((ROOT / t.split("::")[0]).is_file() for t in tests), (module, tests)
 
 
@@ -46,7 +46,7 @@ def test_the_triage_entries_are_complete():
 def test_a_mutant_inside_an_annotation_is_recognised():
     m = _tool()
     spans = m.annotation_spans("layers")
-    lines = (ROOT / "tpnet_ref" / "layers.py").read_text().splitlines()
+    lines = (ROOT / m.source("layers")).read_text().splitlines()
     row = next(i for i, s in enumerate(lines, 1) if s.startswith("def dense("))
     head = "\n".join(lines[row - 1:row + 2])
     col = lines[row].index("str | None")                      # the activation's annotation

@@ -18,7 +18,7 @@ from tpnet_ref.sim.scene import ring_positions
 
 cv2 = pytest.importorskip("cv2")
 from tpnet_ref.observe import points_from_image, points_from_mask  # noqa: E402
-from tpnet_ref.sim.render import (RenderSettings, background, body_mask,  # noqa: E402
+from tpnet_ref.observe.render import (RenderSettings, background, body_mask,  # noqa: E402
                                   render_frame)
 
 CAM = Camera(0, 430, 430)            # 10 px per world unit, the image edges are the walls/floor

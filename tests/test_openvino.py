@@ -10,9 +10,9 @@ ov = pytest.importorskip("openvino")
 pytest.importorskip("onnx")
 
 import tpnet_ref  # noqa: E402
-from tpnet_ref.onnx_peer import export_onnx  # noqa: E402
+from tpnet_ref.conformance.onnx_peer import export_onnx  # noqa: E402
 
-BOUND = 1e-4       # world units, as the onnxruntime check of tests/test_onnx_export.py
+BOUND = 1e-4       # world units, as the onnxruntime check of tests/test_conformance_onnx_peer.py
 
 
 @pytest.fixture(scope="module")

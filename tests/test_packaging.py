@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tpnet_ref.native import SHIPPED_SIZES
+from tpnet_ref.weights.shipped import SHIPPED_SIZES
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONAL = ("numba", "llvmlite", "scipy", "pymunk", "torch", "matplotlib", "tqdm", "onnxruntime",
@@ -43,9 +43,9 @@ def test_wheel_holds_the_m4_weights_and_no_other(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     shipped = ["tpnet-m4.h5"] + [f"tpnet-m4-{s}.h5" for s in SHIPPED_SIZES]
     assert sorted(n for n in names if n.endswith(".h5")) == \
-        sorted(f"tpnet_ref/shipped/{n}" for n in shipped)
+        sorted(f"tpnet_ref/weights/shipped/{n}" for n in shipped)
     for n in shipped:
-        info = zipfile.ZipFile(wheel).getinfo(f"tpnet_ref/shipped/{n}")
+        info = zipfile.ZipFile(wheel).getinfo(f"tpnet_ref/weights/shipped/{n}")
         assert info.file_size == (ROOT / "weights" / n).stat().st_size    # the file, not a link
     meta = zipfile.ZipFile(wheel).read(
         next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
@@ -78,7 +78,7 @@ def test_wheel_alone_predicts_in_a_fresh_venv_and_names_missing_extras(wheel, tm
     r = _run([py, "-c", code], cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     path, imported = r.stdout.strip().splitlines()[-2:]
-    assert "site-packages/tpnet_ref/shipped/tpnet-m4.h5" in path
+    assert "site-packages/tpnet_ref/weights/shipped/tpnet-m4.h5" in path
     assert imported == "[]"
 
     r = _run([py, "-m", "pip", "list", "--format=freeze"])

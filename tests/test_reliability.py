@@ -1,4 +1,4 @@
-"""Reliability (issue 9): bad input gives a named ValueError/TypeError, fuzzing finds only the
+"""Reliability: bad input gives a named ValueError/TypeError, fuzzing finds only the
 documented exceptions, extreme input to the network stays finite or is refused clearly.
 
 Cheap functions are fuzzed with a small network; extreme coordinates use the released shape.
@@ -336,9 +336,9 @@ def test_layernorm_scale_invariance_makes_moderate_scales_harmless(full64, full3
 
 
 def test_float32_overflow_raises_instead_of_wrong_answer(full64, full32):
-    """Regression: at 1e30 float32's LayerNorm variance used to overflow to inf and the layer
-    silently output beta (a finite, wrong prediction). Now NonFiniteResultError names float64,
-    in predict, predict_batch and rollout; float64 handles the same input."""
+    """At 1e30 float32's LayerNorm variance overflows to inf, and the layer would silently
+    output beta (a finite, wrong prediction): NonFiniteResultError names float64 instead, in
+    predict, predict_batch and rollout; float64 handles the same input."""
     c, w = 22.5, _scene_window()
     big = c + (w - c) * 1e30
     for call in (lambda: full32.predict(big), lambda: full32.predict_batch(big[None]),
@@ -457,7 +457,7 @@ def test_cli_argparse_errors_exit_2(args, capsys):
 @pytest.mark.parametrize("kw", [dict(m=4.5), dict(m=True), dict(m="4"), dict(lstm_units=(8.5,)),
                                 dict(mlp1="64")])
 def test_config_needs_integers(kw):
-    """A float m used to be accepted and stored (then no window could ever fit)."""
+    """A float m is refused (stored, it would let no window ever fit)."""
     with pytest.raises(TypeError, match="TPNetConfig"):
         TPNetConfig(**kw)
 

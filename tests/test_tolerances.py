@@ -23,7 +23,7 @@ numba = pytest.importorskip("numba")
 
 STEPS = 80
 ENGINES = ["numpy", "numba"]
-#: a batch that :func:`tpnet_ref.blas.split_batch` cuts into chunks (64 + 1 windows)
+#: a batch that :func:`tpnet_ref.engines.batch_split.split_batch` cuts into chunks (64 + 1 windows)
 SPLIT = 65
 
 
@@ -145,10 +145,10 @@ _ALONE: dict = {}       # (engine, dtype) -> the split windows' predictions and 
 @pytest.mark.parametrize("dtype", list(BOUNDS))
 @pytest.mark.parametrize("engine", ENGINES)
 def test_a_split_batch_against_its_windows_alone(shipped, split_windows, engine, dtype, threads):
-    """A batch of 65 windows is run as chunks of 64 + 1 (tpnet_ref.blas.split_batch), one
+    """A batch of 65 windows is run as chunks of 64 + 1 (tpnet_ref.engines.batch_split.split_batch), one
     after another (``threads=1``) or side by side: each window's prediction and 10-step rollout
     are those of the window alone, within the stated bounds, in the batch's order."""
-    from tpnet_ref.blas import SPLIT_MIN_BATCH
+    from tpnet_ref.engines.batch_split import SPLIT_MIN_BATCH
     assert len(split_windows) == SPLIT > SPLIT_MIN_BATCH
     model = _on(shipped.astype(dtype), engine)
     model.threads = threads

@@ -1,4 +1,4 @@
-"""The training ablations of issue 48: the pushforward trick (``--grad-steps``: the first K − G
+"""The training ablations: the pushforward trick (``--grad-steps``: the first K − G
 predictions of the K-step loss without gradient, the loss over the last G) and structured input
 noise (``--noise-kind walk``: a random walk over the input frames)."""
 from __future__ import annotations
@@ -13,9 +13,12 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from tpnet_ref import cli  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet, chamfer_released, chamfer_shape  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet, chamfer_released, chamfer_shape  # noqa: E402
 from tpnet_ref.training import checkpoint as C  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
+from tpnet_ref.training import native_export as NE  # noqa: E402
+from tpnet_ref.training import precision as PR  # noqa: E402
+from tpnet_ref.training import step as ST  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
@@ -46,10 +49,10 @@ def test_grad_steps_zero_or_all_is_the_published_loss_bit_for_bit():
         for sw, mw in ((0.0, 0.0), (2.0, 0.5)):
             today = net._loss(net.rollout(x, k), y[:, :k], 9.0, sw, mw)
             for g in (0, k, k + 2):
-                assert torch.equal(L.loss_fn(net, x, y, k, 9.0, sw, mw, grad_steps=g), today)
+                assert torch.equal(ST.loss_fn(net, x, y, k, 9.0, sw, mw, grad_steps=g), today)
             g_today = _grad(net, today)
             for g in (0, k):
-                assert torch.equal(_grad(net, L.loss_fn(net, x, y, k, 9.0, sw, mw, g)), g_today)
+                assert torch.equal(_grad(net, ST.loss_fn(net, x, y, k, 9.0, sw, mw, g)), g_today)
 
 
 @pytest.mark.parametrize("k, g", [(6, 2), (6, 5), (3, 1)])
@@ -57,7 +60,7 @@ def test_grad_steps_loss_and_gradient_are_the_manual_pushforward(k, g):
     """G < K: the loss and its gradient (float64) are those of K − G steps under no_grad, then
     G steps with gradient from the window they end in, every graded term with weight 1."""
     net, x, y = _net_and_batch(torch.float64, k=k)
-    got = L.loss_fn(net, x, y, k, 9.0, 2.0, 0.0, grad_steps=g)
+    got = ST.loss_fn(net, x, y, k, 9.0, 2.0, 0.0, grad_steps=g)
     with torch.no_grad():
         early = net.rollout(x, k - g)
     window = torch.cat([x, early], dim=1)[:, -x.shape[1]:]
@@ -85,9 +88,9 @@ def test_no_gradient_flows_through_the_early_predictions():
     early = torch.autograd.grad(pred[:, :4].sum(), list(net.parameters()), allow_unused=True)
     assert all(gp is None or not gp.any() for gp in early)
     x.requires_grad_(True)
-    loss = L.loss_fn(net, x, y, 6, 9.0, grad_steps=2)           # m = 4 = K − G
+    loss = ST.loss_fn(net, x, y, 6, 9.0, grad_steps=2)           # m = 4 = K − G
     assert not torch.autograd.grad(loss, x)[0].any()
-    loss = L.loss_fn(net, x, y, 6, 9.0, grad_steps=3)           # K − G = 3: x's last frame is
+    loss = ST.loss_fn(net, x, y, 6, 9.0, grad_steps=3)           # K − G = 3: x's last frame is
     gx = torch.autograd.grad(loss, x)[0]                        # in the window, as data
     assert gx[:, :3].abs().max() == 0 and gx[:, 3].abs().max() > 0
     with pytest.raises(ValueError, match="grad_from must be in 0..5"):
@@ -98,12 +101,12 @@ def test_grad_steps_in_bf16_and_under_torch_compile():
     """The pushforward loss keeps the float32 loss in bf16 autocast, and traces with
     ``torch.compile`` (eager backend) to the eager loss and gradient."""
     net, x, y = _net_and_batch(k=4)
-    eager = L.step_loss(net, "off", "float32")(x, y, 4, 9.0, 1.0, 0.0, 2)
+    eager = PR.step_loss(net, "off", "float32")(x, y, 4, 9.0, 1.0, 0.0, 2)
     g_eager = _grad(net, eager)
-    bf = L.step_loss(net, "off", "bf16")(x, y, 4, 9.0, 1.0, 0.0, 2)
+    bf = PR.step_loss(net, "off", "bf16")(x, y, 4, 9.0, 1.0, 0.0, 2)
     assert bf.dtype == torch.float32
     assert float(bf.detach()) == pytest.approx(float(eager.detach()), rel=0.02)
-    compiled = L.step_loss(net, "eager", "float32")(x, y, 4, 9.0, 1.0, 0.0, 2)
+    compiled = PR.step_loss(net, "eager", "float32")(x, y, 4, 9.0, 1.0, 0.0, 2)
     assert float(compiled.detach()) == pytest.approx(float(eager.detach()), rel=1e-6)
     assert torch.allclose(_grad(net, compiled), g_eager, rtol=1e-4, atol=1e-6)
 
@@ -130,9 +133,9 @@ def _today(x, std, seed, step):
 def test_iid_noise_is_todays_bit_for_bit_and_zero_noise_changes_nothing():
     x = torch.from_numpy(np.random.default_rng(0).uniform(0, 1, (16, 4, 30, 2)).astype(np.float32))
     for seed, step in ((0, 0), (3, 17), (11, 9265)):
-        assert torch.equal(L.input_noise(x, 0.01, "iid", seed, step), _today(x, 0.01, seed, step))
+        assert torch.equal(ST.input_noise(x, 0.01, "iid", seed, step), _today(x, 0.01, seed, step))
     for kind in R.NOISE_KINDS:
-        assert L.input_noise(x, 0.0, kind, 3, 17) is x
+        assert ST.input_noise(x, 0.0, kind, 3, 17) is x
 
 
 def test_walk_noise_is_a_random_walk_over_the_input_frames():
@@ -140,18 +143,18 @@ def test_walk_noise_is_a_random_walk_over_the_input_frames():
     the same (seed, step) draws the same noise, another step other noise."""
     m, s = 4, 0.01
     x = torch.zeros(4096, m, 30, 2, dtype=torch.float64)
-    n = L.input_noise(x, s, "walk", 3, 17)
+    n = ST.input_noise(x, s, "walk", 3, 17)
     std = n.std(dim=(0, 2, 3)).numpy()
     np.testing.assert_allclose(std, s * np.sqrt((np.arange(m) + 1) / m), rtol=0.01)
     np.testing.assert_allclose(n.diff(dim=1).std(dim=(0, 2, 3)).numpy(), s / math.sqrt(m),
                                rtol=0.01)
-    assert torch.equal(n, L.input_noise(x, s, "walk", 3, 17))
-    assert not torch.equal(n, L.input_noise(x, s, "walk", 3, 18))
+    assert torch.equal(n, ST.input_noise(x, s, "walk", 3, 17))
+    assert not torch.equal(n, ST.input_noise(x, s, "walk", 3, 18))
     # the same draws as the i.i.d. kind, summed over the frames
-    iid = L.input_noise(x, s, "iid", 3, 17)
+    iid = ST.input_noise(x, s, "iid", 3, 17)
     assert torch.allclose(n, iid.cumsum(dim=1) / math.sqrt(m), rtol=1e-12, atol=1e-16)
     with pytest.raises(ValueError, match="noise kind must be 'iid' or 'walk'"):
-        L.input_noise(x, s, "pink", 3, 17)
+        ST.input_noise(x, s, "pink", 3, 17)
 
 
 def test_noise_kind_is_validated():
@@ -219,6 +222,6 @@ def test_init_optimizer_branches_with_the_parents_adam_state(dataset, tmp_path):
     assert st["recipe"]["init_optimizer"] is True and st["step"] == 2
     with pytest.raises(ValueError, match="needs init_from"):
         tiny_recipe(init_optimizer=True)
-    L.export(parent, tmp_path / "w.h5")
+    NE.export(parent, tmp_path / "w.h5")
     with pytest.raises(ValueError, match="weights file"):
         C.load_parent_optimizer(tmp_path / "w.h5")

@@ -9,7 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from tpnet_ref import load, native
+from tpnet_ref import load
+from tpnet_ref.weights import native
 from tpnet_ref.cli import main
 from tpnet_ref.config import TPNetConfig, param_shapes
 from tpnet_ref.training.average import average

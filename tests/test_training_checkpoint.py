@@ -11,12 +11,13 @@ torch = pytest.importorskip("torch")
 
 import tpnet_ref  # noqa: E402
 from tpnet_ref import cli  # noqa: E402
-from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref.sim import dataset as D  # noqa: E402
 from tpnet_ref.training import checkpoint as C  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
+from tpnet_ref.training import native_export as NE  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
-from tpnet_ref.provenance import absolute_paths, file_sha256, portable_path  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.weights.provenance import absolute_paths, file_sha256, portable_path  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
 
@@ -96,7 +97,7 @@ def test_init_from_fine_tunes_a_run_and_carries_its_provenance(dataset, tmp_path
     cst = json.loads((child / C.SIDECAR_NAME).read_text())
     assert cst["inherited"]["windows_seen"] == pst["windows_seen"]
     assert cst["recipe"]["init_from"] == str(parent) and cst["recipe"]["rollout"] == 2
-    L.export(child, tmp_path / "w.h5")
+    NE.export(child, tmp_path / "w.h5")
     model = tpnet_ref.load(tmp_path / "w.h5")
     assert model.meta["windows_seen"] == pst["windows_seen"] + cst["windows_seen"]
     assert model.meta["training_steps"] == pst["step"] + cst["step"]
@@ -115,7 +116,7 @@ def test_init_from_a_native_weights_file_carries_its_provenance(dataset, tmp_pat
     the run starts from exactly its parameters and the export adds the file's training counts."""
     parent = tmp_path / "parent"
     L.train(dataset, parent, tiny_recipe(epochs=1), threads=1, progress=False)
-    L.export(parent, tmp_path / "parent.h5")
+    NE.export(parent, tmp_path / "parent.h5")
     pmeta = tpnet_ref.load(tmp_path / "parent.h5").meta
     child = tmp_path / "child"
     r = tiny_recipe(epochs=1, init_from=str(tmp_path / "parent.h5"), lr=1e-12, schedule="constant",
@@ -132,7 +133,7 @@ def test_init_from_a_native_weights_file_carries_its_provenance(dataset, tmp_pat
     with torch.no_grad():
         np.testing.assert_allclose(nets[1](x).numpy(), nets[0](x).numpy(), atol=1e-6)
     cst = json.loads((child / C.SIDECAR_NAME).read_text())
-    L.export(child, tmp_path / "child.h5")
+    NE.export(child, tmp_path / "child.h5")
     meta = tpnet_ref.load(tmp_path / "child.h5").meta
     assert meta["windows_seen"] == pmeta["windows_seen"] + cst["windows_seen"]
     assert meta["training_steps"] == pmeta["training_steps"] + cst["step"]
@@ -151,7 +152,7 @@ def test_init_from_a_model_of_another_window_length(dataset, tmp_path):
     dataset's m (the same parameters, run over 3 frames)."""
     parent = tmp_path / "parent"
     L.train(dataset, parent, tiny_recipe(epochs=1), threads=1, progress=False)
-    L.export(parent, tmp_path / "parent.h5")
+    NE.export(parent, tmp_path / "parent.h5")
     data3 = tmp_path / "m3.h5"
     D.generate(str(data3), D.train_grid([1.3], [200.0, 245.0], positions=3), None, m=3,
                steps=120, seed=0, progress=False)
@@ -163,7 +164,7 @@ def test_init_from_a_model_of_another_window_length(dataset, tmp_path):
     assert cli.main(args) == 0
     cst = json.loads((child / C.SIDECAR_NAME).read_text())
     assert cst["recipe"]["config"]["m"] == 3
-    L.export(child, tmp_path / "child.h5")
+    NE.export(child, tmp_path / "child.h5")
     m3, m4 = tpnet_ref.load(tmp_path / "child.h5"), tpnet_ref.load(tmp_path / "parent.h5")
     assert (m3.config.m, m4.config.m) == (3, 4)
     assert m3.params.keys() == m4.params.keys()

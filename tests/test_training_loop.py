@@ -14,8 +14,10 @@ import tpnet_ref  # noqa: E402
 from tpnet_ref import cli  # noqa: E402
 from tpnet_ref.training import checkpoint as C  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
+from tpnet_ref.training import native_export as NE  # noqa: E402
+from tpnet_ref.training import step as ST  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
 
@@ -26,12 +28,12 @@ def test_loss_decreases_on_fixed_batch(dataset, tmp_path):
     torch.manual_seed(r.seed)
     net = TorchTPNet(r.tpnet_config)            # what train() starts from (same seed)
     with torch.no_grad():
-        before = float(L.loss_fn(net, x, y, 8, 9.0))
+        before = float(ST.loss_fn(net, x, y, 8, 9.0))
     st = L.train(dataset, tmp_path / "run", r, threads=1, progress=False)
     assert st["stopped"] == "done" and st["step"] == st["total_steps"] == 4 * st["steps_per_epoch"]
     net.load_state_dict(C.load_checkpoint(tmp_path / "run")[0]["model"])
     with torch.no_grad():
-        after = float(L.loss_fn(net, x, y, 8, 9.0))
+        after = float(ST.loss_fn(net, x, y, 8, 9.0))
     assert after < 0.9 * before, (before, after)
     log = [json.loads(s) for s in (tmp_path / "run" / L.LOG_NAME).read_text().splitlines()]
     val = [rec for rec in log if rec["kind"] == "val"]
@@ -43,7 +45,7 @@ def test_export_roundtrip(dataset, tmp_path):
     r = tiny_recipe(epochs=1)
     L.train(dataset, tmp_path / "run", r, threads=1, progress=False)
     out = tmp_path / "w.h5"
-    L.export(tmp_path / "run", out)
+    NE.export(tmp_path / "run", out)
     model = tpnet_ref.load(out)
     net = TorchTPNet(model.config)
     net.load_state_dict(C.load_checkpoint(tmp_path / "run")[0]["model"])
@@ -95,7 +97,7 @@ def test_budget_minutes_sets_the_run_length_from_measured_throughput(dataset, tm
         calls.append((batch, rollouts))
         return {rollouts[0]: 100.0}
 
-    monkeypatch.setattr(L, "bench", fake_bench)
+    monkeypatch.setattr(L, "bench", fake_bench)         # what the loop times the budget with
     r = tiny_recipe(epochs=50, rollout=3)
     st = L.train(dataset, tmp_path / "run", r, threads=1, progress=False, budget_minutes=0.05)
     assert calls == [(16, (3,))]                         # the recipe's batch and longest loss

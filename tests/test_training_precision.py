@@ -12,9 +12,12 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from tpnet_ref.cli import main  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
 from tpnet_ref.training import checkpoint as C  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
+from tpnet_ref.training import native_export as NE  # noqa: E402
+from tpnet_ref.training import precision as PR  # noqa: E402
+from tpnet_ref.training import throughput as TH  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
@@ -31,13 +34,13 @@ def test_bf16_step_keeps_coordinates_loss_and_gradients_in_float32():
     torch.manual_seed(0)
     net = TorchTPNet(cfg)
     x, y = _batch(cfg)
-    with L.autocast("bf16", "cpu"):
+    with PR.autocast("bf16", "cpu"):
         pred = net.rollout(x, 3)
         feats = net.frame_features(x.reshape(-1, cfg.n_out, cfg.dim))
     assert pred.dtype == torch.float32          # the head writes coordinates in float32
     assert feats.dtype == torch.bfloat16        # ... while the products run in bfloat16
-    f32 = L.step_loss(net, "off", "float32")(x, y, 3, 9.0, 4.0, 0.0)
-    bf = L.step_loss(net, "off", "bf16")(x, y, 3, 9.0, 4.0, 0.0)
+    f32 = PR.step_loss(net, "off", "float32")(x, y, 3, 9.0, 4.0, 0.0)
+    bf = PR.step_loss(net, "off", "bf16")(x, y, 3, 9.0, 4.0, 0.0)
     assert bf.dtype == torch.float32 and torch.isfinite(bf)
     lb, lf = float(bf.detach()), float(f32.detach())
     assert abs(lb - lf) <= 0.02 * abs(lf), (lb, lf)
@@ -54,7 +57,7 @@ def test_bf16_gradient_points_where_float32_does():
     grads = {}
     for p in ("float32", "bf16"):
         net.zero_grad(set_to_none=True)
-        L.step_loss(net, "off", p)(x, y, 3, 9.0, 0.0, 0.0).backward()
+        PR.step_loss(net, "off", p)(x, y, 3, 9.0, 0.0, 0.0).backward()
         grads[p] = torch.cat([q.grad.flatten() for q in net.parameters() if q.grad is not None])
     cos = torch.nn.functional.cosine_similarity(grads["float32"], grads["bf16"], dim=0)
     assert float(cos) > 0.98, float(cos)
@@ -66,17 +69,17 @@ def test_auto_takes_bf16_only_when_it_is_clearly_faster(monkeypatch):
     def fake_bench(cfg, *, batch, rollouts, precision, **kw):
         return {rollouts[0]: rates[precision]}
 
-    monkeypatch.setattr(L, "bench", fake_bench)
+    monkeypatch.setattr(TH, "bench", fake_bench)
     cfg = R.size_config("tiny")
     for f32, bf, want in ((100.0, 180.0, "bf16"), (100.0, 110.0, "float32"),
                           (100.0, 60.0, "float32"), (100.0, 115.0, "bf16")):
         rates.update(float32=f32, bf16=bf)
-        got, timing = L.choose_precision("auto", "cpu", cfg, 16, 8, 1)
+        got, timing = TH.choose_precision("auto", "cpu", cfg, 16, 8, 1)
         assert got == want and timing == {"float32": f32, "bf16": bf}
-    assert L.choose_precision("bf16", "cpu", cfg, 16, 8, 1) == ("bf16", {})
-    assert L.choose_precision("float32", "cpu", cfg, 16, 8, 1) == ("float32", {})
+    assert TH.choose_precision("bf16", "cpu", cfg, 16, 8, 1) == ("bf16", {})
+    assert TH.choose_precision("float32", "cpu", cfg, 16, 8, 1) == ("float32", {})
     with pytest.raises(ValueError, match="precision must be one of"):
-        L.choose_precision("fp8", "cpu", cfg, 16, 8, 1)
+        TH.choose_precision("fp8", "cpu", cfg, 16, 8, 1)
 
 
 def test_a_bf16_run_records_its_precision_and_exports_it(dataset, tmp_path, monkeypatch):
@@ -90,7 +93,7 @@ def test_a_bf16_run_records_its_precision_and_exports_it(dataset, tmp_path, monk
             precision="float32")
     _, st2 = C.load_checkpoint(tmp_path / "run")
     assert [c["mode"] for c in st2["precision"]] == ["bf16", "float32"]
-    L.export(tmp_path / "run", tmp_path / "w.h5")
+    NE.export(tmp_path / "run", tmp_path / "w.h5")
     with h5py.File(tmp_path / "w.h5", "r") as f:
         assert [c["mode"] for c in json.loads(f.attrs["precision"])] == ["bf16", "float32"]
 
@@ -108,5 +111,5 @@ def test_bench_prints_a_line_per_precision_and_marks_the_default(capsys):
     auto = [ln for ln in lines[1:] if ln.endswith("(auto)")]
     assert len(auto) == 1 and auto[0].strip().startswith("2-step loss")
     f32, bf = (float(ln.split(":")[1].split()[0]) for ln in lines[3:5])
-    assert ("bf16" in auto[0]) == (bf >= L.BF16_MIN_GAIN * f32)
+    assert ("bf16" in auto[0]) == (bf >= PR.BF16_MIN_GAIN * f32)
     assert "x float32" in lines[4]

@@ -1,4 +1,4 @@
-"""The authors' recipe as released (issue 48): the released preprocessing's windows, Keras
+"""The authors' recipe as released: the released preprocessing's windows, Keras
 initialisation, the ``--preset released`` options, and the dead units logged with validation."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tpnet_ref import data as D  # noqa: E402
+from tpnet_ref.sim import dataset as D  # noqa: E402
 from tpnet_ref.config import NORM_HI, NORM_LO  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
 
@@ -117,7 +117,7 @@ def _model_only(path):
 
 
 def test_keras_initialisation_is_the_released_codes():
-    from tpnet_ref.torch_model import BiLSTM, TorchTPNet, init_keras
+    from tpnet_ref.training.torch_model import BiLSTM, TorchTPNet, init_keras
 
     torch.manual_seed(0)
     net = TorchTPNet(R.size_config("quarter"))
@@ -225,7 +225,7 @@ def test_a_released_run_trains_and_logs_dead_units(released, long_grid, tmp_path
 
 
 def test_dead_units_counts_a_layer_that_is_off_everywhere():
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     from tpnet_ref.training.loop import dead_units
 
     torch.manual_seed(0)

@@ -10,6 +10,7 @@ torch = pytest.importorskip("torch")
 import tpnet_ref  # noqa: E402
 from tpnet_ref import cli  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
+from tpnet_ref.training import native_export as NE  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
 from tpnet_ref.training import score as S  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
@@ -41,7 +42,7 @@ def test_score_rollouts_on_validation_trajectories(dataset, tmp_path, capsys):
     from tpnet_ref.metrics import position_error
 
     L.train(dataset, tmp_path / "run", tiny_recipe(epochs=1), threads=1, progress=False)
-    L.export(tmp_path / "run", tmp_path / "w.h5")
+    NE.export(tmp_path / "run", tmp_path / "w.h5")
     data = R.WindowData(dataset, 0.2, 0)
     res = S.score_rollouts(data, [tmp_path / "w.h5"], horizon=10, at=(1, 10))
     assert set(res) == {"copy last", "constant velocity", str(tmp_path / "w.h5")}

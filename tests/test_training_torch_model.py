@@ -10,8 +10,9 @@ torch = pytest.importorskip("torch")
 
 import tpnet_ref  # noqa: E402
 from tpnet_ref.training import loop as L  # noqa: E402
+from tpnet_ref.training import step as ST  # noqa: E402
 from tpnet_ref.training import recipe as R  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
 from training_helpers import dataset, tiny_recipe  # noqa: E402,F401
 
 
@@ -48,7 +49,7 @@ def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_pa
     term equals tpnet_ref.metrics.shape_error, is invariant to translating either set, and the
     run logs val_es1 / val_esK."""
     from tpnet_ref.metrics import shape_error
-    from tpnet_ref.torch_model import chamfer_shape
+    from tpnet_ref.training.torch_model import chamfer_shape
 
     rng = np.random.default_rng(0)
     p, q = rng.uniform(0, 1, (5, 3, 30, 2)), rng.uniform(0, 1, (5, 3, 27, 2))
@@ -63,8 +64,8 @@ def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_pa
     x, y = (torch.from_numpy(a) for a in data.gather(data.train_win[:8]))
     net = TorchTPNet(r.tpnet_config)
     with torch.no_grad():
-        plain = float(L.loss_fn(net, x, y, 3, 9.0))
-        both = float(L.loss_fn(net, x, y, 3, 9.0, 2.0))
+        plain = float(ST.loss_fn(net, x, y, 3, 9.0))
+        both = float(ST.loss_fn(net, x, y, 3, 9.0, 2.0))
         es = chamfer_shape(net.rollout(x, 3), y[:, :3]).numpy()
     assert both == pytest.approx(plain + 2.0 * float(es @ np.array([9.0, 1.0, 1.0])), rel=1e-5)
     L.train(dataset, tmp_path / "run", r, threads=1, progress=False)
@@ -77,7 +78,7 @@ def test_shape_term_is_the_released_shape_error_and_is_optimised(dataset, tmp_pa
 def test_matched_distance_is_the_optimal_bijection_and_penalises_clumping():
     import itertools
 
-    from tpnet_ref.torch_model import chamfer_released, matched_distance
+    from tpnet_ref.training.torch_model import chamfer_released, matched_distance
 
     g = torch.Generator().manual_seed(0)
     p = torch.rand(4, 2, 6, 2, generator=g, dtype=torch.float64)

@@ -1,6 +1,6 @@
 """Untrusted weight files: the native loader, the Keras importer and the torch importer
 refuse damaged, oversized, linked or code-carrying files with a clear error, run no code and
-allocate nothing absurd (the guards of tpnet_ref.hdf5). Also covered elsewhere: a foreign
+allocate nothing absurd (the guards of tpnet_ref.weights.hdf5). Also covered elsewhere: a foreign
 HDF5 (test_model), Keras soft / external links and unknown layouts (test_weights_keras), a plain
 pickle with ``exec`` (test_weights_torch).
 """
@@ -57,7 +57,7 @@ def test_native_truncated(native):
 
 def test_native_byte_corruption_fuzz(native, tmp_path):
     """Random byte damage anywhere: a documented error or a finite model, never another
-    exception (h5py's RuntimeError from damaged metadata used to escape)."""
+    exception (h5py's RuntimeError from damaged metadata included)."""
     data = native.read_bytes()
     rng = np.random.default_rng(0)
     bad = tmp_path / "c.h5"
@@ -115,7 +115,7 @@ def test_native_absurd_config_refused(native):
 def test_native_oversized_attribute_refused(native, monkeypatch):
     """Attribute sizes are checked before reading (limit lowered: HDF5 keeps attributes in the
     64 KiB object header unless written with dense storage)."""
-    import tpnet_ref.hdf5 as W
+    import tpnet_ref.weights.hdf5 as W
     monkeypatch.setattr(W, "MAX_ATTR_ELEMENTS", 1000)
     with h5py.File(native, "r+") as f:
         f.attrs.create("note", data=np.zeros(5000, np.uint8))
@@ -248,7 +248,7 @@ def _keras_zip(tmp_path, members, name="m.keras", method=zipfile.ZIP_DEFLATED):
 
 
 def test_keras_archives(tmp_path, monkeypatch):
-    import tpnet_ref.hdf5 as W
+    import tpnet_ref.weights.hdf5 as W
 
     good = (FIX / "k3_trained.keras").read_bytes()
     with zipfile.ZipFile(io.BytesIO(good)) as z:
@@ -328,8 +328,8 @@ def test_torch_pickle_payload_never_runs(tmp_path, capsys):
 
 
 def test_torch_damaged_and_oversized(tmp_path, monkeypatch):
-    import tpnet_ref.hdf5 as H
-    from tpnet_ref.torch_model import TorchTPNet
+    import tpnet_ref.weights.hdf5 as H
+    from tpnet_ref.training.torch_model import TorchTPNet
     from tpnet_ref.weights.torch import import_torch
 
     p = tmp_path / "a.pt"

@@ -48,7 +48,7 @@ def test_keras_files_go_to_the_keras_importer(tmp_path, name, rename):
 
 def test_torch_state_dict_goes_to_the_torch_importer(tmp_path):
     torch = pytest.importorskip("torch")
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     ref = init_random(SMALL, seed=2, dtype="float32")
     torch.save(TorchTPNet.from_numpy(ref).state_dict(), tmp_path / "net.h5")   # not HDF5
     model = import_checkpoint(tmp_path / "net.h5", m=None, layer_norm_eps=None)

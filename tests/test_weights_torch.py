@@ -8,10 +8,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tpnet_ref import layers as L  # noqa: E402
+from tpnet_ref.engines import layers as L  # noqa: E402
 from tpnet_ref.model import TPNetConfig, init_random, param_shapes  # noqa: E402
 from tpnet_ref import load  # noqa: E402
-from tpnet_ref.torch_model import TorchTPNet  # noqa: E402
+from tpnet_ref.training.torch_model import TorchTPNet  # noqa: E402
 from tpnet_ref.weights.torch import import_torch  # noqa: E402
 
 SMALL = dict(input_tnet_mlp=(8, 16, 32), input_tnet_fc=(16, 8), mlp1=(16, 16),

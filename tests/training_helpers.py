@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from tpnet_ref import data as D
+from tpnet_ref.sim import dataset as D
 from tpnet_ref.training import recipe as R
 
 

@@ -47,19 +47,29 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 TRIAGE = ROOT / "tools" / "mutation_triage.json"
 
-#: module (tpnet_ref/<name>.py) -> the test files that cover it, fastest first
+#: module (its file: :func:`source`) -> the test files that cover it, fastest first
 MODULES = {
-    # (the trace's own test of tests/test_crosscheck.py: the rest of that file builds vectors)
-    "reference": ["tests/test_reference.py", "tests/test_layers.py",
-                  "tests/test_crosscheck.py::test_trace_names_in_order_and_result_unchanged"],
-    "layers": ["tests/test_layers.py", "tests/test_reference.py"],
-    "checks": ["tests/test_checks.py", "tests/test_checks_scattered.py", "tests/test_model.py"],
-    "native": ["tests/test_native.py", "tests/test_integrity.py"],
-    "hdf5": ["tests/test_hdf5.py", "tests/test_untrusted_files.py", "tests/test_native.py"],
+    # (the trace's own test of tests/test_conformance.py: the rest of that file builds vectors)
+    "reference": ["tests/test_engines_reference.py", "tests/test_engines_layers.py",
+                  "tests/test_conformance.py::test_trace_names_in_order_and_result_unchanged"],
+    "layers": ["tests/test_engines_layers.py", "tests/test_engines_reference.py"],
+    "checks": ["tests/test_checks.py", "tests/test_model.py"],
+    "native": ["tests/test_weights_native.py", "tests/test_integrity.py"],
+    "hdf5": ["tests/test_weights_hdf5.py", "tests/test_untrusted_files.py", "tests/test_weights_native.py"],
     # (tests/test_invariance.py runs the same checkers on more networks: 70 s more a mutant)
-    "testing": ["tests/test_testing_kit.py"],
-    "onnx_peer": ["tests/test_onnx_export.py", "tests/test_crosscheck_onnx.py"],
+    "testing": ["tests/test_testing.py"],
+    "onnx_peer": ["tests/test_conformance_onnx_peer.py", "tests/test_conformance_onnx.py"],
 }
+#: the modules whose file is not tpnet_ref/<name>.py: their place in the package
+PLACES = {"reference": "engines/reference", "layers": "engines/layers",
+          "native": "weights/native", "hdf5": "weights/hdf5", "onnx_peer": "conformance/onnx_peer"}
+
+
+def source(module: str) -> str:
+    """``module``'s file, relative to the repository root."""
+    return f"tpnet_ref/{PLACES.get(module, module)}.py"
+
+
 #: what the copy of the repository leaves out
 SKIP = {".git", ".venv", "__pycache__", ".pytest_cache", ".hypothesis", "build", "dist",
         ".mutation", "runs", "data", "checkpoints", "out"}
@@ -87,7 +97,7 @@ def _config(module: str, timeout: float) -> str:
     tests = " ".join(MODULES[module])
     return "\n".join([
         "[cosmic-ray]",
-        f'module-path = "tpnet_ref/{module}.py"',
+        f'module-path = "{source(module)}"',
         f"timeout = {timeout}",
         "excluded-modules = []",
         # -x: the first failure kills the mutant; no cache, so runs do not write into the copy
@@ -189,7 +199,7 @@ def annotation_spans(module: str) -> list[tuple[tuple[int, int], tuple[int, int]
     annotations`` (PEP 563: annotations are kept as strings, never evaluated, so a mutant inside
     one is equivalent)."""
     import ast
-    tree = ast.parse((ROOT / "tpnet_ref" / f"{module}.py").read_text())
+    tree = ast.parse((ROOT / source(module)).read_text())
     if not any(isinstance(n, ast.ImportFrom) and n.module == "__future__"
                and any(a.name == "annotations" for a in n.names) for n in tree.body):
         return []

@@ -11,6 +11,10 @@
 from __future__ import annotations
 
 import importlib as _importlib
+import importlib.abc as _importlib_abc
+import importlib.util as _importlib_util
+import sys as _sys
+import warnings as _warnings
 import weakref as _weakref
 from typing import Any as _Any
 
@@ -33,7 +37,7 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
     ``full`` (the paper's widths; the default, m = 4) or a reduced size shipped for m = 4
     (``"half"``, ``"quarter"``: every width halved or quartered, faster, less accurate;
     ``weights/MODEL_CARD.md``),
-    found by :func:`tpnet_ref.native.shipped_weights_path`. ``m`` and ``size`` are only
+    found by :func:`tpnet_ref.weights.shipped.shipped_weights_path`. ``m`` and ``size`` are only
     for the shipped files: with a ``path`` they must stay at their defaults.
 
     ``engine``: "auto" (the default: the compiled Numba head where numba is installed, else the
@@ -42,7 +46,7 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
     if path is None:
         if m == 4 and size == "full":
             return _load_file(None, dtype, engine)
-        from .native import shipped_weights_path
+        from .weights.shipped import shipped_weights_path
         path = shipped_weights_path(m, size)
     elif m != 4 or size != "full":
         raise ValueError("load: give either a path or m= / size= (a shipped model), not both")
@@ -112,20 +116,95 @@ def rollout_batch(windows: _Any, steps: int, model: TPNet | None = None,
 
 def example_window() -> _np.ndarray:
     """A real m = 4 window to start from: ``(4, 30, 2)`` world units, four frames of a simulated
-    training-grid scene 4 simulation steps apart (:mod:`tpnet_ref.shipped`)."""
+    training-grid scene 4 simulation steps apart (:mod:`tpnet_ref.weights.shipped`)."""
     from importlib.resources import files
-    with files("tpnet_ref.shipped").joinpath("example_window.npy").open("rb") as f:
+    with files("tpnet_ref.weights.shipped").joinpath("example_window.npy").open("rb") as f:
         return _np.load(f, allow_pickle=False)
 
 
 #: submodules imported on first attribute access (``tpnet_ref.metrics`` needs the metrics extra)
-_LAZY = ("config", "checks", "layers", "model", "blas", "extras", "weights", "metrics", "sim",
-         "data", "protocol", "evaluation", "training", "onnx_peer", "specialize", "observe",
-         "testing")
+_LAZY = ("config", "checks", "model", "extras", "engines", "weights", "metrics", "sim",
+         "evaluation", "training", "conformance", "observe", "testing")
+
+# ------------------------------------------------------------------ old import paths
+#: modules that moved (docs/architecture.md draws where everything lives now), by their old name
+#: under ``tpnet_ref``: the modules that hold their names now. ``import tpnet_ref.heads``,
+#: ``from tpnet_ref.blas import one_thread``, ``tpnet_ref.specialize`` and objects pickled under
+#: an old path still work until the next release, with a ``DeprecationWarning`` naming the new
+#: place.
+_MOVED: dict[str, tuple[str, ...]] = {
+    "heads": ("engines.interface",),
+    "fast_numpy": ("engines.numpy_engine",),
+    "engine_numba": ("engines.numba_engine", "engines.numba_lstm", "engines.numba_features",
+                     "engines.numba_products"),
+    "specialize": ("engines.specialised",),
+    "unit_order": ("engines.unit_order",),
+    "blas": ("engines.blas", "engines.thread_policy", "engines.load_monitor",
+             "engines.batch_split"),
+    "layers": ("engines.layers",),
+    "reference": ("engines.reference",),
+    "recursive": ("engines.rollout",),
+    "compile_watch": ("engines.compile_watch",),
+    "_chamfer_kernels": ("metrics.chamfer_kernels",),
+    "crosscheck": ("conformance.layer_names", "conformance.tolerances", "conformance.cases",
+                   "conformance.vectors", "conformance.compare", "conformance.report"),
+    "traces": ("conformance.traces",),
+    "onnx_peer": ("conformance.onnx_peer",),
+    "torch_model": ("training.torch_model",),
+    "native": ("weights.native", "weights.shipped"),
+    "hdf5": ("weights.hdf5",),
+    "provenance": ("weights.provenance",),
+    "data": ("sim.dataset",),
+    "protocol": ("sim.protocol",),
+    "sim.render": ("observe.render",),
+}
+#: names renamed on the way: ``"old module.old name": "new module.new name"``
+_RENAMED: dict[str, str] = {
+    "crosscheck.read_vectors": "conformance.vectors.read_conformance_vectors",
+    "crosscheck.write_vectors": "conformance.vectors.write_conformance_vectors",
+}
+
+
+class _OldPaths(_importlib_abc.MetaPathFinder, _importlib_abc.Loader):
+    """Imports an old module path (:data:`_MOVED`) as a module whose names are looked up in the
+    modules that hold them now."""
+
+    def find_spec(self, fullname: str, path: _Any = None, target: _Any = None) -> _Any:
+        head, _, old = fullname.partition(".")
+        if head != __name__ or old not in _MOVED:
+            return None
+        return _importlib_util.spec_from_loader(fullname, self)
+
+    def create_module(self, spec: _Any) -> None:
+        return None
+
+    def exec_module(self, module: _Any) -> None:
+        old = module.__name__.partition(".")[2]
+        new = [f"{__name__}.{m}" for m in _MOVED[old]]
+        _warnings.warn(f"{module.__name__} has moved to {' and '.join(new)}; the old path goes "
+                       "in the next release", DeprecationWarning, stacklevel=2)
+        homes = [_importlib.import_module(m) for m in new]
+
+        def __getattr__(name: str) -> _Any:
+            renamed = _RENAMED.get(f"{old}.{name}")
+            if renamed is not None:
+                where, _, attr = renamed.rpartition(".")
+                return getattr(_importlib.import_module(f"{__name__}.{where}"), attr)
+            for home in homes:
+                if hasattr(home, name):
+                    return getattr(home, name)
+            raise AttributeError(f"module {module.__name__!r} has no attribute {name!r}")
+
+        module.__getattr__ = __getattr__
+        module.__dir__ = lambda: sorted(set().union(*(dir(h) for h in homes)))
+
+
+if not any(type(f).__name__ == "_OldPaths" for f in _sys.meta_path):
+    _sys.meta_path.insert(0, _OldPaths())       # before any finder that might know the old files
 
 
 def __getattr__(name: str) -> _Any:
-    if name in _LAZY:
+    if name in _LAZY or name in _MOVED:
         return _importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'tpnet_ref' has no attribute {name!r}")
 

@@ -204,8 +204,7 @@ def training_range_problem(frames: np.ndarray | list[np.ndarray], norm_lo: float
 
 
 def span_problem(lo: float, hi: float, norm_lo: float, norm_hi: float, normalized: bool) -> str:
-    """:func:`training_range_problem`'s words for coordinates spanning ``[lo, hi]`` (model
-    units) beyond the training box."""
+    """:func:`training_range_problem`'s words for coordinates spanning ``[lo, hi]`` (model units)."""
     if normalized:
         hint = (" (world units passed as normalized=True / --normalized?)" if hi > 2.0
                 else "")
@@ -217,8 +216,7 @@ def span_problem(lo: float, hi: float, norm_lo: float, norm_hi: float, normalize
 
 
 def radius_problem(radius: float, normalized: bool) -> str:
-    """:func:`training_range_problem`'s words for a frame of mean radius ``radius`` (world
-    units) outside :data:`RADIUS_RANGE`."""
+    """:func:`training_range_problem`'s words for a frame's mean radius (world units)."""
     hint = (" (model coordinates given as world units? pass normalized=True)"
             if not normalized and radius < 0.1 else "")
     return (f"a frame's mean radius is {radius:.3g} world units; the trained body "
@@ -233,17 +231,19 @@ def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: 
     (``stacklevel`` None: the first caller outside the package); whether it warned."""
     problem = training_range_problem(frames, norm_lo, norm_hi, normalized)
     if problem:
-        _warn_range(name, problem, stacklevel or _caller_level())
+        warn_range(name, problem, stacklevel)
     return problem is not None
 
 
-def _warn_range(name: str, problem: str, stacklevel: int) -> None:
-    """``stacklevel``: as the caller would pass it to :func:`warnings.warn` itself."""
+def warn_range(name: str, problem: str, stacklevel: int | None = None) -> None:
+    """The one-line :class:`OutsideTrainingRangeWarning` of ``problem`` (``stacklevel``: None,
+    the first caller outside the package)."""
     warnings.warn(f"{name}: outside the training range: {problem}; the prediction is an "
-                  "extrapolation", OutsideTrainingRangeWarning, stacklevel=stacklevel + 1)
+                  "extrapolation", OutsideTrainingRangeWarning,
+                  stacklevel=stacklevel + 1 if stacklevel else _caller_level())
 
 
-def _warn_motion(name: str, problem: str) -> None:
+def warn_motion(name: str, problem: str) -> None:
     warnings.warn(f"{name}: unusual motion: {problem}; the prediction is an extrapolation",
                   FrameSpacingWarning, stacklevel=_caller_level())
 
@@ -559,8 +559,7 @@ def motion_problem(world: np.ndarray | list[np.ndarray]) -> str | None:
 
 
 def fall_problem(rows: float) -> str:
-    """:func:`motion_problem`'s words for a body falling freely as at ``rows`` simulator rows
-    per frame."""
+    """:func:`motion_problem`'s words for a free fall as at ``rows`` simulator rows a frame."""
     return (f"the body falls freely, and its centroid falls as if the frames were "
             f"{rows:.2g}/45 s apart, not {FRAME_ROWS}/45 s (gravity {GRAVITY:g} world "
             f"units/s², the simulator's step 1/45 s): "
@@ -570,8 +569,7 @@ def fall_problem(rows: float) -> str:
 
 
 def step_problem(step: float) -> str:
-    """:func:`motion_problem`'s words for a centroid moving ``step`` world units per frame on
-    average, outside :data:`MOTION_RANGE`."""
+    """:func:`motion_problem`'s words for a centroid's mean ``step`` a frame (world units)."""
     lo, hi = MOTION_RANGE
     why = ("frames closer in time than 4/45 s, e.g. consecutive simulator rows instead of every "
            "fourth, or a body at rest" if step < lo else
@@ -618,31 +616,5 @@ def warn_about_input(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
                           "extrapolation", TooFewPointsWarning, stacklevel=_caller_level())
         moved = motion_problem(world) if one_window else None
         if moved:
-            _warn_motion(name, moved)
+            warn_motion(name, moved)
 
-
-# --------------------------------------------------------------------------- a first pass's verdict
-#: what a compiled first pass over a window of equal frames found (the Numba engine's
-#: :mod:`tpnet_ref.engine_checks`, held to :func:`warn_about_input` by tests): nothing to say;
-#: undecided (a frame not clearly one body, a value at a threshold, a refused value: the checks
-#: above then run); or the one warning :func:`warn_about_input` gives, with its numbers
-VERDICT_CLEAR, VERDICT_UNDECIDED, VERDICT_SPAN, VERDICT_RADIUS, VERDICT_FALL, VERDICT_STEP = range(6)
-
-
-def warn_verdict(code: int, a: float, b: float, norm_lo: float, norm_hi: float,
-                 normalized: bool, name: str) -> None:
-    """The warning :func:`warn_about_input` gives for a decided verdict ``code`` (one of the
-    ``VERDICT_*`` other than undecided) with its numbers: ``a, b`` the span's ends in model
-    units (``VERDICT_SPAN``), ``a`` the frame's mean radius in world units (``VERDICT_RADIUS``),
-    the rows per frame of a free fall (``VERDICT_FALL``) or the centroid's mean step in world
-    units (``VERDICT_STEP``); nothing for ``VERDICT_CLEAR``."""
-    if code == VERDICT_SPAN:
-        _warn_range(name, span_problem(a, b, norm_lo, norm_hi, normalized), _caller_level())
-    elif code == VERDICT_RADIUS:
-        _warn_range(name, radius_problem(a, normalized), _caller_level())
-    elif code == VERDICT_FALL:
-        _warn_motion(name, fall_problem(a))
-    elif code == VERDICT_STEP:
-        _warn_motion(name, step_problem(a))
-    elif code != VERDICT_CLEAR:
-        raise ValueError(f"verdict: no warning for code {code}")

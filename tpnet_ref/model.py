@@ -4,8 +4,8 @@
 denormalise`` (data flow with shapes: docs/architecture.md; the same network written to be read:
 :mod:`tpnet_ref.reference`). The feature extractor is the NumPy fast path
 (:mod:`tpnet_ref.fast_numpy`) or the Numba one; the prediction network runs on one of the
-model's heads (:mod:`tpnet_ref.heads`: NumPy, Numba, scene-specialised), every one tested
-against the reference; a rollout's loop is :mod:`tpnet_ref.recursive`. Permutation invariance
+model's heads (:mod:`tpnet_ref.engines.interface`: NumPy, Numba, scene-specialised), every one tested
+against the reference; a rollout's loop is :mod:`tpnet_ref.engines.rollout`. Permutation invariance
 is exact: each frame's points are put in canonical order first (:mod:`tpnet_ref.point_order`;
 ``sort_points=False`` runs them as given, to check the network's own invariance). The bits do
 not depend on threads (docs/architecture.md, "Determinism"): every product runs on a one-thread
@@ -18,18 +18,17 @@ from typing import Any
 
 import numpy as np
 
-from . import heads as H
-from . import recursive as R
-from . import specialize as S
-from . import unit_order as U
-from .blas import (SPLIT_CHUNK, SPLIT_MIN_BATCH, adaptive, in_one_thread, one_thread,  # noqa: F401
-                   split_batch, two_threads)
+from .engines import interface as H, rollout as R, specialised as S, unit_order as U
+from .engines.batch_split import SPLIT_CHUNK, SPLIT_MIN_BATCH, split_batch  # noqa: F401
+from .engines.thread_policy import adaptive, two_threads
+from .engines.blas import in_one_thread, one_thread  # noqa: F401
 from .checks import (NonFiniteResultError, check_params, check_window, check_windows,
                      warn_about_input)
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
-from .fast_numpy import BLOCK_POINTS, NumpyFeatures
-from .heads import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
-from .native import default_weights_path, read_native, write_native
+from .engines.numpy_engine import BLOCK_POINTS, NumpyFeatures
+from .engines.interface import ENGINE_MAX_BATCH, ENGINES  # noqa: F401  (re-exported)
+from .weights.shipped import default_weights_path
+from .weights.native import read_native, write_native
 from .point_order import SMALL_SORT, canonical_order  # noqa: F401  (re-exported)
 
 class TPNet:
@@ -66,7 +65,7 @@ class TPNet:
         #: each layer's units in the fast paths' layout (None: the file's order)
         self.unit_order = U.check(unit_order, config)
         self.features = NumpyFeatures(config, self.params, self.unit_order)
-        #: the prediction network's heads, fastest first (:mod:`tpnet_ref.heads`)
+        #: the prediction network's heads, fastest first (:mod:`tpnet_ref.engines.interface`)
         self.heads = H.build(self, self.engine, used)
         #: the compiled feature extractor of the batches the numba head runs (None: NumPy's)
         self.engine_features = H.build_features(self, self.engine)
@@ -202,7 +201,7 @@ class TPNet:
                                    batch).reshape(batch, self.config.m, -1)
 
     def head_for(self, batch: int) -> H.Head:
-        """The head that runs batches of ``batch`` windows (:mod:`tpnet_ref.heads`)."""
+        """The head that runs batches of ``batch`` windows (:mod:`tpnet_ref.engines.interface`)."""
         return H.for_batch(self.heads, batch)
 
     def project_frames(self, features: np.ndarray, batch: int = 1) -> np.ndarray | None:
@@ -217,7 +216,7 @@ class TPNet:
 
     def _threads(self, what: str, batch: int, points: int, held: bool = False) -> Any:
         """The block a call's work runs in: always a one-thread BLAS, and
-        :data:`tpnet_ref.blas.adaptive`, which lets the parts that may take a second thread (the
+        :data:`tpnet_ref.engines.thread_policy.adaptive`, which lets the parts that may take a second thread (the
         feature extractor's blocks of :data:`~tpnet_ref.fast_numpy.BLOCK_POINTS` points, the
         numba head's two directions) take it while that measures faster (the same bits either
         way). A call with nothing to share runs on one thread."""
@@ -230,7 +229,7 @@ class TPNet:
         return adaptive((id(self), what, batch, points), held, blas_free)
 
     def preferred_threads(self, what: str = "predict", batch: int = 1, points: int = 0) -> int | None:
-        """The plan :data:`tpnet_ref.blas.adaptive` measured faster for this model's calls of
+        """The plan :data:`tpnet_ref.engines.thread_policy.adaptive` measured faster for this model's calls of
         ``what`` ("predict", "features", "rollout step") on ``batch`` windows of ``points``
         points in all: 1 (one thread), 0 (two threads) or None (not measured yet, or nothing
         to share: one feature block on the NumPy head)."""
@@ -239,7 +238,7 @@ class TPNet:
     def _run(self, fn: Any, windows: Any, one: bool, normalized: bool, *args: Any) -> np.ndarray:
         """``fn(points, counts, batch, normalized, *args)`` on :meth:`canonical_points`' points of
         one window (``one``) or a batch. An array the Numba engine's compiled first pass decides
-        (:class:`tpnet_ref.engine_checks.Screen`: the checks' warnings and the points at once)
+        (:class:`tpnet_ref.engines.numba_checks.Screen`: the checks' warnings and the points at once)
         goes straight in; other input is checked, warned about (input outside the training range
         or not one body), and run in chunks set by the batch size (:func:`blas.split_batch`)."""
         c = self.config
@@ -284,7 +283,7 @@ class TPNet:
 
         After each step the window slides by one frame and the prediction becomes its newest
         frame. Each frame's global feature is computed once and kept
-        (:func:`tpnet_ref.recursive.rollout`).
+        (:func:`tpnet_ref.engines.rollout.rollout`).
         """
         return self._run(self._rollout, window, True, normalized, steps)[0]
 

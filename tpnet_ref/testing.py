@@ -8,7 +8,7 @@ reads; a window is a list of ``m`` float64 arrays) and test it with hypothesis:
 - :func:`permutation_invariant` -- permuting each frame's points independently (the
   ``(N!)^m`` per-frame permutations) changes the output by at most ``tol``;
 - :func:`agrees_with_reference` -- the output is within a tolerance of
-  :func:`tpnet_ref.reference.forward` of a :class:`~tpnet_ref.model.TPNet`'s parameters in
+  :func:`tpnet_ref.engines.reference.forward` of a :class:`~tpnet_ref.model.TPNet`'s parameters in
   float64: by default measured on each window from float32 rounding
   (:func:`measured_tolerance`, the rule of ``tpnet vectors``), or a fixed ``tol``;
 - :func:`frame_order_matters`, :func:`one_point_matters` -- the non-vacuity checks: reversing or
@@ -272,26 +272,26 @@ def permutation_invariant(fn: Callable[[Window], Any], windows: Any = None, tol:
 def measured_tolerance(model: Any, window: Window, normalized: bool = False,
                        expected: dict[str, np.ndarray] | None = None) -> float:
     """The default tolerance of :func:`agrees_with_reference` on one window: the rule of
-    ``tpnet vectors`` (:func:`tpnet_ref.crosscheck.measure_gaps` and
-    :func:`~tpnet_ref.crosscheck.tolerances_from`) for the last layer, ``SAFETY`` (8) x the
+    ``tpnet vectors`` (:func:`tpnet_ref.conformance.tolerances.measure_gaps` and
+    :func:`~tpnet_ref.conformance.tolerances.tolerances_from`) for the last layer, ``SAFETY`` (8) x the
     largest gap between the reference in float32 and in float64 on this window (the window as
     is, moved by one float32 ulp, its points reversed) + ``FLOOR`` (2^-20) x max(1, the
     output's largest magnitude); in model coordinates (``head.sigmoid``) when ``normalized``,
     else in world units (``output``). ``expected``: the window's float64 trace, if known."""
-    from . import crosscheck
+    from .conformance import tolerances
     config = model.config
     params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
     world = _world(window, config) if normalized else window
-    want = expected if expected is not None else crosscheck.trace(config, params, world)
+    want = expected if expected is not None else tolerances.trace(config, params, world)
     return _measured(config, params, world, want, normalized)
 
 
 def _measured(config: Any, params: dict[str, np.ndarray], world: Window,
               expected: dict[str, np.ndarray], normalized: bool) -> float:
-    from . import crosscheck
+    from .conformance import tolerances
     key = "head.sigmoid" if normalized else "output"
-    gaps = crosscheck.measure_gaps(config, params, world, expected)
-    return crosscheck.tolerances_from({key: gaps[key]},
+    gaps = tolerances.measure_gaps(config, params, world, expected)
+    return tolerances.tolerances_from({key: gaps[key]},
                                       {key: float(np.abs(expected[key]).max())})[key]
 
 
@@ -305,7 +305,7 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
                           windows: Any = None, normalized: bool = False,
                           max_examples: int = 50, seed: int | None = None) -> float:
     """Check that ``fn(window)`` is within a tolerance (max absolute difference) of
-    :func:`tpnet_ref.reference.forward` with ``model``'s config and parameters in float64
+    :func:`tpnet_ref.engines.reference.forward` with ``model``'s config and parameters in float64
     (``model``: a :class:`~tpnet_ref.model.TPNet`, e.g. :func:`tpnet_ref.load` of the weights
     ``fn`` runs). ``tol``: a fixed tolerance; ``None`` (the default) measures one on each window
     from float32 rounding (:func:`measured_tolerance`, the rule ``tpnet vectors`` gives each
@@ -314,7 +314,8 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
     windows and outputs in model coordinates (default: world units). Returns the largest
     difference seen; raises :class:`PropertyFailure` on the minimal window beyond the
     tolerance."""
-    from . import crosscheck, reference
+    from .conformance import tolerances
+    from .engines import reference
     params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
     config = model.config
     strategy = windows if windows is not None else _window_strategy(
@@ -325,7 +326,7 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
     def prop(w: Window) -> None:
         if tol is None:
             world = _world(w, config) if normalized else w
-            expected = crosscheck.trace(config, params, world)
+            expected = tolerances.trace(config, params, world)
             want = expected[key]
             limit = _measured(config, params, world, expected, normalized)
             tols[0], tols[1] = min(tols[0], limit), max(tols[1], limit)

@@ -16,11 +16,12 @@ import h5py
 
 import _common
 import tpnet_ref
-from tpnet_ref import native
+from tpnet_ref.weights import native
+from tpnet_ref.weights.shipped import shipped_weights_path
 
 
 def main(argv: list[str]) -> int:
-    files = argv or [str(native.shipped_weights_path(4, s)) for s in ("full", "half", "quarter")]
+    files = argv or [str(shipped_weights_path(4, s)) for s in ("full", "half", "quarter")]
     print(_common.machine())
     print(_common.load_average())
     warnings.simplefilter("ignore", native.UnverifiedFileWarning)

@@ -10,7 +10,7 @@ import time
 import h5py
 import numpy as np
 
-from tpnet_ref.data import load_windows, scene_convention
+from tpnet_ref.sim.dataset import load_windows, scene_convention
 
 
 def main(path: str) -> int:

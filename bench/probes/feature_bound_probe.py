@@ -34,8 +34,8 @@ import sys
 import numpy as np
 
 import tpnet_ref
-from tpnet_ref import data as D
-from tpnet_ref.protocol import FRAME_EVERY
+from tpnet_ref.sim import dataset as D
+from tpnet_ref.sim.protocol import FRAME_EVERY
 from tpnet_ref.sim.cases import TEST_CASES
 from tpnet_ref.sim.scene import simulate
 from bench_specialize import parse_quick, windows

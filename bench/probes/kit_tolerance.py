@@ -18,7 +18,7 @@ import torch
 
 import tpnet_ref
 from tpnet_ref import testing
-from tpnet_ref.torch_model import TorchTPNet
+from tpnet_ref.training.torch_model import TorchTPNet
 
 
 def main() -> int:

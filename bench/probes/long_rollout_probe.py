@@ -34,7 +34,7 @@ HS = (1, 10, 40, 80)
 def main(argv: list[str] | None = None) -> int:
     import torch
 
-    from tpnet_ref.torch_model import TorchTPNet, chamfer_released, chamfer_shape
+    from tpnet_ref.training.torch_model import TorchTPNet, chamfer_released, chamfer_shape
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default="data/grid-m4.h5")

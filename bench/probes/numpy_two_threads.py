@@ -27,9 +27,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import tpnet_ref
-import tpnet_ref.layers as L
+import tpnet_ref.engines.layers as L
 from _common import machine, scene_windows
-from tpnet_ref.blas import one_thread
+from tpnet_ref.engines.blas import one_thread
 
 
 class Worker:
@@ -74,7 +74,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
-    from tpnet_ref.onnx_peer import onnx_session
+    from tpnet_ref.conformance.onnx_peer import onnx_session
     print(f"machine: {machine()}")
     model = tpnet_ref.load(engine="numpy")
     _, x256 = scene_windows(model)

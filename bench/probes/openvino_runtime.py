@@ -2,7 +2,7 @@
 
     python bench/probes/openvino_runtime.py [--seconds 2]     # pip install -e '.[openvino,sim]'
 
-Exports the shipped m = 4 model (``tpnet_ref.onnx_peer.export_onnx``), compiles it for OpenVINO's
+Exports the shipped m = 4 model (``tpnet_ref.conformance.onnx_peer.export_onnx``), compiles it for OpenVINO's
 CPU device twice -- its default settings and ``INFERENCE_PRECISION_HINT: f32`` -- and prints each
 one's inference precision, its largest distance to ``predict_batch`` (NumPy engine, float32) on
 256 windows of the held-out test cases (world units), and, interleaved round by round with
@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 
 import tpnet_ref
-from tpnet_ref.onnx_peer import export_onnx
+from tpnet_ref.conformance.onnx_peer import export_onnx
 
 
 def _windows(model):
-    from tpnet_ref.protocol import FRAME_EVERY
+    from tpnet_ref.sim.protocol import FRAME_EVERY
     from tpnet_ref.sim.cases import TEST_CASES
     from tpnet_ref.sim.scene import simulate
     wins = []

@@ -21,14 +21,15 @@ import warnings
 import numpy as np
 
 import _common
-from tpnet_ref import reference, testing
+from tpnet_ref.engines import reference
+from tpnet_ref import testing
 from tpnet_ref.model import init_random
 
 
 def torch_predict(model):
     """``TorchTPNet`` of ``model`` as window -> points (frame by frame: ragged windows too)."""
     import torch
-    from tpnet_ref.torch_model import TorchTPNet
+    from tpnet_ref.training.torch_model import TorchTPNet
     net = TorchTPNet.from_numpy(model).eval()
 
     def pytorch(window):
@@ -40,7 +41,7 @@ def torch_predict(model):
 
 
 def onnx_predict(model, n_points):
-    from tpnet_ref.onnx_peer import onnx_session
+    from tpnet_ref.conformance.onnx_peer import onnx_session
     sess = onnx_session(model, n_points, threads=1)
 
     def onnx_export(window):

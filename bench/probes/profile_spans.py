@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from tpnet_ref.blas import one_thread
+from tpnet_ref.engines.blas import one_thread
 
 
 def timed(fn, flush: np.ndarray | None, n: int = 100) -> float:

@@ -24,9 +24,9 @@ import numpy as np
 
 
 import tpnet_ref
-from tpnet_ref import layers as L
+from tpnet_ref.engines import layers as L
 from tpnet_ref import model as M
-from tpnet_ref.blas import one_thread
+from tpnet_ref.engines.blas import one_thread
 from _common import scene_windows
 
 STAGES = {  # label: (owner, attribute)

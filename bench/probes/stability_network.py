@@ -21,10 +21,10 @@ import time
 
 import numpy as np
 
-from tpnet_ref import layers as L
+from tpnet_ref.engines import layers as L
 from tpnet_ref.model import init_random
 from tpnet_ref.checks import NonFiniteResultError, OutsideTrainingRangeWarning
-from tpnet_ref.fast_numpy import file_order_lstms
+from tpnet_ref.engines.numpy_engine import file_order_lstms
 
 
 def window(m: int) -> np.ndarray:

@@ -75,14 +75,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: short commands: they run the Numba engine's optional kernels (two-thread, first pass, fused rollout)
-#: only where numba has them already, never stopping to compile them (compile_watch.TWO_THREAD_KERNELS_ON_DEMAND)
+#: short commands: they run the Numba engine's optional kernels (two-thread, first pass, fused
+#: rollout) only where numba has them already, never stopping to compile them
+#: (tpnet_ref.engines.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND)
 SHORT_COMMANDS = ("demo", "predict", "animate")
 
 
 def _run(args: argparse.Namespace) -> int:
     """``args.func(args)``; one of :data:`SHORT_COMMANDS` compiles no two-thread kernel."""
-    from .. import compile_watch
+    from ..engines import compile_watch
     before = compile_watch.TWO_THREAD_KERNELS_ON_DEMAND
     if args.command in SHORT_COMMANDS:
         compile_watch.TWO_THREAD_KERNELS_ON_DEMAND = False
@@ -97,9 +98,9 @@ def watched(prefix: str, doing: str, fn: Any, *a: Any, stream: Any = None) -> An
     ``predict`` on the Numba engine; ``tpnet demo`` says the same itself), on ``stream`` (default
     stdout; ``tpnet eval``'s progress goes to stderr, its stdout is its table): ``PREFIX: DOING
     (...)`` at once, ``compiling the Numba kernels ...`` when the first compilation starts
-    (:class:`tpnet_ref.compile_watch.CompileWatch`), the compile time after. An error stays one
+    (:class:`tpnet_ref.engines.compile_watch.CompileWatch`), the compile time after. An error stays one
     line on stderr (a command's arguments are checked inside ``fn``, after the first line)."""
-    from ..compile_watch import COMPILING, CompileWatch
+    from ..engines.compile_watch import COMPILING, CompileWatch
 
     def say(text: str) -> None:
         print(f"{prefix}: {text}", file=stream or sys.stdout, flush=True)

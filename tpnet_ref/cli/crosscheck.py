@@ -53,12 +53,12 @@ def _cli_vectors(args: argparse.Namespace) -> int:
 
     import tpnet_ref
 
-    from ..crosscheck import write_vectors
+    from ..conformance.vectors import write_conformance_vectors
     model = tpnet_ref.load(args.weights, engine="numpy")
     weights = {"source": os.path.basename(args.weights) if args.weights else "shipped m=4",
                **{k: str(model.meta[k]) for k in ("digest", "content_digest", "sha256")
                   if k in model.meta}}
-    man = write_vectors(model.config, model.params, args.output, weights=weights)
+    man = write_conformance_vectors(model.config, model.params, args.output, weights=weights)
     tol = {e["name"]: e["tolerance"] for e in man["layers"]}
     print(f"wrote {args.output}/manifest.json and vectors.npz: {len(man['cases'])} cases "
           f"({', '.join(c['name'] for c in man['cases'])}), {len(tol)} layers each; float32 "
@@ -70,22 +70,24 @@ def _cli_vectors(args: argparse.Namespace) -> int:
 def _cli_crosscheck(args: argparse.Namespace) -> int:
     import json
 
-    from .. import crosscheck as X
+    from ..conformance.compare import compare, first_divergence
+    from ..conformance.report import report_json, report_text
+    from ..conformance.vectors import load_trace, read_conformance_vectors
     if args.after < 0:
         raise ValueError(f"--after must be >= 0, got {args.after}")
-    vec = X.read_vectors(args.vectors)
+    vec = read_conformance_vectors(args.vectors)
     if args.trace is not None:
-        traces = X.load_trace(args.trace, vec)
+        traces = load_trace(args.trace, vec)
         what = f"trace {args.trace}"
     else:
-        from ..traces import model_tracer
+        from ..conformance.traces import model_tracer
         how, fn = model_tracer(args.model, vec, args.engine)
         traces = {c: fn(vec.window(c)) for c in vec.cases}
         what = f"{args.model} ({how})"
-    results = X.compare(vec, traces)
+    results = compare(vec, traces)
     if args.json:
-        print(json.dumps(X.report_json(results, vec.layers), indent=1))
+        print(json.dumps(report_json(results, vec.layers), indent=1))
     else:
         print(f"{what} against {args.vectors} ({len(results)} case(s), {len(vec.layers)} layers)")
-        print(X.report_text(results, vec.layers, args.after))
-    return 1 if X.first_divergence(results, vec.layers) else 0
+        print(report_text(results, vec.layers, args.after))
+    return 1 if first_divergence(results, vec.layers) else 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES
-from .sim import _scene_flags
+from .sim import add_scene_flags
 
 
 def add_cli(sub: Any) -> None:
@@ -33,14 +33,14 @@ def add_cli(sub: Any) -> None:
     q.add_argument("--workers", type=int, default=1, help="processes simulating in parallel")
     q.add_argument("--no-test", action="store_true", help="skip the 60 test cases")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
-    _scene_flags(q)
+    add_scene_flags(q)
     q.set_defaults(func=_cli_generate)
 
 
 def _cli_generate(args: Any) -> int:
     import numpy as np
 
-    from ..data import generate, train_grid
+    from ..sim.dataset import generate, train_grid
     from ..sim.cases import TEST_CASES
     from ..sim.scene import SceneParams
     grid = train_grid(args.forces, args.angles, args.positions)

@@ -27,7 +27,7 @@ def _cli_export_onnx(args: argparse.Namespace) -> int:
     from .files import output_path
     out = output_path(args.output, suffix=".onnx")   # a bad path fails before any work
     require("onnx", "onnx")
-    from ..onnx_peer import export_onnx
+    from ..conformance.onnx_peer import export_onnx
     model = tpnet_ref.load(args.weights, engine="numpy")
     export_onnx(model, out)
     c = model.config

@@ -8,11 +8,11 @@ from typing import Any
 import numpy as np
 
 from ..checks import OutsideTrainingRangeWarning
-from ..heads import resolve_engine
+from ..engines.interface import resolve_engine
 
 #: ``tpnet predict`` runs the Numba engine (where installed) from this many steps on: below, a
-#: fresh process's cost of loading numba and its cached code (about 1 s, docs/deployment.md)
-#: is more than the ~1 ms a step it saves
+#: fresh process's cost of loading numba and its cached code (docs/deployment.md) is more than
+#: what it saves on the steps
 NUMBA_MIN_STEPS = 1000
 
 
@@ -44,7 +44,8 @@ def add_cli(sub: Any) -> None:
 def _cli_info(args: Any) -> int:
     import json
 
-    from ..native import UnverifiedFileWarning, default_weights_path, describe, read_native
+    from ..weights.native import UnverifiedFileWarning, describe, read_native
+    from ..weights.shipped import default_weights_path
     path = args.weights or default_weights_path()
     with warnings.catch_warnings(record=True) as caught:   # damage is an error (exit 2)
         warnings.simplefilter("always", UnverifiedFileWarning)

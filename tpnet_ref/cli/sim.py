@@ -1,5 +1,5 @@
 """``tpnet sim run``, ``tpnet sim show`` and ``tpnet sim render``: one trajectory of the scene to a
-.npy file, a PNG, or a video / PNG frames from a synthetic camera (:mod:`tpnet_ref.sim.render`)."""
+.npy file, a PNG, or a video / PNG frames from a synthetic camera (:mod:`tpnet_ref.observe.render`)."""
 from __future__ import annotations
 
 from typing import Any
@@ -24,7 +24,7 @@ def add_cli(sub: Any) -> None:
         q.add_argument("--frequency", type=float, default=1.0, help="spring frequency, Hz")
         q.add_argument("--damping-ratio", type=float, default=0.0, help="spring damping ratio")
         q.add_argument("--wall-restitution", type=float, default=0.0, help="wall restitution")
-        _scene_flags(q)
+        add_scene_flags(q)
         if name == "show":
             q.add_argument("-o", "--output", required=True, help=".png file to write")
             q.add_argument("--every", type=int, default=4,
@@ -55,8 +55,9 @@ def add_cli(sub: Any) -> None:
             q.set_defaults(func=_cli_run)
 
 
-def _scene_flags(q: Any) -> None:
-    """``--impulse-point`` and ``--sleep``: the scene convention (default: the released code's)."""
+def add_scene_flags(q: Any) -> None:
+    """``--impulse-point`` and ``--sleep``: the scene convention (default: the released code's),
+    for ``tpnet sim`` and ``tpnet data generate``."""
     q.add_argument("--impulse-point", default="ring_centre",
                    choices=("ring_centre", "particle_centre"),
                    help="where the start impulse acts: ring_centre (released code: particles "
@@ -96,7 +97,7 @@ def _cli_show(args: Any) -> int:
 
 
 def _cli_render(args: Any) -> int:
-    from ..sim.render import RenderSettings, output_paths, write_render
+    from ..observe.render import RenderSettings, output_paths, write_render
     settings = RenderSettings(size=args.size, fps=args.fps, noise=args.noise,
                               texture=args.texture, distractors=args.distractors, seed=args.seed)
     if args.steps < 2:

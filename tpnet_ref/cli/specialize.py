@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..provenance import portable_path
+from ..weights.provenance import portable_path
 from .files import load_npy, output_path
 
 
@@ -58,21 +58,21 @@ def _windows(args: Any, src: Path | None, model: Any) -> tuple[np.ndarray, bool,
     """At most ``--max-windows`` windows from ``src`` (or simulated training-grid ones), whether
     they are normalised, and a description for the provenance."""
     if src is None:
-        from ..data import calibration_windows
+        from ..sim.dataset import calibration_windows
         n = args.trajectories
         windows, normalized = calibration_windows(model, n), False
         what = f"{n} training-grid trajectories + rollouts"
     elif src.suffix == ".npy":
         windows, normalized, what = load_npy(str(src), "source"), False, portable_path(src)
     else:
-        from ..data import load_windows
+        from ..sim.dataset import load_windows
         windows, _ = load_windows(str(src), "train", normalized=True)
         normalized, what = True, f"{portable_path(src)} (training windows)"
     return np.asarray(windows)[:args.max_windows], normalized, what
 
 
 def _cli_sort_units(args: Any) -> int:
-    from .. import unit_order as U
+    from ..engines import unit_order as U
 
     src, out, model = _prepare(args)
     with warnings.catch_warnings():
@@ -87,7 +87,7 @@ def _cli_sort_units(args: Any) -> int:
 
 
 def _cli_specialize(args: Any) -> int:
-    from .. import specialize as S
+    from ..engines import specialised as S
 
     src, out, model = _prepare(args)
     windows, normalized, _ = _windows(args, src, model)

@@ -14,9 +14,9 @@ from typing import Any
 from ..training.recipe import (N_ROLLOUT_MAX, N_STEPS_MAX, NOISE_KINDS, OPTIMIZER_MODES, SIZES,
                                Recipe)
 
-#: as tpnet_ref.training.loop.COMPILE_MODES (not imported from there: that module needs torch)
+#: as tpnet_ref.training.precision.COMPILE_MODES (not imported from there: that module needs torch)
 COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
-#: as tpnet_ref.training.loop.PRECISIONS
+#: as tpnet_ref.training.precision.PRECISIONS
 PRECISIONS = ("auto", "float32", "bf16")
 _PRECISION_HELP = ("the step's arithmetic: float32 (default), bf16 (autocast to bfloat16; "
                    "parameters, Adam state, coordinates and loss stay float32; 1.7x faster on a "
@@ -402,7 +402,7 @@ def _cli_export(args: argparse.Namespace) -> int:
         print(f"wrote {args.output}: {path.name}, {key} {rec[key]:.4g} (the lowest of the run's "
               f"snapshots), {rec.get('windows_seen', '?')} windows seen")
         return 0
-    from ..training.loop import export
+    from ..training.native_export import export
 
     model = export(args.checkpoint, args.output, dtype=args.dtype)
     print(f"wrote {args.output}: {model!r}")
@@ -419,8 +419,9 @@ def _cli_average(args: argparse.Namespace) -> int:
 
 
 def _cli_bench(args: argparse.Namespace) -> int:
-    from ..training.loop import (bench, choose_precision, hardware, preferred_precision,
-                                 resolve_compile, resolve_device)
+    from ..training.throughput import bench, choose_precision
+    from ..training.step import hardware, resolve_device
+    from ..training.precision import preferred_precision, resolve_compile
     from ..training.recipe import size_config
 
     cfg = size_config(args.size)

@@ -70,7 +70,7 @@ def _cli_compress(args: argparse.Namespace) -> int:
     import json
     import os
 
-    from ..native import convert_storage
+    from ..weights.native import convert_storage
 
     before = os.path.getsize(args.src)
     meta = convert_storage(args.src, args.dst, "gzip", args.mantissa_bits)
@@ -84,7 +84,7 @@ def _cli_compress(args: argparse.Namespace) -> int:
 
 
 def _cli_scrub(args: argparse.Namespace) -> int:
-    from ..provenance import absolute_paths, scrub
+    from ..weights.provenance import absolute_paths, scrub
 
     rep = scrub(args.src, args.dst, args.data, args.root)
     for key, (before, after) in rep["changed"].items():

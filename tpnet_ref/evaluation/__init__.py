@@ -11,14 +11,14 @@
 * :mod:`.demo`    ``tpnet demo``
 * :mod:`.suite`   ``tpnet eval`` end to end
 
-The protocol itself (frames, horizons, orderings, the baselines) is :mod:`tpnet_ref.protocol`;
+The protocol itself (frames, horizons, orderings, the baselines) is :mod:`tpnet_ref.sim.protocol`;
 its names are re-exported here so ``from tpnet_ref import evaluation as E; E.copy_last`` works.
 matplotlib, tqdm, torch and onnxruntime are imported only when asked for.
 """
 from __future__ import annotations
 
 from ..config import NORM_HI, NORM_LO, denormalize, normalize
-from ..protocol import (FRAME_EVERY, HORIZONS, ORDERINGS, REFERENCE_DT, SIM_ROWS,
+from ..sim.protocol import (FRAME_EVERY, HORIZONS, ORDERINGS, REFERENCE_DT, SIM_ROWS,
                         constant_velocity, copy_last, order_points, split_protocol)
 from .demo import DEMO_CASE, DEMO_HORIZONS, demo
 from .report import (Report, evidence_md, evidence_rows, headline_md, kept_sections, md_table,

@@ -15,10 +15,10 @@ import numpy as np
 
 from ..config import normalize
 from ..model import load
-from ..protocol import FRAME_EVERY, SIM_ROWS, order_points, split_protocol
+from ..sim.protocol import FRAME_EVERY, SIM_ROWS, order_points, split_protocol
 from ..sim import simulate
 from .demo import DEMO_CASE
-from .plots import BOX, _plt, _walls
+from .plots import BOX, draw_walls, pyplot
 from .run import errors
 
 #: simulator steps per second (docs/spec.md §5): model frame j is at t = 4 j / 45 s
@@ -34,7 +34,7 @@ def animate(path: str | os.PathLike = "docs/rollout.gif", weights: str | None = 
     position error of the prediction at 40 and 80 predictions (normalised, docs/glossary.md)."""
     if every < 1 or fps < 1 or dpi < 10:
         raise ValueError(f"animate: every, fps >= 1 and dpi >= 10, got {every}, {fps}, {dpi}")
-    plt = _plt()
+    plt = pyplot()
     from matplotlib.animation import FuncAnimation, PillowWriter
 
     model = load(weights, dtype="float32")
@@ -52,7 +52,7 @@ def animate(path: str | os.PathLike = "docs/rollout.gif", weights: str | None = 
 
     fig, (ax_t, ax_p) = plt.subplots(1, 2, figsize=(6.5, 3.9))
     for ax, title in ((ax_t, "simulator"), (ax_p, f"TP-Net, from {m} shuffled frames")):
-        _walls(ax)
+        draw_walls(ax)
         ax.set_xlim(*BOX)
         ax.set_ylim(*BOX)
         ax.set_aspect("equal")

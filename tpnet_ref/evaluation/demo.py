@@ -12,12 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from ..blas import describe as blas_describe
-from ..blas import one_thread
-from ..compile_watch import COMPILING, CompileWatch
+from ..engines.blas import describe as blas_describe
+from ..engines.blas import one_thread
+from ..engines.compile_watch import COMPILING, CompileWatch
 from ..config import normalize
 from ..model import load
-from ..protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
+from ..sim.protocol import FRAME_EVERY, SIM_ROWS, constant_velocity, copy_last, order_points, \
     split_protocol
 from ..sim import simulate
 from .plots import plot_demo
@@ -45,7 +45,7 @@ def demo(weights: str | None = None, *, case: Sequence[float] = DEMO_CASE, steps
 
     The first line says what it does, at once; a run that compiles Numba kernels (the first
     after install) says so when it starts compiling, and the compile time is a line of its own
-    in the report (:class:`~tpnet_ref.compile_watch.CompileWatch`), not part of the rollout's.
+    in the report (:class:`~tpnet_ref.engines.compile_watch.CompileWatch`), not part of the rollout's.
 
     Raises ``FileNotFoundError`` (from :func:`tpnet_ref.load`) when there are no weights.
     Returns the numbers printed: ``errors[h][method]`` -> the error dict of
@@ -103,7 +103,7 @@ def _demo(weights: str | None, case: Sequence[float], steps: int | None,
     plan = model.preferred_threads("rollout step", 1, model.config.n_out)
     ran = ("2 threads (the Numba engine's two LSTM directions)" if plan == 0 else "1 thread")
     if plan == 0 and model.engine == "numba":
-        from ..engine_numba import two_thread_kernels_skipped
+        from ..engines.numba_engine import two_thread_kernels_skipped
         if two_thread_kernels_skipped():
             plan = 1
             ran = ("1 thread (the two-thread plan was chosen, but numba's cache has no "

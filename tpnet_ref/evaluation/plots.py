@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..extras import require
-from ..protocol import HORIZONS
+from ..sim.protocol import HORIZONS
 from .run import HEADLINE, Curve, table_horizons
 from .timing import TimingRow
 
@@ -21,7 +21,8 @@ WALLS = (1.0, 44.0)          # inner faces of the walls, world units (docs/spec.
 BOX = (0.0, 45.0)            # the whole box, walls included
 
 
-def _plt() -> Any:
+def pyplot() -> Any:
+    """matplotlib's pyplot on the file-writing backend (Agg); the ``plot`` extra."""
     matplotlib = require("matplotlib", "plot", "figures")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -40,7 +41,7 @@ def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     baselines of its m, ordering ``given``), E_p on top and E_s below; reading ``squared``,
     the paper's TP-Net at 40 and 80 as stars."""
     from .run import PAPER_TABLE
-    plt = _plt()
+    plt = pyplot()
     ms = sorted({c.m for c in curves})
     fig, axes = plt.subplots(2, len(ms), figsize=(4.6 * len(ms), 7), sharex=True, sharey="row",
                              squeeze=False)
@@ -84,7 +85,7 @@ def plot_spread(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     diamond with its 95 % bootstrap interval, the paper's TP-Net mean as a red star."""
     from .run import PAPER_TABLE
     from .spread import spread
-    plt = _plt()
+    plt = pyplot()
     key = f"Ep_{HEADLINE}"
     given = [c for c in curves if c.ordering == "given"]
     if not given:
@@ -146,7 +147,7 @@ def plot_groups(groups: dict[str, Sequence[Curve]], path: str | os.PathLike) -> 
 
     One colour per model (its m in the label), the baselines in grey (copy last, dashed) and
     orange (constant velocity, dotted) for every m; one legend below the panels."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(groups), figsize=(4.6 * len(groups), 4.4), squeeze=False)
     style = {"copy last": ("0.55", "--"), "constant velocity": ("tab:orange", ":")}
     model_colours = ("tab:blue", "tab:green", "tab:purple", "tab:red", "tab:brown")
@@ -186,7 +187,7 @@ def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
     """E_p after 40 (hollow) and 80 (filled) predictions against ms per predicted frame (one
     rollout), one colour per row; the legend, beside the axes, says what the markers mean."""
     from matplotlib.lines import Line2D
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 5), layout="constrained")
     handles: list[Any] = []
     horizons: set[tuple[int, ...]] = set()
@@ -232,7 +233,7 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
     """Predicted vs true shapes: one row per case, one column per prediction step.
 
     ``truth (C, H, N, 2)`` and each ``preds[name] (C, H, N, 2)`` in world units."""
-    plt = _plt()
+    plt = pyplot()
     C = truth.shape[0]
     hs = [h for h in horizons if h <= truth.shape[1]]
     fig, axes = plt.subplots(C, len(hs), figsize=(2.6 * len(hs), 2.6 * C), squeeze=False)
@@ -281,7 +282,7 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
     return Path(path)
 
 
-def _walls(ax: Any) -> None:
+def draw_walls(ax: Any) -> None:
     """The four walls (thickness 1 around the free area [1, 44]²) as grey rectangles."""
     from matplotlib.patches import Rectangle
     lo, hi = BOX
@@ -300,7 +301,7 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
 
     ``truth (F, N, 2)``: the simulated frames 0..F-1; ``pred (H, N', 2)``: the predictions of
     frames m..m+H-1; ``titles[h]``: the errors printed above the panel of horizon ``h``."""
-    plt = _plt()
+    plt = pyplot()
     hs = [h for h in horizons if 1 <= h <= pred.shape[0]][:4]
     fig = plt.figure(figsize=(14, 8.2))
     gs = fig.add_gridspec(2, 3, width_ratios=(2.25, 1, 1), wspace=0.32, hspace=0.5)
@@ -309,7 +310,7 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     last = m - 1 + pred.shape[0]
     tc = truth[: last + 1].mean(axis=1)
     pc = np.concatenate([truth[m - 1: m].mean(axis=1), pred.mean(axis=1)])
-    _walls(box)
+    draw_walls(box)
     box.plot(tc[:, 0], tc[:, 1], color=c_true, lw=1.4, label="simulator: centroid path")
     box.plot(pc[:, 0], pc[:, 1], color=c_pred, lw=1.4, ls="--",
              label=f"{label}: predicted centroid path")
@@ -358,7 +359,7 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     for k, h in enumerate(hs):
         ax = fig.add_subplot(gs[k // 2, 1 + k % 2])
         t, q = truth[m - 1 + h], pred[h - 1]
-        _walls(ax)
+        draw_walls(ax)
         ax.plot(*np.vstack([t, t[:1]]).T, color=c_true, lw=1.0)
         ax.scatter(t[:, 0], t[:, 1], s=12, color=c_true)
         ax.scatter(q[:, 0], q[:, 1], s=22, marker="x", color=c_pred)
@@ -381,4 +382,5 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     return Path(path)
 
 
-__all__ = ["plot_models", "plot_spread", "plot_groups", "plot_timing", "plot_gallery", "plot_demo"]
+__all__ = ["pyplot", "draw_walls", "plot_models", "plot_spread", "plot_groups", "plot_timing",
+           "plot_gallery", "plot_demo"]

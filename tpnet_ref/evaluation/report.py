@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..config import NORM_HI, NORM_LO
-from ..protocol import FRAME_EVERY, HORIZONS, SIM_ROWS
+from ..sim.protocol import FRAME_EVERY, HORIZONS, SIM_ROWS
 from . import plots as P
 from .run import HEADLINE, PAPER_TABLE, VARIANTS, Curve, table_horizons
 from .shape import reading_evidence

@@ -3,7 +3,7 @@
 :func:`evaluate` gives one :class:`Curve` per (model or baseline, m, input ordering): the errors
 of every case at every horizon in the three metric readings (docs/spec.md §3), computed on
 normalised coordinates, ground truth first. The protocol (frames, horizons, orderings,
-baselines) is :mod:`tpnet_ref.protocol`.
+baselines) is :mod:`tpnet_ref.sim.protocol`.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from ..sim.cases import TEST_CASES, TRAIN_POSITIONS
 from ..config import normalize
 from ..extras import require
 from ..model import TPNet
-from ..protocol import (FRAME_EVERY, HORIZONS, ORDERINGS, SIM_ROWS, constant_velocity, copy_last,
+from ..sim.protocol import (FRAME_EVERY, HORIZONS, ORDERINGS, SIM_ROWS, constant_velocity, copy_last,
                         order_points, split_protocol)
 
 #: the metric readings every curve holds (docs/spec.md §3); the first is the headline, the one

@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from ..blas import describe as blas_describe
+from ..engines.blas import describe as blas_describe
 from ..config import denormalize
-from ..data import load_trajectories
+from ..sim.dataset import load_trajectories
 from ..model import load
-from ..protocol import FRAME_EVERY, SIM_ROWS, split_protocol
+from ..sim.protocol import FRAME_EVERY, SIM_ROWS, split_protocol
 from .report import Report, write_results
 from .run import TEST_CASES, Curve, ModelSpec, evaluate, generalisation_cases, simulate_cases
 from .timing import CALIBRATION_TRAJECTORIES, missing_peers, timing_table

@@ -1,7 +1,7 @@
 """Error against run time: every way of obtaining the next frames, timed and scored in one run.
 
 Rows: the network in NumPy float64/float32, optionally float32 scene-specialised (calibrated on
-training-grid trajectories, :mod:`tpnet_ref.specialize`), with the ``crosscheck`` extra PyTorch and
+training-grid trajectories, :mod:`tpnet_ref.engines.specialised`), with the ``crosscheck`` extra PyTorch and
 onnxruntime, the two baselines, and the simulator itself at its reference step and coarser ones.
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..config import normalize
-from ..protocol import FRAME_EVERY, REFERENCE_DT, constant_velocity, copy_last, split_protocol
+from ..sim.protocol import FRAME_EVERY, REFERENCE_DT, constant_velocity, copy_last, split_protocol
 from .run import ModelSpec, batched_rollout, errors, progress_bar
 
 #: training-grid trajectories the scene-specialised row is calibrated on (shipped m = 4 model:
@@ -80,7 +80,7 @@ def timing_table(frames: np.ndarray, cases: np.ndarray, models: Sequence[ModelSp
     ``specialized``: also a row "<label> NumPy float32, scene-specialised" for each model: the
     float32 network specialised (:meth:`TPNet.specialize`) on the windows of
     ``calibration_trajectories`` simulated training-grid trajectories and the model's own
-    rollouts from them (:func:`tpnet_ref.data.calibration_windows`; never the test cases),
+    rollouts from them (:func:`tpnet_ref.sim.dataset.calibration_windows`; never the test cases),
     calibrated before and outside the timed part, timed like the float32 row. Its note gives the
     calibration, the fraction of the timed windows that fell back to the full network and the
     largest difference from the float32 row's predictions.
@@ -166,7 +166,7 @@ def _time_specialised(t: _Timer, name: str, model: Any, calibration_trajectories
     if model.config.lstm_activation != "relu":
         t.skip(name, "not a ReLU-LSTM network: no unit stays exactly zero")
         return
-    from ..data import calibration_windows
+    from ..sim.dataset import calibration_windows
     inputs, horizon = t.inputs, t.horizon
     t0 = time.perf_counter()
     with warnings.catch_warnings():        # training-range warnings of the rollouts
@@ -215,7 +215,7 @@ def _time_torch(t: _Timer, name: str, model: Any) -> None:
         t.skip(name, "PyTorch not installed")
         return
     import torch
-    from ..torch_model import TorchTPNet
+    from ..training.torch_model import TorchTPNet
     net = TorchTPNet.from_numpy(model).eval()
     xb = torch.from_numpy(np.ascontiguousarray(t.inputs, dtype=np.float32))
 
@@ -232,7 +232,7 @@ def _time_onnx(t: _Timer, name: str, model: Any) -> None:
             or importlib.util.find_spec("onnx") is None:
         t.skip(name, "onnx/onnxruntime not installed")
         return
-    from ..onnx_peer import onnx_session     # the crosscheck extra
+    from ..conformance.onnx_peer import onnx_session     # the crosscheck extra
     sess = onnx_session(model, n_points=t.inputs.shape[2])
 
     def run(x: np.ndarray) -> np.ndarray:

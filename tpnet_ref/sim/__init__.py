@@ -4,6 +4,10 @@
   ``Scene`` (step by hand) and ``simulate`` (one trajectory, ``(steps, 30, 2)`` world units).
 * :mod:`~tpnet_ref.sim.kernel` the Numba step kernel (springs, walls, clamps, time of impact).
 * :mod:`~tpnet_ref.sim.cases`  the training grid and the 60 held-out test cases.
+* :mod:`~tpnet_ref.sim.protocol`  the evaluation protocol on the scene's trajectories: frame
+  spacing, horizons, input orderings, the copy-last and constant-velocity baselines.
+* :mod:`~tpnet_ref.sim.dataset`  the synthetic dataset: ``generate`` (``tpnet data generate``),
+  ``load_windows``, ``load_trajectories``, calibration windows.
 * :mod:`~tpnet_ref.sim.plot`   ``show``: a PNG of one trajectory.
 * :mod:`~tpnet_ref.sim.box2d`  ``simulate_box2d``: the same scene in Box2D 2.3 (``box2d`` extra),
   for validation only; not imported here.

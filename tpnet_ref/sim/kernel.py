@@ -27,6 +27,28 @@ def advance(pos, vel, ang, out_pos, lam, wl_n, wl_t, ia, ib, rest, inv_mass, h, 
     velocities of the step; out_pos (N, 2) receives the positions at the end of the step.
     lam (S,), wl_n / wl_t (N, 4): accumulated spring and wall impulses (warm starting),
     updated. Returns the largest squared linear and angular speeds (for sleeping).
+
+    The constant arguments (:class:`tpnet_ref.sim.scene.Scene` computes them once)::
+
+        ia, ib (S,)       the two particles of each spring
+        rest (S,)         the springs' rest lengths
+        inv_mass (N,)     the particles' inverse masses
+        h                 the time step, s
+        omega, zeta       the springs' angular frequency (2 pi frequency) and damping ratio
+        iters             velocity iterations
+        slop              the contact slop (penetration left uncorrected)
+        max_tr, max_rot   the largest translation and rotation per step (0: no clamp)
+        walls, toi        whether there are walls, whether their time of impact is solved
+        lo, hi            where a centre meets a wall in the time-of-impact solve (the free
+                          area's faces moved in by the time-of-impact distance)
+        face_lo, face_hi  the walls' inner faces
+        touch, radius     the distance at which a particle touches a wall (radius + skin), the
+                          particles' radius
+        toi_stop          the distance from the face at which an impact leaves a particle
+        mass, inertia     a particle's mass and rotational inertia
+        mu                the wall contact's friction (geometric mean of the two frictions)
+        e_wall, v_thresh  the wall contact's restitution, and the approach speed below which it
+                          does not bounce
     """
     n = pos.shape[0]
     s = ia.shape[0]

@@ -2,10 +2,13 @@
 
 - :mod:`~tpnet_ref.training.recipe`: :class:`Recipe` (what a run computes), the network sizes,
   :class:`WindowData` (the windows of a ``tpnet data generate`` file, split by trajectory).
-- :mod:`~tpnet_ref.torch_model`: :class:`TorchTPNet` (the network in PyTorch, Keras
+- :mod:`~tpnet_ref.training.torch_model`: :class:`TorchTPNet` (the network in PyTorch, Keras
   semantics) and the Chamfer losses.
-- :mod:`~tpnet_ref.training.loop`: :func:`train` (resumable, budgeted), :func:`export`,
-  :func:`bench`.
+- :mod:`~tpnet_ref.training.loop`: :func:`train` (resumable, budgeted) and its validation;
+  :mod:`~tpnet_ref.training.step`: a step's device, optimizer, loss and input noise;
+  :mod:`~tpnet_ref.training.precision`: the step compiled or not, in float32 or bfloat16;
+  :mod:`~tpnet_ref.training.throughput`: :func:`bench`, and ``auto``'s choice of precision;
+  :mod:`~tpnet_ref.training.native_export`: :func:`export` to the native weights file.
 - :mod:`~tpnet_ref.training.checkpoint`: checkpoints in one file or in parts, fine-tuning
   provenance.
 - :mod:`~tpnet_ref.training.score`: baselines and model selection on validation trajectories.
@@ -26,9 +29,9 @@ from typing import Any
 _NAMES = {
     "Recipe": "recipe", "WindowData": "recipe", "SIZES": "recipe", "size_config": "recipe",
     "N_STEPS_MAX": "recipe", "N_ROLLOUT_MAX": "recipe",
-    "TorchTPNet": "..torch_model", "chamfer_released": "..torch_model",
-    "chamfer_shape": "..torch_model", "matched_distance": "..torch_model",
-    "train": "loop", "export": "loop", "bench": "loop", "evaluate": "loop",
+    "TorchTPNet": "torch_model", "chamfer_released": "torch_model",
+    "chamfer_shape": "torch_model", "matched_distance": "torch_model",
+    "train": "loop", "export": "native_export", "bench": "throughput", "evaluate": "loop",
     "save_checkpoint": "checkpoint", "load_checkpoint": "checkpoint", "load_parent": "checkpoint",
     "load_parent_optimizer": "checkpoint",
     "baselines": "score", "best_snapshot": "score", "score_rollouts": "score",

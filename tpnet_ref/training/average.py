@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from ..native import DIGEST_ATTR, read_native, write_native
-from ..provenance import portable_path
+from ..weights.native import DIGEST_ATTR, read_native, write_native
+from ..weights.provenance import portable_path
 from .lineage import file_state, inherited
 
 #: the smallest correlation, tensor by tensor, of a file's parameters with the first file's

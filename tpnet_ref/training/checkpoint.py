@@ -29,7 +29,7 @@ from ..config import TPNetConfig
 from ..extras import require
 from .lineage import file_state
 from .recipe import OPTIMIZER_MODES, Recipe
-from ..torch_model import TorchTPNet
+from .torch_model import TorchTPNet
 
 torch = require("torch", "train")
 

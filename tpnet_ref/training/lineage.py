@@ -7,7 +7,7 @@ import json
 import os
 from typing import Any
 
-from ..provenance import portable_path, scrub_text
+from ..weights.provenance import portable_path, scrub_text
 
 
 def file_state(path: str | os.PathLike, meta: dict[str, Any]) -> dict[str, Any]:

@@ -1,10 +1,11 @@
-"""The training loop: train (and resume) a run, validate, export native weights, measure speed.
+"""The training loop: train (and resume) a run, validate it, checkpoint it.
 
-``train(DATA.h5, RUN_DIR, Recipe(...))`` trains :class:`~tpnet_ref.torch_model.TorchTPNet`
+``train(DATA.h5, RUN_DIR, Recipe(...))`` trains :class:`~tpnet_ref.training.torch_model.TorchTPNet`
 on the windows of a ``tpnet data generate`` file (:class:`~tpnet_ref.training.recipe.WindowData`);
-:func:`export` writes the native HDF5 weights through
-:func:`tpnet_ref.weights.torch.import_torch` with provenance; :func:`bench` measures
-throughput. Recipe: ``docs/training.md``.
+a step's pieces are in :mod:`~tpnet_ref.training.step`, how it is compiled and in which
+precision in :mod:`~tpnet_ref.training.precision`, the timing of steps in
+:mod:`~tpnet_ref.training.throughput`; :func:`~tpnet_ref.training.native_export.export` writes
+the native HDF5 weights with provenance. Recipe: ``docs/training.md``.
 
 Validation is always scored with the recipe's ``rollout``-step loss and the Chamfer distances of
 its first and last predictions; the 60 test cases are never read. ``init_from`` starts a new run
@@ -18,12 +19,10 @@ exactly what the uninterrupted run computes (on the same device and thread count
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
 import os
-import platform
 import sys
 import time
 from dataclasses import asdict
@@ -32,164 +31,22 @@ from typing import Any
 
 import numpy as np
 
-from ..config import TPNetConfig
 from ..extras import require
-from ..provenance import file_sha256, portable_path, scrub_text
-from ..weights.torch import import_torch
+from ..weights.provenance import file_sha256
 from .checkpoint import (OPTIMIZER_MODES, SIDECAR_NAME, load_checkpoint, load_parent,
                          load_parent_optimizer,
                          save_checkpoint)
 from .lineage import inherited
+from .native_export import export
+from .precision import resolve_compile, step_loss
 from .recipe import N_STEPS_MAX, Recipe, WindowData
-from ..torch_model import TorchTPNet, chamfer_released, chamfer_shape, init_keras
+from .step import input_noise, make_optimizer, resolve_device, hardware
+from .throughput import bench, choose_precision
+from .torch_model import TorchTPNet, chamfer_released, chamfer_shape, init_keras
 
 torch = require("torch", "train")
 
 LOG_NAME = "log.jsonl"
-
-
-# ------------------------------------------------------------------------------------- torch
-def resolve_device(device: str) -> str:
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if device not in ("cpu", "cuda"):
-        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device cuda asked for but torch.cuda.is_available() is False")
-    return device
-
-
-def hardware(device: str) -> str:
-    if device == "cuda":
-        return f"cuda:{torch.cuda.get_device_name(0)}"
-    return (f"cpu:{platform.processor() or platform.machine()} "
-            f"({os.cpu_count()} cores, {torch.get_num_threads()} torch threads)")
-
-
-def make_optimizer(net: Any, r: Recipe) -> Any:
-    return torch.optim.Adam(net.parameters(), lr=r.lr, betas=(r.beta1, r.beta2), eps=r.eps)
-
-
-def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float,
-            shape_weight: float = 0.0, match_weight: float = 0.0, grad_steps: int = 0) -> Any:
-    """The recursive loss over the first ``steps`` targets (``steps=1``: 1-step teacher forced),
-    plus ``shape_weight`` times the same sum of shape Chamfer distances (centred sets) and
-    ``match_weight`` times the same sum of matched (earth mover's) distances; with
-    ``grad_steps`` G in 1..steps-1 over the last G predictions alone, the others made without
-    gradient (the pushforward trick, :meth:`~tpnet_ref.torch_model.TorchTPNet.recursive_loss`)."""
-    return net.recursive_loss(x, y[:, :steps], first_weight=first_weight,
-                              shape_weight=shape_weight, match_weight=match_weight,
-                              grad_steps=grad_steps)
-
-
-def input_noise(x: Any, std: float, kind: str, seed: int, step: int) -> Any:
-    """``x`` (``(B, m, N, dim)`` input windows) plus Gaussian noise drawn from a generator
-    seeded with ``(seed, step)``; ``std`` 0: ``x`` itself. ``iid``: std ``std`` on every
-    coordinate of every frame, independently. ``walk`` (the random walk of Sanchez-Gonzalez et
-    al. 2020): per point and coordinate, increments of std ``std / √m`` summed over the frames,
-    so frame i (from 0) has std ``std·√((i+1)/m)``, the last one ``std``, and a velocity
-    between two frames is off by one increment."""
-    if std == 0:
-        return x
-    g = torch.Generator().manual_seed(seed * 1_000_003 + step)
-    eps = torch.randn(x.shape, generator=g, dtype=x.dtype)
-    if kind == "walk":
-        eps = eps.cumsum(dim=1) / math.sqrt(x.shape[1])
-    elif kind != "iid":
-        raise ValueError(f"noise kind must be 'iid' or 'walk', got {kind!r}")
-    return x + std * eps
-
-
-#: how a training step's loss is run: ``off`` (eager), ``reduce-overhead`` (``torch.compile``:
-#: Inductor kernels replayed as CUDA graphs on a GPU, the small-kernel launches that bound the
-#: H100 step), ``default`` (``torch.compile`` without graphs), ``eager`` (``torch.compile`` with
-#: the eager backend: the step is traced by TorchDynamo but runs the eager kernels; what CI uses
-#: to prove on the CPU that the step traces), ``auto`` (``reduce-overhead`` on CUDA, else off)
-COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
-
-
-def resolve_compile(mode: str, device: str) -> str:
-    """The compile mode a run uses on ``device`` (``auto``: ``reduce-overhead`` on CUDA, ``off``
-    on the CPU, where a compile of the full step gained 4 % for 50 s of compiling)."""
-    if mode not in COMPILE_MODES:
-        raise ValueError(f"compile must be one of {COMPILE_MODES}, got {mode!r}")
-    if mode == "auto":
-        return "reduce-overhead" if device == "cuda" else "off"
-    return mode
-
-
-#: the arithmetic of a training step: ``float32``, or ``bf16`` (mixed precision:
-#: ``torch.autocast`` to bfloat16 runs the matrix products, the LSTM gates and the max pool in
-#: bfloat16; the parameters, their gradients and Adam's state stay float32, and so do the layers
-#: that read or write coordinates and the loss, :func:`tpnet_ref.torch_model.full_precision`);
-#: ``auto`` chooses per machine (:func:`choose_precision`)
-PRECISIONS = ("auto", "float32", "bf16")
-#: ``auto`` takes bf16 where its timed step is at least this much faster than float32's
-BF16_MIN_GAIN = 1.15
-
-
-def autocast(precision: str, device: str) -> Any:
-    """The context a step's forward pass runs in at ``precision`` (a resolved one)."""
-    if precision == "bf16":
-        return torch.autocast(device, dtype=torch.bfloat16)
-    if precision != "float32":
-        raise ValueError(f"precision must be float32 or bf16 here, got {precision!r}")
-    return contextlib.nullcontext()
-
-
-def step_loss(net: Any, mode: str = "off", precision: str = "float32") -> Any:
-    """``f(x, y, steps, first_weight, shape_weight, match_weight, grad_steps=0)``: the training
-    step's loss (:func:`loss_fn`) at ``precision`` (:func:`autocast`), captured with
-    ``torch.compile`` unless ``mode`` is ``off`` (a resolved mode, :func:`resolve_compile`).
-    Shapes are static (every step has the recipe's batch), so a run compiles once per rollout
-    length (and number of graded steps); the matched term's CPU pairing is a graph break, the
-    graphs on either side of it are still captured."""
-    dev = next(net.parameters()).device.type
-    if mode == "off":
-        def eager(x: Any, y: Any, k: int, fw: float, sw: float, mw: float, gs: int = 0) -> Any:
-            with autocast(precision, dev):
-                return loss_fn(net, x, y, k, fw, sw, mw, gs)
-        return eager
-    kw: dict[str, Any] = {"backend": "eager"} if mode == "eager" else {"mode": mode}
-    compiled = torch.compile(net.recursive_loss, dynamic=False, **kw)
-
-    def f(x: Any, y: Any, k: int, fw: float, sw: float, mw: float, gs: int = 0) -> Any:
-        if mode == "reduce-overhead":
-            torch.compiler.cudagraph_mark_step_begin()
-        with autocast(precision, dev):
-            return compiled(x, y[:, :k], first_weight=fw, shape_weight=sw, match_weight=mw,
-                            grad_steps=gs)
-    return f
-
-
-def choose_precision(precision: str, device: str, config: TPNetConfig, batch: int,
-                     rollout: int, threads: int | None, shape_weight: float = 0.0,
-                     match_weight: float = 0.0, compile: str = "off",
-                     grad_steps: int = 0) -> tuple[str, dict]:
-    """``(precision, timings)``: ``float32`` or ``bf16`` as asked, or for ``auto`` the faster
-    on this machine. On a GPU: bf16 where ``torch.cuda.is_bf16_supported()``. On the CPU: a
-    short timing of the recipe's longest step (``rollout`` predictions at ``batch``, with its
-    extra terms and graded steps) in each precision; bf16 when it is at least
-    :data:`BF16_MIN_GAIN` times float32's rate (a CPU without fast bfloat16 units, AVX512_BF16
-    or AMX, emulates it and keeps float32). ``timings`` maps each timed precision to its
-    windows per second."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-    if precision != "auto":
-        return precision, {}
-    if device == "cuda":
-        return ("bf16" if torch.cuda.is_bf16_supported() else "float32"), {}
-    timings = {p: bench(config, batch=batch, rollouts=(rollout,), iters=3, warmup=2,
-                        device=device, threads=threads, shape_weight=shape_weight,
-                        match_weight=match_weight, compile=compile, precision=p,
-                        grad_steps=grad_steps)[rollout]
-               for p in ("float32", "bf16")}
-    return preferred_precision(timings), timings
-
-
-def preferred_precision(timings: dict[str, float]) -> str:
-    """The precision ``auto`` takes given windows-per-second ``timings`` of both."""
-    return "bf16" if timings["bf16"] >= BF16_MIN_GAIN * timings["float32"] else "float32"
 
 
 def init_head_template(net: Any, data: "WindowData", weight_scale: float = 0.1) -> None:
@@ -726,94 +583,4 @@ def _install_stop_handlers(flag: list[int]):
     return restore
 
 
-def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "float32",
-           check_bound: float = 1e-5) -> Any:
-    """Native weights file from a training checkpoint (run directory or ``checkpoint.pt``),
-    through :func:`tpnet_ref.weights.torch.import_torch`, with provenance. Checks before writing that
-    the NumPy model's forward pass equals the torch module's (max abs difference <= check_bound
-    on random windows) and records the difference."""
-    payload, state = load_checkpoint(source)
-    model = import_torch(payload["model"], dtype=dtype)
-    net = TorchTPNet(model.config)
-    net.load_state_dict(payload["model"])
-    net.eval()
-    cfg = model.config
-    w = np.random.default_rng(0).uniform(0.1, 0.9, (8, cfg.m, cfg.n_out, cfg.dim)).astype(np.float32)
-    with torch.no_grad():
-        yt = net(torch.from_numpy(w)).numpy()
-    diff = float(np.abs(model.predict_batch(w, normalized=True) - yt).max())
-    if not diff <= check_bound:
-        raise ValueError(f"export check failed: NumPy vs torch max abs diff {diff:.3g} > "
-                         f"{check_bound:g}")
-    spe = state.get("steps_per_epoch", 0) or 1
-    inh = state.get("inherited", {"runs": [], "windows_seen": 0, "wall_s": 0.0, "steps": 0,
-                                  "epochs": 0.0})
-    # every file named as the repository names it (or by file name), never by this machine's
-    # absolute path (tpnet_ref.provenance); the data also by its SHA-256
-    prov = {"source": portable_path(source), "producer": "tpnet_ref.training",
-            "recipe": scrub_text(json.dumps(state.get("recipe", {}), sort_keys=True)),
-            "training_steps": int(state.get("step", 0)) + int(inh["steps"]),
-            "epochs": float(state.get("step", 0)) / spe + float(inh["epochs"]),
-            "windows_seen": int(state.get("windows_seen", 0)) + int(inh["windows_seen"]),
-            "wall_time_s": float(state.get("wall_s", 0.0)) + float(inh["wall_s"]),
-            "parent_runs": scrub_text(json.dumps(inh["runs"], sort_keys=True)),
-            "hardware": str(state.get("hardware", "unknown")),
-            "torch": str(state.get("torch", torch.__version__)),
-            "data": portable_path(str(state.get("data", ""))),
-            "data_sha256": str(state.get("data_sha256", "")),
-            "val": json.dumps(state.get("last_val", {}), sort_keys=True),
-            "precision": json.dumps(state.get("precision", []), sort_keys=True),
-            "export_max_abs_diff": diff}
-    model.save(str(out), **prov)
-    return model
-
-
-# ------------------------------------------------------------------------------------- bench
-def bench(config: TPNetConfig | None = None, batch: int = 128, rollouts: tuple[int, ...] = (1, 8),
-          iters: int = 5, warmup: int = 1, device: str = "auto", threads: int | None = 2,
-          seed: int = 0, shape_weight: float = 0.0, match_weight: float = 0.0,
-          compile: str = "off", precision: str = "float32",
-          grad_steps: int = 0) -> dict[int, float]:
-    """Training throughput, windows per second, of a full step (loss, backward, clip, Adam) for
-    each rollout length, on random windows; ``compile``, ``precision`` (``float32`` or
-    ``bf16``) and ``grad_steps`` as in :func:`train` (the compile itself falls in the
-    ``warmup`` steps, which are not timed)."""
-    if threads:
-        torch.set_num_threads(int(threads))
-    dev = resolve_device(device)
-    cfg = config or TPNetConfig()
-    torch.manual_seed(seed)
-    net = TorchTPNet(cfg).to(dev)
-    mode = resolve_compile(compile, dev)
-    step_fn = step_loss(net, mode, precision)
-    if mode != "off":        # compiling, then (CUDA graphs) a warm-up run and the recording
-        warmup = max(warmup, 3)
-    opt = make_optimizer(net, Recipe(config=cfg.to_dict()))
-    rng = np.random.default_rng(seed)
-    x = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, cfg.m, cfg.n_out, cfg.dim))
-                         .astype(np.float32)).to(dev)
-    y = torch.from_numpy(rng.uniform(0.2, 0.8, (batch, max(N_STEPS_MAX, *rollouts), cfg.n_out,
-                                                cfg.dim))
-                         .astype(np.float32)).to(dev)
-    out = {}
-    for k in rollouts:
-        for i in range(warmup + iters):
-            if i == warmup:
-                if dev == "cuda":
-                    torch.cuda.synchronize()
-                t0 = time.perf_counter()
-            opt.zero_grad(set_to_none=True)
-            loss = step_fn(x, y, k, 9.0, shape_weight, match_weight, grad_steps)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-            opt.step()
-        if dev == "cuda":
-            torch.cuda.synchronize()
-        out[k] = batch * iters / (time.perf_counter() - t0)
-    return out
-
-
-__all__ = ["train", "TrainSettings", "export", "bench", "evaluate", "loss_fn", "step_loss",
-           "input_noise", "PRECISIONS", "BF16_MIN_GAIN", "autocast", "choose_precision",
-           "preferred_precision", "resolve_compile", "COMPILE_MODES", "make_optimizer",
-           "resolve_device", "hardware", "init_head_template", "LOG_NAME"]
+__all__ = ["train", "TrainSettings", "evaluate", "dead_units", "init_head_template", "LOG_NAME"]

@@ -19,7 +19,7 @@ input coordinates (never on the targets; i.i.d. or a random walk over the input 
 first K − G predictions without gradient, the loss over the last G alone). Validation is a
 held-out set of whole training-grid *trajectories* (``val_fraction``), always scored over all
 ``rollout`` predictions; the 60 test cases are never read. Everything here is NumPy and h5py:
-torch is needed by :mod:`~tpnet_ref.training.loop` only.
+torch is needed by the loop and its step only (:mod:`~tpnet_ref.training.loop`).
 """
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 
 from ..config import TPNetConfig
-from ..data import N_TARGETS, check_scene
-from ..protocol import FRAME_EVERY
+from ..sim.dataset import N_TARGETS, check_scene
+from ..sim.protocol import FRAME_EVERY
 
 #: the published recursive loss: 8 predictions (the dataset's targets per window)
 N_STEPS_MAX = N_TARGETS
@@ -71,7 +71,7 @@ class Recipe:
     ramp_epochs: float = 4.0            # curriculum: epochs to grow the rollout 1 -> rollout
     head_init: str = "default"          # "default" or "template" (output bias = a ring, see below)
     init: str = "torch"                 # "torch" (nn.Linear defaults) or "keras" (released)
-    windows: str = "model"              # "model" or "released" (tpnet_ref.data.released_windows)
+    windows: str = "model"              # "model" or "released" (tpnet_ref.sim.dataset.released_windows)
     init_from: str = ""                 # fine-tune: start from this run's (or .h5 file's) weights
     init_optimizer: bool = False        # ... and from its Adam state (a branch, not a fresh Adam)
     val_windows: int = 0                # validate on this many evenly spaced windows (0: all)
@@ -175,7 +175,7 @@ class WindowData:
     (the file's windows stop 8 frames before a trajectory's end). Train/validation split by
     trajectory, the same for every ``horizon``. A file made with another scene convention than
     the simulator's default is refused unless ``allow_other_scene``
-    (:func:`tpnet_ref.data.check_scene`).
+    (:func:`tpnet_ref.sim.dataset.check_scene`).
 
     ``windows="released"`` trains on the released preprocessing's windows
     (``/train/windows_released``: starts at any simulator row, frames ``FRAME_EVERY`` rows

@@ -1,6 +1,6 @@
 """Model selection without the test cases: baselines and rollout scores on validation data.
 
-:func:`baselines` scores copy-last and constant velocity (:mod:`tpnet_ref.protocol`) like the
+:func:`baselines` scores copy-last and constant velocity (:mod:`tpnet_ref.sim.protocol`) like the
 training validation; :func:`score_rollouts` runs the test protocol (frames ``0..m-1`` in,
 ``horizon`` recursive predictions, E_p / E_s in the released or the squared reading) on the
 *validation trajectories* of the training grid for native weights files, and
@@ -21,7 +21,7 @@ from .. import load
 from ..evaluation.run import batched_rollout, errors
 from ..evaluation.shape import spacing_stats
 from ..metrics import position_error
-from ..protocol import constant_velocity, copy_last, split_protocol
+from ..sim.protocol import constant_velocity, copy_last, split_protocol
 from .recipe import N_STEPS_MAX, WindowData
 
 

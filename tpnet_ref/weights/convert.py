@@ -8,9 +8,9 @@ from pathlib import Path
 from typing import Any
 
 from ..model import TPNet
-from .. import hdf5
+from . import hdf5
 from .keras import import_keras_h5
-from ..native import is_native, read_native
+from .native import is_native, read_native
 from .torch import import_torch
 
 

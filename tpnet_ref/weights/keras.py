@@ -5,7 +5,7 @@ Reads TF-Keras 2 HDF5 as the authors' code writes them (``model.save`` with ``mo
 nested models included. Layers are told apart by kind, creation order and kernel shapes, their
 tensors are collected in forward order, and :func:`~tpnet_ref.config.param_shapes` of the config
 read from them names every tensor (each shape asserted). Mapping tables: ``docs/weights.md``.
-Everything is read through the untrusted-file guards of :mod:`tpnet_ref.hdf5`.
+Everything is read through the untrusted-file guards of :mod:`tpnet_ref.weights.hdf5`.
 """
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ import numpy as np
 
 from ..config import TPNetConfig, param_shapes
 from ..model import TPNet
-from ..provenance import portable_path
-from .. import hdf5
-from ..hdf5 import (attr, check_shape, damaged_file_is_value_error, open_h5, py_str, read,
+from .provenance import portable_path
+from . import hdf5
+from .hdf5 import (attr, check_shape, damaged_file_is_value_error, open_h5, py_str, read,
                    safe_child)
 
 _KERAS_TYPES = ("conv2d", "dense", "bidirectional", "layer_normalization", "batch_normalization")

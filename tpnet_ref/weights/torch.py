@@ -1,4 +1,4 @@
-"""Import a state dict of the PyTorch TP-Net (:mod:`tpnet_ref.torch_model`).
+"""Import a state dict of the PyTorch TP-Net (:mod:`tpnet_ref.training.torch_model`).
 
 PyTorch names follow one rule from the native names of :func:`~tpnet_ref.config.param_shapes`
 (:func:`torch_name`), so the key map of a config is derived, never spelled out:
@@ -28,11 +28,11 @@ import numpy as np
 from ..config import TPNetConfig, param_shapes
 from ..extras import require
 from ..model import TPNet
-from ..provenance import portable_path
-from .. import hdf5
-from ..hdf5 import check_shape
+from .provenance import portable_path
+from . import hdf5
+from .hdf5 import check_shape
 
-#: tag stored in ``_extra_state`` of :class:`~tpnet_ref.torch_model.TorchTPNet`
+#: tag stored in ``_extra_state`` of :class:`~tpnet_ref.training.torch_model.TorchTPNet`
 TORCH_FORMAT = "tpnet_ref-torch"
 
 
@@ -188,7 +188,7 @@ def import_torch(source: Any, m: int = 4, layer_norm_eps: float = 1e-3,
     """A :class:`TPNet` from the project's PyTorch model.
 
     ``source``: a path to a ``torch.save``'d state dict (or a dict ``{"state_dict": ...}``), the
-    state dict itself, or a :class:`~tpnet_ref.torch_model.TorchTPNet`. Files are read
+    state dict itself, or a :class:`~tpnet_ref.training.torch_model.TorchTPNet`. Files are read
     with ``torch.load(weights_only=True)``: no pickled code runs, and anything but tensors and
     plain containers is refused. The config (including the LayerNorm eps) comes from the state
     dict's ``_extra_state`` when present (what ``TorchTPNet.state_dict()`` writes); otherwise it

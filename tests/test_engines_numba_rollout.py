@@ -1,0 +1,134 @@
+"""tpnet_ref.engines.numba_rollout: a rollout's steps in one compiled call give the step-by-step loop's
+bits, take over only where the thread plan is one thread, and raise its errors."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba")
+
+import tpnet_ref  # noqa: E402
+from tpnet_ref.engines import thread_policy as TP  # noqa: E402
+from tpnet_ref.engines import numba_rollout as ER  # noqa: E402
+from tpnet_ref.checks import NonFiniteResultError  # noqa: E402
+
+
+def _ring(cx, cy, n=30):
+    a = np.arange(n) * 2 * np.pi / n
+    return np.stack([cx + 2 * np.sin(a), cy + 2 * np.cos(a)], axis=1)
+
+
+def _windows(batch):
+    return np.stack([np.stack([_ring(15 + 2 * b + 0.5 * i, 25 - 0.2 * i) for i in range(4)])
+                     for b in range(batch)])
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """How often a rollout handed its steps to the compiled loop."""
+    seen = []
+    run_rest = ER.run_rest
+
+    def counted(*args):
+        seen.append(args[4])                              # the first fused step
+        return run_rest(*args)
+    monkeypatch.setattr(ER, "run_rest", counted)
+    return seen
+
+
+def _both(model, x, steps, monkeypatch):
+    """The rollout with the plan fixed at one thread (the compiled loop takes over) and at two
+    (step by step)."""
+    roll = model.rollout if x.ndim == 3 else model.rollout_batch
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    one = roll(x, steps)
+    monkeypatch.setenv("TPNET_THREADS", "2")
+    two = roll(x, steps)
+    monkeypatch.delenv("TPNET_THREADS")
+    return one, two
+
+
+@pytest.mark.parametrize("size", ["quarter", "full"])            # both with a unit order
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_the_compiled_steps_are_the_step_by_step_bits(size, dtype, calls, monkeypatch):
+    model = tpnet_ref.load(size=size, dtype=dtype)
+    for x, steps in ((_windows(1)[0], 30), (_windows(3), 12), (_windows(8), 9)):
+        one, two = _both(model, x, steps, monkeypatch)
+        assert one.tobytes() == two.tobytes()
+    assert calls == [ER.STEPS_FIRST] * 3                  # fused once a rollout, after 8 steps
+
+
+def test_a_network_without_a_unit_order_and_short_rollouts(released_random64, calls,
+                                                          monkeypatch):
+    model = released_random64.astype("float32").with_engine("numba")
+    assert model.head_for(1).feature_order is None
+    w = _windows(1)[0]
+    for steps in (1, ER.STEPS_FIRST, ER.STEPS_FIRST + 1, 20):
+        one, two = _both(model, w, steps, monkeypatch)
+        assert one.tobytes() == two.tobytes() and one.shape == (steps, 30, 2)
+    assert calls == [ER.STEPS_FIRST] * 2                  # never for 8 steps or fewer
+
+
+def test_only_the_numba_engines_own_batches_are_fused(released_random64, calls, monkeypatch):
+    model = released_random64.astype("float32").with_engine("numba")
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    model.rollout_batch(_windows(9), 10)                   # NumPy's feature extractor at 9
+    model.with_engine("numpy").rollout(_windows(1)[0], 10)
+    model.with_point_sort(False).rollout(_windows(1)[0], 10)
+    assert calls == []
+    model.rollout_batch(_windows(8), 10)
+    assert calls == [ER.STEPS_FIRST]
+
+
+def test_an_overflow_in_the_compiled_steps_is_the_step_by_step_error(released_random64,
+                                                                     monkeypatch):
+    import warnings
+    model = released_random64.astype("float32").with_engine("numba")
+    w = _windows(1)[0] * 1e30                             # the float32 network overflows
+    errors = []
+    for first in (0, 10 ** 6):                            # fused from the start, never fused
+        monkeypatch.setattr(ER, "STEPS_FIRST", first)
+        monkeypatch.setenv("TPNET_THREADS", "1")
+        with pytest.raises(NonFiniteResultError) as got, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model.rollout(w, 20)
+        errors.append(str(got.value))
+    assert errors[0] == errors[1] and "overflowed in float32" in errors[0]
+
+
+def test_the_one_thread_plan_reads_the_policy_without_changing_it(monkeypatch):
+    p = TP.ThreadPolicy(monitor=None)
+    monkeypatch.delenv("TPNET_THREADS", raising=False)
+    monkeypatch.delenv("TPNET_BLAS_THREADS", raising=False)
+    monkeypatch.setattr(TP, "cpu_count", lambda: 2)
+    assert not p.one_thread_plan("k")                     # nothing measured: not settled
+    for _ in range(8):
+        choice = p.choose("k")
+        p.record("k", choice, 1.0 if choice == 1 else 2.0)
+    assert p.preferred("k") == 1 and p.one_thread_plan("k")
+    before = repr(p._kinds)
+    p.one_thread_plan("k")
+    assert repr(p._kinds) == before
+    q = TP.ThreadPolicy(monitor=None)
+    for _ in range(8):
+        choice = q.choose("k")
+        q.record("k", choice, 2.0 if choice == 1 else 1.0)
+    assert q.preferred("k") == 0 and not q.one_thread_plan("k")
+    with TP.one_thread():
+        assert q.one_thread_plan("k") and not q.one_thread_plan("k", held=True)
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    assert q.one_thread_plan("k")
+    monkeypatch.setenv("TPNET_THREADS", "2")
+    assert not p.one_thread_plan("k")
+    monkeypatch.delenv("TPNET_THREADS")
+    monkeypatch.setattr(TP, "cpu_count", lambda: 1)
+    assert q.one_thread_plan("k")
+
+    class Taken:
+        generation = 0
+
+        def taken(self):
+            return True
+    r = TP.ThreadPolicy(monitor=Taken())
+    monkeypatch.setattr(TP, "cpu_count", lambda: 2)
+    assert r.one_thread_plan("k")

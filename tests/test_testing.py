@@ -1,0 +1,580 @@
+"""tpnet_ref.testing, the property checkers for any TP-Net, proven on the project's own
+implementations: the NumPy engines (canonical sort on and off), the PyTorch model and the ONNX
+export under onnxruntime; its one-line report of a shrunk window, its lazy import of hypothesis,
+and the example of docs/testing.md run as written."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from property_helpers import Implementations
+import tpnet_ref
+from tpnet_ref import testing
+from tpnet_ref.testing import TOLERANCE, PropertyFailure
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def impl():
+    made = Implementations()
+    yield made
+    made.clear()
+
+
+def test_import_does_not_load_hypothesis():
+    code = ("import sys, tpnet_ref.testing as t; assert 'hypothesis' not in sys.modules; "
+            "t.windows(); assert 'hypothesis' in sys.modules")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_a_failure_is_shrunk_and_reported_in_one_line():
+    def first_points(window):                  # order-dependent: each frame's first point
+        return np.stack([f[0] for f in window])
+
+    with pytest.raises(PropertyFailure) as exc:
+        testing.permutation_invariant(first_points, testing.windows(m=(1, 4)), max_examples=50)
+    report = str(exc.value)
+    assert "\n" not in report and not getattr(exc.value, "__notes__", None)
+    assert re.match(r"permutation_invariant: first_points changed by \S+ \(tolerance 0\) when "
+                    r"each frame's points were permuted; minimal window: m=1, N=\(2,\), ", report)
+    assert report.endswith("permutations [[1, 0]]")
+
+
+def test_agreement_failure_names_the_window(impl):
+    model = impl.base["float64"]
+
+    def off_by_a_little(window):
+        return model.predict(window) + 1e-3
+
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: off_by_a_little is "
+                                              r"0.001 from the float64 reference \(tolerance "
+                                              r"0.0001\); minimal window: m=4, N=\(1, 1, 1, 1\)"):
+        testing.agrees_with_reference(off_by_a_little, model, tol=1e-4, max_examples=10)
+
+
+def test_strategies_draw_what_they_say():
+    hyp = pytest.importorskip("hypothesis")
+
+    @hyp.settings(max_examples=40, deadline=None)
+    @hyp.given(w=testing.windows(m=[2, 3], n=(5, 9), ragged=False, ties=True, step=(1.0, 1.0)))
+    def check(w):
+        assert len(w) in (2, 3) and len({len(f) for f in w}) == 1 and 5 <= len(w[0]) <= 9
+        assert all(f.dtype == np.float64 and f.shape[1] == 2 for f in w)
+        first = w[0]
+        assert len(np.unique(first[:, 0])) <= 3                        # ties in x
+        assert len(np.unique(first, axis=0)) <= len(first) - len(first) // 2  # duplicates
+
+    check()
+
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=2, n=(4, 9), ties=True, scales=[1.0], centre=(50.0, 60.0)))
+    def tied_around_the_centre(w):            # the tied x take c - scale, c, c + scale
+        x = w[0][:, 0]
+        assert 49.0 <= x.min() and x.max() <= 61.0 and x.max() - x.min() <= 2.0 + 1e-9
+
+    tied_around_the_centre()
+
+    @hyp.settings(max_examples=20, deadline=None)
+    # ties=False: a tied first frame may put every x on one value (std 0; found by hypothesis)
+    @hyp.given(w=testing.windows(m=3, n=(8, 12), scales=[1e-3], centre=(5.0, 6.0), ties=False))
+    def spread_by_the_scale(w):              # normal around the centre, spread 1e-3
+        for f in w:
+            assert np.abs(f - 5.5).max() <= 0.5 + 0.01 and 1e-5 < f.std(axis=0).min() < 1e-2
+
+    spread_by_the_scale()
+
+
+# ------------------------------------------------------------------ three implementations
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+@pytest.mark.parametrize("sort", [True, False], ids=["sorted", "unsorted"])
+def test_numpy_engines(impl, engine, dtype, sort):
+    pytest.importorskip("numba")
+    fn = impl.engine(engine, dtype, sort=sort)
+    windows = testing.windows(m=4)
+    tol = TOLERANCE[dtype]
+    assert testing.permutation_invariant(fn, windows, tol=0.0 if sort else tol,
+                                         max_examples=15) <= tol
+    assert testing.agrees_with_reference(fn, impl.base[dtype], tol=tol, windows=windows,
+                                         max_examples=15) <= tol
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_pytorch_model(impl, dtype):
+    pytest.importorskip("torch")
+    fn, tol = impl.torch(dtype), TOLERANCE[dtype]
+    windows = testing.windows(m=4)
+    assert testing.permutation_invariant(fn, windows, tol=tol, max_examples=15) <= tol
+    assert testing.agrees_with_reference(fn, impl.base[dtype], tol=tol, windows=windows,
+                                         max_examples=15) <= tol
+
+
+def test_onnx_export(impl):
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    fn, tol = impl.onnx(30), TOLERANCE["float32"]
+    windows = testing.windows(m=4, n=30, ragged=False)          # N is fixed at export
+    assert testing.permutation_invariant(fn, windows, tol=tol, max_examples=15) <= tol
+    assert testing.agrees_with_reference(fn, impl.base["float32"], tol=tol, windows=windows,
+                                         max_examples=15) <= tol
+    assert testing.frame_order_matters(fn, testing.windows(m=4, n=30, ragged=False,
+                                                           step=(0.5, 2.0)),
+                                       tol=tol, max_examples=5) > tol
+
+
+def _docs_blocks() -> list[str]:
+    text = (ROOT / "docs" / "testing.md").read_text()
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+def test_the_kit_never_imports_torch():
+    """The kit extra has no torch: importing tpnet_ref.testing and drawing a window leave it out
+    of sys.modules (and so does the first example of docs/testing.md, below)."""
+    code = ("import sys, tpnet_ref.testing as t; t.windows(); "
+            "assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_the_docs_first_example_runs_without_torch(tmp_path):
+    pytest.importorskip("hypothesis")
+    blocks = _docs_blocks()
+    assert len(blocks) == 2 and "torch" not in blocks[0]
+    assert len(blocks[0].strip().splitlines()) <= 12
+    script = tmp_path / "example.py"
+    script.write_text("import sys\nsys.modules['torch'] = None   # as if torch were not installed\n"
+                      + blocks[0])
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                       timeout=600, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout.strip().splitlines()
+    assert out[0].startswith("permutation_invariant: my_predict passed on 20 windows")
+    assert out[1].startswith("agrees_with_reference: my_predict passed on 20 windows")
+    assert "tolerance measured from float32 rounding" in out[1]
+
+
+def test_the_docs_example_runs_as_written():
+    torch = pytest.importorskip("torch")
+    blocks = _docs_blocks()
+    assert len(blocks) == 2
+    assert len(blocks[1].strip().splitlines()) <= 16
+    namespace: dict = {}
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)         # the suite's other tests share the cores; same results
+    try:
+        exec(compile(blocks[1], "docs/testing.md", "exec"), namespace)
+    finally:
+        torch.set_num_threads(threads)
+    assert "my_predict" in namespace
+
+
+# ------------------------------------------------------------------ the default tolerance
+@pytest.fixture(scope="module")
+def shipped():
+    """The shipped m = 4 model (the paper's size): where a fixed 1e-4 misses the planted port."""
+    return tpnet_ref.load()
+
+
+def _torch_port(net, name):
+    import torch
+
+    def port(window):                  # TorchTPNet takes model coordinates (normalized=True)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with torch.no_grad():
+                return net(torch.as_tensor(np.stack(window), dtype=torch.float32)[None])[0]
+        finally:
+            torch.set_num_threads(threads)
+    port.__qualname__ = name
+    return port
+
+
+def test_the_default_tolerance_catches_a_layer_norm_epsilon_that_1e_4_lets_through(shipped):
+    pytest.importorskip("torch")
+    from tpnet_ref.training.torch_model import TorchTPNet
+    net = TorchTPNet.from_numpy(shipped).eval()
+    assert net.ln2.eps == shipped.config.layer_norm_eps == 1e-3
+    net.ln2.eps = 1e-5                                    # the planted bug
+    port = _torch_port(net, "ln2_eps")
+    frames = testing.windows(m=4, ragged=False, normalized=True)
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: ln2_eps is \S+ from the "
+                       r"float64 reference \(tolerance \S+, measured from float32 rounding on "
+                       r"this window\); minimal window: m=4"):
+        testing.agrees_with_reference(port, shipped, windows=frames, normalized=True,
+                                      max_examples=20, seed=1)
+    # what the old fixed default let through (docs/testing.md, "Choosing tol")
+    assert testing.agrees_with_reference(port, shipped, tol=1e-4, windows=frames,
+                                         normalized=True, max_examples=20, seed=1) > 1e-5
+
+
+def test_honest_ports_pass_the_default_tolerance(shipped):
+    pytest.importorskip("torch")
+    from tpnet_ref.training.torch_model import TorchTPNet
+    port = _torch_port(TorchTPNet.from_numpy(shipped).eval(), "honest")
+    frames = testing.windows(m=4, ragged=False, normalized=True)
+    got = testing.agrees_with_reference(port, shipped, windows=frames, normalized=True,
+                                        max_examples=15)
+    assert got < 1e-6 and "tolerance measured from float32 rounding, " in got.report
+
+
+def test_the_onnx_export_passes_the_default_tolerance(shipped):
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from property_helpers import onnx_export_session
+    sess = onnx_export_session(shipped, 30)
+
+    def onnx_export(window):            # world units in and out, as predict
+        x = shipped.normalize(np.stack(window).astype(np.float32))[None]
+        return shipped.denormalize(sess.run(None, {"window": x})[0][0])
+
+    got = testing.agrees_with_reference(onnx_export, shipped,
+                                        windows=testing.windows(m=4, n=30, ragged=False),
+                                        max_examples=15)
+    assert "world units" in got.report and "measured from float32 rounding" in got.report
+
+
+def test_the_measured_tolerance_is_the_vectors_rule_on_the_output(impl):
+    """measured_tolerance is crosscheck's rule (SAFETY x the float32 gap + FLOOR x max(1, |y|))
+    for the output: world units, or head.sigmoid in model coordinates."""
+    from tpnet_ref.conformance import tolerances
+    model = impl.base["float32"]
+    w = [np.random.default_rng(t).normal(20.0, 2.0, (30, 2)) for t in range(4)]
+    p64 = {k: np.asarray(v, np.float64) for k, v in model.params.items()}
+    want = tolerances.trace(model.config, p64, w)
+    gaps = tolerances.measure_gaps(model.config, p64, w, want)
+    world = testing.measured_tolerance(model, w)
+    assert world == tolerances.SAFETY * gaps["output"] + tolerances.FLOOR * max(
+        1.0, float(np.abs(want["output"]).max()))
+    lo, hi = model.config.norm_lo, model.config.norm_hi
+    u = [(f - lo) / (hi - lo) for f in w]
+    back = [f * (hi - lo) + lo for f in u]     # what the check traces: u in world units again
+    gaps = tolerances.measure_gaps(model.config, p64, back)
+    unit = testing.measured_tolerance(model, u, normalized=True)
+    assert unit == tolerances.SAFETY * gaps["head.sigmoid"] + tolerances.FLOOR
+    assert 0 < unit < world < 1e-3
+
+
+@pytest.mark.parametrize("kw, error", [
+    ({"m": 0}, "windows: m must be at least 1, got 0"),
+    ({"n": (3, 1)}, r"windows: n must be an int, a \(lo, hi\) range or a list of choices"),
+    ({"scales": [1.0, -1.0]}, "windows: scales must be positive spreads"),
+])
+def test_bad_strategy_arguments_say_what_is_wrong(kw, error):
+    pytest.importorskip("hypothesis")
+    with pytest.raises((ValueError, TypeError), match=error):
+        testing.windows(**kw)
+
+
+def test_a_wrong_output_shape_is_named(impl):
+    model = impl.base["float64"]
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: output shapes differ, "
+                                              r"\(29, 2\) against \(30, 2\)$"):
+        testing.agrees_with_reference(lambda w: model.predict(w)[1:], model, tol=1.0,
+                                      max_examples=5)
+
+
+# ------------------------------------------------------------------ the checkers pinned
+# Windows of several frames and changes to single points: a checker that looked at frame 0
+# only, or at the first output point only, or skipped one of its frame orders, must fail here.
+def test_permuted_permutes_every_frame():
+    rng = np.random.default_rng(0)
+    window = [rng.normal(size=(k, 2)) for k in (5, 3, 6, 4)]
+    perms = [rng.permutation(len(f)) for f in window]
+    assert all((p != np.arange(len(p))).any() for p in perms)
+    out = testing.permuted(window, perms)
+    assert len(out) == len(window)
+    for f, p, g in zip(window, perms, out):
+        assert np.array_equal(g, f[p])
+
+
+@pytest.mark.parametrize("frame", [1, -1])
+def test_permutation_invariant_sees_every_frame(frame):
+    """A function that depends on the order of one later frame's points only."""
+    def one_frames_first_point(window):
+        return np.asarray(window[frame][0])
+
+    with pytest.raises(PropertyFailure, match=r"^permutation_invariant: one_frames_first_point "
+                                              r"changed by .* minimal window: m=3, N=\("):
+        testing.permutation_invariant(one_frames_first_point,
+                                      testing.windows(m=3, n=(2, 6)), max_examples=50, seed=0)
+
+
+@pytest.mark.parametrize("point", [1, 17, 29])
+def test_agreement_sees_every_output_point(impl, point):
+    """Off at one output point only: the comparison must cover every point, not the first."""
+    model = impl.base["float64"]
+
+    def off_at_one_point(window):
+        y = model.predict(window).copy()
+        y[point, 1] += 1e-3
+        return y
+
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: off_at_one_point is "
+                                              r"0.001 from the float64 reference"):
+        testing.agrees_with_reference(off_at_one_point, model, tol=1e-4,
+                                      windows=testing.windows(m=4, n=(3, 8)), max_examples=5)
+
+
+def test_frame_order_matters_rotates_as_well_as_reverses():
+    """A function of the window's frames taken cyclically -- each frame's centre paired with
+    the next one's, the last with the first, the pairs sorted -- is unchanged, bit for bit, by a
+    rotation and changed by a reversal: only the rotation check catches it."""
+    def cyclic_pairs(window):
+        c = np.stack([f.mean(0) for f in window])
+        pairs = np.concatenate([c, np.roll(c, -1, axis=0)], axis=1)
+        return pairs[np.lexsort(pairs.T[::-1])]
+
+    moving = testing.windows(m=[3, 4], n=(2, 6), step=(0.5, 2.0))
+    w = [np.full((2, 2), float(t)) for t in range(3)]
+    assert np.array_equal(cyclic_pairs(w), cyclic_pairs(w[1:] + w[:1]))   # rotation: the same
+    assert not np.array_equal(cyclic_pairs(w), cyclic_pairs(w[::-1]))      # reversal: not
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: cyclic_pairs changed by "
+                                              r"only 0 \(needs more than 0\) on rotating the "
+                                              r"frames in time; minimal window: m=3, "):
+        testing.frame_order_matters(cyclic_pairs, moving, max_examples=20, seed=0)
+
+
+def test_one_point_matters_moves_a_point_of_any_frame():
+    """A function of the last frame alone: moving a point of another frame changes nothing."""
+    def last_frame_only(window):
+        return np.stack([window[-1].mean(0)] * 3)
+
+    with pytest.raises(PropertyFailure, match=r"^one_point_matters: last_frame_only changed by "
+                                              r"only 0 .* point \d+ of frame [0-2] "):
+        testing.one_point_matters(last_frame_only, testing.windows(m=4, n=(2, 6)),
+                                  max_examples=50, seed=0)
+
+
+def test_a_report_lists_the_points_of_windows_of_up_to_12_points():
+    rng = np.random.default_rng(0)
+    twelve = [rng.normal(size=(4, 2)) for _ in range(3)]
+    thirteen = twelve[:2] + [rng.normal(size=(5, 2))]
+    assert "frames: " in testing._describe(twelve)
+    assert "frames: " not in testing._describe(thirteen)
+
+
+def test_one_point_matters_moves_a_point_by_the_distance_asked():
+    """The moved point goes to twice the frame's reach from its centroid plus ``distance``: a
+    frame of one point (reach 0, the point is the centroid) moves by ``distance`` exactly."""
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return np.concatenate(window)
+
+    testing.one_point_matters(record, testing.windows(m=2, n=1), distance=2.0, max_examples=5)
+    assert len(seen) >= 2 and len(seen) % 2 == 0
+    for before, after in zip(seen[::2], seen[1::2]):
+        moved = [np.linalg.norm(a - b) for a, b in zip(after, before)]
+        assert sorted(moved) == pytest.approx([0.0, 2.0], abs=1e-9), moved
+
+
+def test_one_point_matters_moves_the_point_straight_outward():
+    """Along the line from the frame's centroid through the point, to twice the frame's reach
+    plus ``distance`` from the centroid."""
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return np.concatenate(window)
+
+    least = testing.one_point_matters(record, testing.windows(m=2, n=(3, 6),
+                                                             centre=(10.0, 20.0)),
+                                      distance=2.0, max_examples=10)
+    changes = [max(np.abs(a - b).max() for a, b in zip(after, before))
+               for before, after in zip(seen[::2], seen[1::2])]
+    assert least == min(changes) > 0                       # the smallest change it saw
+    for before, after in zip(seen[::2], seen[1::2]):
+        [(t, i)] = [(t, i) for t, (a, b) in enumerate(zip(after, before))
+                    for i in np.nonzero((a != b).any(axis=1))[0]]
+        f = before[t]
+        c = f.mean(axis=0)
+        reach = np.linalg.norm(f - c, axis=1).max()
+        out, was = after[t][i] - c, f[i] - c
+        assert np.linalg.norm(out) == pytest.approx(2 * reach + 2.0, rel=1e-9)
+        assert np.dot(out, was) == pytest.approx(np.linalg.norm(out) * np.linalg.norm(was),
+                                                 rel=1e-9)          # the same direction
+
+
+def test_normalized_windows_are_in_model_coordinates():
+    hyp = pytest.importorskip("hypothesis")
+
+    @hyp.settings(max_examples=20, deadline=None)
+    @hyp.given(w=testing.windows(m=2, n=(3, 6), scales=[1.0], centre=(20.0, 25.0),
+                                 normalized=True))
+    def in_model_units(w):                   # (x - 1.1438) / 42.7124 of world units 10..35
+        for f in w:
+            assert 0.2 < f.min() and f.max() < 0.8
+
+    in_model_units()
+
+
+def test_the_reports_of_one_point_matters_and_of_an_empty_output():
+    def constant(window):
+        return np.zeros((30, 2))
+
+    with pytest.raises(PropertyFailure, match=r"^one_point_matters: constant changed by only 0 "
+                                              r"\(needs more than 0\) when point 0 of frame 0 "
+                                              r"moved to 2 from the centroid; minimal window: "):
+        testing.one_point_matters(constant, testing.windows(m=1, n=1), max_examples=5)
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: <lambda> changed by only 0 "
+                                              r"\(needs more than 0\) on reversing"):
+        testing.frame_order_matters(lambda w: np.zeros((0, 2)), testing.windows(m=2, n=2),
+                                    max_examples=3)
+
+
+# --------------------------------------------------------------------------- pinned by mutation
+def test_the_report_counts_the_windows_it_saw():
+    """The report's window count and spans (a surviving mutant inverted the empty case)."""
+    seen = testing._Seen()
+    assert seen.text() == "no windows"
+    seen.add([np.zeros((3, 2)), np.ones((5, 2))])
+    assert seen.text().startswith("1 windows (m=2, N=3..5, coordinates in [0, 1])")
+
+
+def test_a_description_lists_the_permutations_up_to_64_points():
+    """A shrunk window's one-line description names its permutations while the window holds at
+    most 64 points (a surviving mutant moved the bound to 63)."""
+    perms = [np.arange(32)[::-1], np.arange(32)]
+    assert "permutations" in testing._describe([np.zeros((32, 2))] * 2, perms)
+    perms = [np.arange(32), np.arange(33)]
+    assert "permutations" not in testing._describe([np.zeros((32, 2)), np.zeros((33, 2))],
+                                                   perms)
+
+
+def test_the_default_windows_have_the_released_four_frames():
+    """``windows()`` draws m = 4 frames unless told (a surviving mutant drew 3)."""
+    from hypothesis import given, settings
+
+    seen = set()
+
+    @settings(max_examples=15, database=None, deadline=None)
+    @given(testing.windows())
+    def draw(w):
+        seen.add(len(w))
+
+    draw()
+    assert seen == {4}
+
+
+# ------------------------------------------------------------------ found by a fresh mutation sample
+# (tools/mutation.py testing --sample 40 --fresh-seed: seed 479556107; docs/testing.md)
+def test_the_reference_and_invariance_checks_run_50_windows_by_default(released_random64):
+    """The documented default of agrees_with_reference and permutation_invariant: 50 windows,
+    as each one's report says."""
+    model = released_random64
+    zeros = np.zeros((model.config.n_out, model.config.dim))
+    got = testing.agrees_with_reference(lambda w: zeros, model, tol=1e9, seed=1)
+    assert got.report.startswith("agrees_with_reference: <lambda> passed on 50 windows (m=4, ")
+    got = testing.permutation_invariant(lambda w: zeros, seed=1)
+    assert " passed on 50 windows (" in got.report
+
+
+def test_a_list_of_two_choices_draws_both():
+    """windows(m=[a, b]) and n=[a, b] draw from both choices (a fresh mutation sample, seed
+    479556107: a two-choice list drew only its first)."""
+    seen = set()
+
+    def record(window):
+        seen.add((len(window), len(window[0])))
+        return np.zeros((1, 2))
+    got = testing.permutation_invariant(record, windows=testing.windows(m=[2, 3], n=[4, 6]),
+                                        seed=0)
+    assert {m for m, _ in seen} == {2, 3} and {n for _, n in seen} == {4, 6}, seen
+    assert "(m=2..3, N=4..6, " in got.report
+    seen.clear()
+    testing.permutation_invariant(record, windows=testing.windows(m=[3], n=5), max_examples=5)
+    assert seen == {(3, 5)}
+
+
+def test_tied_windows_take_three_x_values_in_the_first_frame():
+    """windows(ties=True): in the first frame one coordinate takes only three values, the
+    centre and one spread either side (a fresh mutation sample, seed 479556107: a tied frame of
+    the smallest spread collapsed onto its centre)."""
+    firsts = []
+
+    def record(window):
+        firsts.append(np.unique(window[0][:, 0]))
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=64, ties=True, scales=[1e-3],
+                                                                  ragged=False), seed=0,
+                                  max_examples=10)
+    assert all(len(x) <= 3 for x in firsts)
+    three = [x for x in firsts if len(x) == 3]
+    assert three, firsts
+    for x in three:
+        np.testing.assert_allclose(np.diff(x), [1e-3, 1e-3], rtol=1e-6)
+
+
+def test_the_points_of_a_frame_spread_in_both_coordinates_independently():
+    """A frame's points are drawn around its centre in x and y independently: never all on one
+    line (a fresh mutation sample, seed 479556107: one draw for both put them on a diagonal)."""
+    spans = []
+
+    def record(window):
+        spans.extend(float(np.ptp(f[:, 0] - f[:, 1])) for f in window)
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=8, ties=False,
+                                                                  scales=[1.0]), seed=0,
+                                  max_examples=10)
+    assert spans and min(spans) > 1e-6, spans
+
+
+def test_a_window_moves_by_the_step_asked_even_below_1():
+    """windows(step=(0.5, 0.5)): each frame's centre moves 0.5 from the one before (a fresh
+    mutation sample, seed 479556107: a step range below 1 gave windows at rest)."""
+    moves = []
+
+    def record(window):
+        c = np.array([f.mean(axis=0) for f in window])
+        moves.extend(np.hypot(*(c[1:] - c[:-1]).T))
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, windows=testing.windows(n=16, step=(0.5, 0.5),
+                                                                  scales=[1e-3], ties=False),
+                                  seed=0, max_examples=10)
+    np.testing.assert_allclose(moves, 0.5, atol=0.01)
+
+
+# ------------------------------------------------------------------ the report and the defaults
+# Each check returns its figure with a one-line ``report`` of what it checked, and the kit's
+# default windows make no tpnet_ref warning when ``tpnet_ref.predict`` itself is the function
+# checked.
+@pytest.fixture(scope="module")
+def model():
+    pytest.importorskip("hypothesis")
+    return tpnet_ref.load(engine="numpy")
+
+
+def test_checks_report_what_they_checked_and_predict_warns_nothing(model):
+    def predict(window):
+        return tpnet_ref.predict(window, model=model)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        inv = testing.permutation_invariant(predict, max_examples=8, seed=1)
+        order = testing.frame_order_matters(predict, max_examples=4, seed=1)
+        point = testing.one_point_matters(predict, max_examples=4, seed=1)
+    assert [str(w.message) for w in caught] == []
+    assert inv == 0.0 and order > 0 and point > 0                     # still the figures
+    assert inv.report.startswith("permutation_invariant: predict passed on ")
+    assert "windows (m=4, N=" in inv.report and "largest change 0 (tolerance 0)" in inv.report
+    assert order.report.startswith("frame_order_matters: predict passed on 4 windows")
+    assert "smallest change" in point.report and "\n" not in point.report
+
+
+def test_agreement_reports_its_units(model):
+    frames = testing.windows(m=4, n=(5, 12), normalized=True)
+    r = testing.agrees_with_reference(lambda w: model.predict(w, normalized=True), model,
+                                      tol=1e-4, windows=frames, normalized=True,
+                                      max_examples=3, seed=2)
+    assert r <= 1e-4 and "model coordinates from the float64 reference" in r.report
+    assert "passed on 3 windows (m=4, N=" in r.report

@@ -1,0 +1,428 @@
+"""The input checks' first pass, compiled: one window (or a small batch) read once, its points
+put in canonical order in model coordinates, and a verdict on what :mod:`tpnet_ref.checks`
+would say about it.
+
+:func:`screen` is the Numba engine's way into a prediction. It certifies only what it can decide
+for certain, and leaves the rest to the checks it mirrors: a value that is not finite or beyond
+the model's dtype, a frame that is not clearly one linked outline, or any number within a hair of
+a threshold gives :data:`VERDICT_UNDECIDED`, and the caller then runs
+:func:`tpnet_ref.checks.check_window` and :func:`~tpnet_ref.checks.warn_about_input` as the
+NumPy engine does. Every decided verdict is the one those checks reach (the same warning class;
+its numbers computed here, so the words may differ in the last digit only where a number sits
+on a rounding boundary of its printed digits), and the points are bit for bit those of
+:meth:`tpnet_ref.model.TPNet.canonical_points`: ``tests/test_engines_numba_checks.py`` holds both
+against the checks, on scene windows, random points, and windows built to sit on each threshold.
+
+What it decides, for frames of ``N`` points each (``5 <= N``), in the order the checks give
+their warnings:
+
+1. one body (one window only): every frame within ``BODY_MAX_RADIUS`` of its bounding box's
+   centre and its points, taken in the order of their angle about that centre, never more than
+   ``BODY_LINK_MIN`` apart (:func:`tpnet_ref.checks._all_one_body`'s shortcut), and no frame's
+   centre more than ``BODY_MAX_STEP`` from the last's; or, failing that, a first frame whose
+   points cannot hold a body of the scene's size (no stray-point test applies then). Anything
+   else is undecided.
+2. the training range: the span of the coordinates, then each frame's mean radius
+   (``N >= RADIUS_MIN_POINTS``).
+3. the motion (one window only): a free fall read at another spacing, else the centroid's mean
+   step outside ``MOTION_RANGE``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from . import compile_watch
+
+from .. import checks as C
+from .batch_split import SPLIT_MIN_BATCH
+
+#: a number within this much (relative to the threshold, at least absolute) of a threshold is
+#: undecided: the checks compute it by other sums, whose rounding may fall on the other side
+_REL = 1e-9
+#: the same for the free-fall tests' second differences (about 1e-5 world units; their rounding
+#: is about 1e-14)
+_FALL_BAND = 1e-11
+#: adjacent angles closer than this (radians) leave the outline's order undecided (the checks'
+#: sort may put them either way)
+_ANGLE_BAND = 1e-12
+
+#: what :func:`screen` found: nothing to say; undecided (a frame not clearly one body, a value at
+#: a threshold, a refused value: the checks then run); or the one warning
+#: :func:`tpnet_ref.checks.warn_about_input` gives, with its numbers
+VERDICT_CLEAR, VERDICT_UNDECIDED, VERDICT_SPAN, VERDICT_RADIUS, VERDICT_FALL, VERDICT_STEP = range(6)
+
+
+def warn_verdict(code: int, a: float, b: float, norm_lo: float, norm_hi: float,
+                 normalized: bool, name: str) -> None:
+    """The warning :func:`tpnet_ref.checks.warn_about_input` gives for a decided verdict ``code`` (one of the
+    ``VERDICT_*`` other than undecided) with its numbers: ``a, b`` the span's ends in model
+    units (``VERDICT_SPAN``), ``a`` the frame's mean radius in world units (``VERDICT_RADIUS``),
+    the rows per frame of a free fall (``VERDICT_FALL``) or the centroid's mean step in world
+    units (``VERDICT_STEP``); nothing for ``VERDICT_CLEAR``."""
+    if code == VERDICT_SPAN:
+        C.warn_range(name, C.span_problem(a, b, norm_lo, norm_hi, normalized))
+    elif code == VERDICT_RADIUS:
+        C.warn_range(name, C.radius_problem(a, normalized))
+    elif code == VERDICT_FALL:
+        C.warn_motion(name, C.fall_problem(a))
+    elif code == VERDICT_STEP:
+        C.warn_motion(name, C.step_problem(a))
+    elif code != VERDICT_CLEAR:
+        raise ValueError(f"verdict: no warning for code {code}")
+
+
+_CLEAR, _UNDECIDED = VERDICT_CLEAR, VERDICT_UNDECIDED
+_SPAN, _RADIUS, _FALL, _STEP = VERDICT_SPAN, VERDICT_RADIUS, VERDICT_FALL, VERDICT_STEP
+_R_MAX, _LINK_MIN, _MAX_STEP = C.BODY_MAX_RADIUS, C.BODY_LINK_MIN, C.BODY_MAX_STEP
+_MIN_POINTS, _RADIUS_MIN_POINTS = C.BODY_MIN_POINTS, C.RADIUS_MIN_POINTS
+_RANGE_LO, _RANGE_HI = C.RANGE_LO, C.RANGE_HI
+_RADIUS_LO, _RADIUS_HI = C.RADIUS_RANGE
+_MOTION_LO, _MOTION_HI = C.MOTION_RANGE
+_GRAVITY, _SIM_DT, _FRAME_ROWS, _FALL_TOL = C.GRAVITY, C.SIM_DT, C.FRAME_ROWS, C.FREE_FALL_TOL
+#: frames of more points go the checks' way (the outline's sort here is by insertion)
+MAX_POINTS = 256
+
+
+@njit(cache=True, nogil=True)
+def _side(value, threshold, band):
+    """-1 if ``value`` is clearly below ``threshold``, 1 if clearly above, 0 if within ``band``."""
+    if value < threshold - band:
+        return -1
+    if value > threshold + band:
+        return 1
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _band(threshold):
+    return _REL * max(1.0, abs(threshold))
+
+
+@njit(cache=True, nogil=True)
+def _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out):
+    """Frame ``f`` of ``x`` in model coordinates (the model's dtype, as ``canonical_points``
+    computes them) into its rows of ``out``, sorted by x then y when ``sort``."""
+    n = x.shape[1]
+    base = f * n
+    zero = out.dtype.type(0.0)
+    for i in range(n):
+        for k in range(2):
+            v = out.dtype.type(x[f, i, k])
+            out[base + i, k] = v + zero if normalized else (v - lo_d) / scale_d
+    if not sort:
+        return
+    for i in range(1, n):                       # insertion sort: a frame is a few dozen points
+        px, py = out[base + i, 0], out[base + i, 1]
+        j = i - 1
+        while j >= 0 and (out[base + j, 0] > px or (out[base + j, 0] == px and out[base + j, 1] > py)):
+            out[base + j + 1, 0] = out[base + j, 0]
+            out[base + j + 1, 1] = out[base + j, 1]
+            j -= 1
+        out[base + j + 1, 0] = px
+        out[base + j + 1, 1] = py
+
+
+@njit(cache=True, nogil=True)
+def sort_frames(points, n, out):
+    """``out``: ``points (F * n, 2)`` with each frame of ``n`` rows sorted by x then y (stable,
+    as ``np.lexsort``; rows that tie on both are the same numbers)."""
+    for f in range(points.shape[0] // n):
+        base = f * n
+        for i in range(n):
+            out[base + i, 0] = points[base + i, 0]
+            out[base + i, 1] = points[base + i, 1]
+        for i in range(1, n):
+            px, py = out[base + i, 0], out[base + i, 1]
+            j = i - 1
+            while j >= 0 and (out[base + j, 0] > px or (out[base + j, 0] == px and out[base + j, 1] > py)):
+                out[base + j + 1, 0] = out[base + j, 0]
+                out[base + j + 1, 1] = out[base + j, 1]
+                j -= 1
+            out[base + j + 1, 0] = px
+            out[base + j + 1, 1] = py
+
+
+@njit(cache=True, nogil=True)
+def _world(x, f, i, k, normalized, norm_lo, scale):
+    v = np.float64(x[f, i, k])
+    return v * scale + norm_lo if normalized else v
+
+
+@njit(cache=True, nogil=True)
+def _outline(x, f, normalized, norm_lo, scale, ang, idx):
+    """Frame ``f`` against the one-body shortcut: 1 one linked outline within reach of its
+    centre, -1 clearly not, 0 undecided."""
+    n = x.shape[1]
+    lo0 = hi0 = _world(x, f, 0, 0, normalized, norm_lo, scale)
+    lo1 = hi1 = _world(x, f, 0, 1, normalized, norm_lo, scale)
+    for i in range(1, n):
+        a, b = _world(x, f, i, 0, normalized, norm_lo, scale), _world(x, f, i, 1, normalized, norm_lo, scale)
+        lo0, hi0 = min(lo0, a), max(hi0, a)
+        lo1, hi1 = min(lo1, b), max(hi1, b)
+    c0, c1 = 0.5 * (lo0 + hi0), 0.5 * (lo1 + hi1)
+    undecided = False
+    for i in range(n):
+        ex = _world(x, f, i, 0, normalized, norm_lo, scale) - c0
+        ey = _world(x, f, i, 1, normalized, norm_lo, scale) - c1
+        s = _side(math.sqrt(ex * ex + ey * ey), _R_MAX, _band(_R_MAX))
+        if s > 0:
+            return -1
+        undecided |= s == 0
+        ang[i] = math.atan2(ey, ex)
+        idx[i] = i
+    for i in range(1, n):                       # the points in the order of their angle
+        a, k = ang[i], idx[i]
+        j = i - 1
+        while j >= 0 and ang[j] > a:
+            ang[j + 1], idx[j + 1] = ang[j], idx[j]
+            j -= 1
+        ang[j + 1], idx[j + 1] = a, k
+    worst = 0.0
+    for i in range(n):
+        p, q = idx[i], idx[i - 1]              # i - 1 = -1: the step closing the outline
+        if i > 0 and ang[i] - ang[i - 1] <= _ANGLE_BAND:
+            undecided = True                   # a tie: the checks' order may differ
+        dx = _world(x, f, p, 0, normalized, norm_lo, scale) - _world(x, f, q, 0, normalized, norm_lo, scale)
+        dy = _world(x, f, p, 1, normalized, norm_lo, scale) - _world(x, f, q, 1, normalized, norm_lo, scale)
+        worst = max(worst, dx * dx + dy * dy)
+    s = _side(worst, _LINK_MIN ** 2, _band(_LINK_MIN ** 2))
+    if s > 0:
+        return -1
+    return 0 if undecided or s == 0 else 1
+
+
+@njit(cache=True, nogil=True)
+def _scattered(x, f, normalized, norm_lo, scale, v):
+    """Whether frame ``f`` clearly cannot hold a body (:func:`tpnet_ref.checks._cannot_hold_a_body`):
+    1 yes, -1 no, 0 undecided."""
+    n = x.shape[1]
+    side = 2 * _R_MAX * (1 + 1e-9) + 1e-9
+    need = max(_MIN_POINTS, (n + 1) // 2)
+    fits_both = True
+    for k in range(2):
+        for i in range(n):
+            v[i] = _world(x, f, i, k, normalized, norm_lo, scale)
+        v[:n].sort()
+        best = np.inf
+        for i in range(n - need + 1):
+            best = min(best, v[i + need - 1] - v[i])
+        s = _side(best, side, _band(side))
+        if s == 0:
+            return 0
+        fits_both &= s < 0
+    return -1 if fits_both else 1
+
+
+@njit(cache=True, nogil=True)
+def _centroids(x, normalized, norm_lo, scale, c):
+    f_all, n = x.shape[0], x.shape[1]
+    for f in range(f_all):
+        for k in range(2):
+            s = 0.0
+            for i in range(n):
+                s += _world(x, f, i, k, normalized, norm_lo, scale)
+            c[f, k] = s / n
+
+
+@njit(cache=True, nogil=True)
+def _body(x, normalized, norm_lo, scale, c):
+    """The one-body test of one window: 1 no warning, 0 undecided."""
+    f_all, n = x.shape[0], x.shape[1]
+    ang = np.empty(n)
+    idx = np.empty(n, dtype=np.intp)
+    outline = 1
+    for f in range(f_all):
+        outline = min(outline, _outline(x, f, normalized, norm_lo, scale, ang, idx))
+        if outline < 0:
+            break
+    if outline < 0:
+        # not one outline: no warning only when the first frame cannot hold a body
+        return 1 if _scattered(x, 0, normalized, norm_lo, scale, ang) > 0 else 0
+    if outline == 0:
+        return 0
+    for f in range(1, f_all):
+        dx, dy = c[f, 0] - c[f - 1, 0], c[f, 1] - c[f - 1, 1]
+        if _side(math.sqrt(dx * dx + dy * dy), _MAX_STEP, _band(_MAX_STEP)) >= 0:
+            return 0                            # a jump (rare): the checks word it
+    return 1
+
+
+@njit(cache=True, nogil=True)
+def _motion(c):
+    """The motion test of one window's centroids ``c (m, 2)``: (verdict, number)."""
+    m = c.shape[0]
+    if m < 2:
+        return _CLEAR, 0.0
+    if m >= 4:
+        fall_lo, fall_hi, fall_sum, dx_max = np.inf, -np.inf, 0.0, 0.0
+        for i in range(m - 2):
+            ddx = c[i + 2, 0] - 2.0 * c[i + 1, 0] + c[i, 0]
+            fall = -(c[i + 2, 1] - 2.0 * c[i + 1, 1] + c[i, 1])
+            dx_max = max(dx_max, abs(ddx))
+            fall_lo, fall_hi = min(fall_lo, fall), max(fall_hi, fall)
+            fall_sum += fall
+        mean = fall_sum / (m - 2)
+        a = _side(dx_max, _FALL_TOL, _FALL_BAND)
+        b = _side(fall_hi - fall_lo, _FALL_TOL, _FALL_BAND)
+        g = _side(mean, 0.5 * _GRAVITY * _SIM_DT ** 2, _FALL_BAND)
+        if not (a > 0 or b > 0 or g < 0):       # not clearly out of free fall
+            if a == 0 or b == 0 or g == 0:
+                return _UNDECIDED, 0.0
+            # free fall: the spacing read from gravity
+            rows = math.sqrt(mean / _GRAVITY) / _SIM_DT
+            s = _side(abs(rows - _FRAME_ROWS), 1.0, _band(1.0))
+            if s == 0:
+                return _UNDECIDED, 0.0
+            return (_CLEAR, 0.0) if s < 0 else (_FALL, rows)
+    total = 0.0
+    for i in range(m - 1):
+        dx, dy = c[i + 1, 0] - c[i, 0], c[i + 1, 1] - c[i, 1]
+        total += math.sqrt(dx * dx + dy * dy)
+    step = total / (m - 1)
+    lo, hi = _side(step, _MOTION_LO, _band(_MOTION_LO)), _side(step, _MOTION_HI, _band(_MOTION_HI))
+    if lo == 0 or hi == 0:
+        return _UNDECIDED, 0.0
+    return (_CLEAR, 0.0) if lo > 0 and hi < 0 else (_STEP, step)
+
+
+@njit(cache=True, nogil=True)
+def screen(x, m, normalized, norm_lo, scale, lo_d, scale_d, limit, one_window, sort, out):
+    """``x (F, N, 2)``: ``F / m`` windows of ``m`` frames (one window when ``one_window``), world
+    units unless ``normalized``; ``norm_lo``, ``scale``: the model's normalisation (float64),
+    ``lo_d``, ``scale_d`` the same in the model's dtype; ``limit``: the largest magnitude the
+    model's dtype holds (infinity when ``x``'s dtype is no wider). Fills ``out (F * N, 2)`` (the
+    model's dtype) with the points in model coordinates, each frame sorted when ``sort``, and
+    returns ``(verdict, a, b)`` (:func:`warn_verdict`)."""
+    f_all, n = x.shape[0], x.shape[1]
+    if n < _MIN_POINTS or n > MAX_POINTS or x.shape[2] != 2:
+        return _UNDECIDED, 0.0, 0.0
+    for f in range(f_all):                      # refused values: the checks word the error
+        for i in range(n):
+            for k in range(2):
+                v = x[f, i, k]
+                if not np.isfinite(v) or abs(v) > limit:
+                    return _UNDECIDED, 0.0, 0.0
+    for f in range(f_all):
+        _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out)
+    c = np.empty((f_all, 2))
+    _centroids(x, normalized, norm_lo, scale, c)
+    for f in range(f_all):                      # a world or model value beyond float64
+        if not (np.isfinite(c[f, 0]) and np.isfinite(c[f, 1])):
+            return _UNDECIDED, 0.0, 0.0
+    if one_window and _body(x, normalized, norm_lo, scale, c) == 0:
+        return _UNDECIDED, 0.0, 0.0
+    lo, hi = np.inf, -np.inf                    # the span, in model units
+    for f in range(f_all):
+        for i in range(n):
+            for k in range(2):
+                v = np.float64(x[f, i, k])
+                if not normalized:
+                    v = (v - norm_lo) / scale
+                lo, hi = min(lo, v), max(hi, v)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return _UNDECIDED, 0.0, 0.0
+    if lo < _RANGE_LO or hi > _RANGE_HI:
+        return _SPAN, lo, hi
+    if n >= _RADIUS_MIN_POINTS:                 # each frame's mean radius, world units
+        for f in range(f_all):
+            gx, gy = 0.0, 0.0
+            for i in range(n):
+                gx += np.float64(x[f, i, 0])
+                gy += np.float64(x[f, i, 1])
+            gx /= n
+            gy /= n
+            total = 0.0
+            for i in range(n):
+                dx, dy = np.float64(x[f, i, 0]) - gx, np.float64(x[f, i, 1]) - gy
+                total += math.sqrt(dx * dx + dy * dy)
+            r = total / n * scale if normalized else total / n
+            a, b = _side(r, _RADIUS_LO, _band(_RADIUS_LO)), _side(r, _RADIUS_HI, _band(_RADIUS_HI))
+            if a == 0 or b == 0:
+                return _UNDECIDED, 0.0, 0.0
+            if a < 0 or b > 0:
+                return _RADIUS, r, 0.0
+    if one_window:
+        verdict, number = _motion(c)
+        return verdict, number, 0.0
+    return _CLEAR, 0.0, 0.0
+
+
+def may_compile(kernel, key, memo: dict, args: tuple) -> bool:
+    """Whether the optional ``kernel`` (the same results exist without it) may run on ``args``:
+    always where the library compiles such kernels on demand
+    (:data:`tpnet_ref.engines.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, its default); in the short
+    commands (``tpnet demo``, ``predict``, ``animate``) only when numba already has it, compiled
+    in this process or in its cache, so that they never stop to compile it. ``memo``: the
+    answers by ``key`` (the argument types)."""
+    if compile_watch.TWO_THREAD_KERNELS_ON_DEMAND:
+        return True
+    got = memo.get(key)
+    if got is None:
+        got = memo[key] = compile_watch.compiled_or_cached(kernel, args)
+    return got
+
+
+class Screen:
+    """:func:`screen` as a model's way into a prediction (``model.screen``, built by
+    :func:`tpnet_ref.engines.interface.build_screen` for the Numba engine). Like the two-thread kernels, it
+    runs in the short commands only when numba already has it (:func:`may_compile`)."""
+
+    def __init__(self) -> None:
+        self._memo: dict = {}
+
+    def __call__(self, model, x, one: bool, normalized: bool):
+        """For an array of one window ``(m, N, 2)`` (``one``) or of fewer than
+        ``SPLIT_MIN_BATCH`` windows ``(B, m, N, 2)``, float32 or float64: the warnings the checks
+        give, and ``(points, counts, batch)`` as ``model.canonical_points`` gives them; None
+        for any other input, or where :func:`screen` leaves the verdict to the checks."""
+        c = model.config
+        if type(x) is not np.ndarray or x.dtype.kind != "f" or x.dtype.itemsize not in (4, 8):
+            return None
+        if one:
+            if x.ndim != 3 or x.shape[0] != c.m or x.shape[2] != c.dim:
+                return None
+            batch = 1
+        elif (x.ndim != 4 or x.shape[1] != c.m or x.shape[3] != c.dim
+              or not 0 < x.shape[0] < SPLIT_MIN_BATCH):
+            return None
+        else:
+            batch = x.shape[0]
+        n = x.shape[-2]
+        frames = np.ascontiguousarray(x).reshape(batch * c.m, n, c.dim)
+        pts = np.empty((batch * c.m * n, c.dim), dtype=model.dtype)
+        limit = (float(np.finfo(model.dtype).max) if x.dtype.itemsize > model.dtype.itemsize
+                 else np.inf)
+        args = (frames, c.m, normalized, c.norm_lo, c.norm_hi - c.norm_lo, model._lo,
+                model._scale, limit, one, model.sort_points, pts)
+        if not may_compile(screen, (frames.dtype, pts.dtype), self._memo, args):
+            return None
+        code, a, b = screen(*args)
+        if code == _UNDECIDED:
+            return None
+        if code != _CLEAR:
+            warn_verdict(code, a, b, c.norm_lo, c.norm_hi, normalized,
+                         "window" if one else "windows")
+        return pts, np.full(batch * c.m, n, dtype=np.intp), batch
+
+    def sorted(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
+        """``points (P, 2)`` in canonical order (``points[canonical_order(points, counts)]``,
+        :mod:`tpnet_ref.point_order`) when every frame has the same number of points, at most
+        :data:`MAX_POINTS` (a rollout's predicted frames); else None."""
+        n = int(counts[0]) if len(counts) else 0
+        if (points.ndim != 2 or points.shape[1] != 2 or not 0 < n <= MAX_POINTS
+                or points.shape[0] != n * len(counts) or (counts != n).any()):
+            return None
+        out = np.empty_like(points, order="C")
+        if not may_compile(sort_frames, ("sort", points.dtype, points.flags.c_contiguous),
+                           self._memo, (points, n, out)):
+            return None
+        sort_frames(points, n, out)
+        return out
+
+
+__all__ = ["screen", "Screen", "MAX_POINTS", "may_compile", "sort_frames", "warn_verdict",
+           "VERDICT_CLEAR", "VERDICT_UNDECIDED", "VERDICT_SPAN", "VERDICT_RADIUS", "VERDICT_FALL",
+           "VERDICT_STEP"]

@@ -1,0 +1,287 @@
+"""The Numba engine (``load()``'s default where numba is installed): TP-Net's prediction
+network (BiLSTMs, LayerNorms, head) as one compiled function, :class:`NumbaHead`, for every
+batch, and its feature extractor as another, :class:`NumbaFeatures`, for batches of up to
+:data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH` windows. ``TPNet(..., engine="numba")`` or
+``model.with_engine("numba")``; needs numba (the ``metrics`` extra). The NumPy path
+(:func:`tpnet_ref.engines.layers.bilstm_steps`, :func:`tpnet_ref.engines.layers.project_layer_norm`,
+:class:`tpnet_ref.engines.numpy_engine.NumpyFeatures`, specified by :mod:`tpnet_ref.engines.reference`) is the
+reference; ``tests/test_engines_numba.py`` checks they agree.
+
+What it does that NumPy cannot:
+
+- one call per prediction instead of ~100 NumPy calls (plus one for BiLSTM 1's input
+  projection, which a rollout computes once per frame): the gates, cell and output of each unit
+  are computed right after their pre-activations, LayerNorm and head included;
+- every product reads only the weight rows that a non-zero input multiplies, each one, not all
+  rows up to the last used one (a ReLU network's activations are mostly zeros): BiLSTM 1's
+  input projection (the global features, ~80 % zeros on the scene), every recurrent product
+  (the state ``h``), and BiLSTM 2's and 3's input projections, whose input is a LayerNorm output
+  (no zeros): LayerNorm is affine per row, so with ``r = 1 / sqrt(var + eps)`` and the row mean
+  ``mu``, ``LN(h) @ K = r * ((h * gamma) @ K) - r * mu * (gamma @ K) + beta @ K``, and
+  ``h * gamma`` has ``h``'s zeros (``gamma @ K`` and ``beta @ K + bias`` computed at load in
+  float64). With tanh (no zeros) LayerNorm is applied first, then the plain product;
+- the products stream whole weight rows: a kernel written in LLVM IR (:func:`tpnet_ref.engines.numba_products._row_kernel`)
+  reads :data:`CHAIN` of the needed rows side by side, each sequentially (what the hardware
+  prefetcher streams best: a window's products mostly read weights from memory), and adds
+  them into up to :data:`GROUP_ROWS` accumulator rows (a window's m steps share their
+  non-zero inputs, so at B = 1 each needed weight row is read once per layer and direction);
+- the weights are laid out at load, each matrix row-major with its gate columns padded to
+  whole 64-byte vectors, in the model's unit order when given one (:mod:`tpnet_ref.engines.unit_order`:
+  the rows a window needs lie closer together; a few percent here, as the rows are streamed
+  one by one anyway);
+- the gates are vectorised (a branch-free ``exp``, :func:`tpnet_ref.engines.numba_lstm._exp_neg`, within 1.5 ulp);
+- with ``parallel``, the two directions of a layer on two threads (``prange``), only beside a
+  one-thread BLAS (:func:`_two_threads`).
+
+Determinism: each output number is one chain of fused multiply-adds (``llvm.fma``, explicit,
+not left to the compiler) over its group's non-zero inputs in increasing order, starting from
++0. An input that is zero in this row but not in another row of its group adds
+``fma(0, w, s) = s`` exactly (the weights are finite, and a sum that starts at +0 is never -0),
+so a row's result is the same bits whatever the other rows of its group and however rows are
+grouped: the result does not depend on the other windows of a batch, nor on the thread count
+(each number is computed by one thread, by the same code); the canonical point order before the
+extractor keeps permutation invariance exact. Element-wise work uses no fast-math flags.
+Products accumulate in the model's dtype (as the BLAS does); LayerNorm statistics in float64.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+
+from . import compile_watch
+from .blas import in_one_thread
+from .thread_policy import two_threads
+from ..checks import overflow_error
+from .numba_features import FEATURE_CHUNK, features_parallel, frame_range
+from .numba_lstm import head_parallel, head_serial, project_parallel, project_serial
+from .numba_products import CHAIN, GROUP_ROWS, pad_columns, padded_columns
+
+
+class NumbaFeatures:
+    """The feature extractor as one compiled function (frames of any size, ragged included):
+    ``(points (P, dim), counts (F,))`` -> global features ``(F, k)`` in the file's order of
+    units, each frame computed on its own by the same code (the same bits alone, in a batch,
+    on one thread or two). Only for networks whose transform nets are the identity (the
+    released ones; :meth:`supports`). A call where the model's thread policy offers a second
+    thread runs on two: two frames or more in two halves, one frame (a rollout's new one) its
+    points in two halves (:func:`features_parallel`); the same bits either way."""
+
+    def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: Any) -> None:
+        if not self.supports(config):
+            raise ValueError("NumbaFeatures: trained transform nets are not supported")
+        dt = self.dtype = np.dtype(dtype)
+        names = ([f"mlp1.{i}" for i in range(len(config.mlp1))]
+                 + [f"mlp2.{i}" for i in range(len(config.mlp2))])
+        # the products stream whole vectors: every layer's columns padded with zeros to whole
+        # vectors, and its rows (inputs) to the previous layer's padded width
+        w = [np.asarray(params[f"{n}.w"], dtype=dt) for n in names + ["global"]]
+        b = [np.asarray(params[f"{n}.b"], dtype=dt) for n in names + ["global"]]
+        rows = [w[0].shape[0]] + [padded_columns(x.shape[1], dt) for x in w[:-1]]
+        ws = [np.pad(pad_columns(x, dt), ((0, r - x.shape[0]), (0, 0))) for x, r in zip(w, rows)]
+        bs = [pad_columns(x, dt) for x in b]
+        self.w0, self.b0 = ws[0], bs[0]
+        self.ws, self.bs = tuple(ws[1:-1]), tuple(bs[1:-1])
+        self.gw, self.gb = ws[-1], bs[-1]
+        self.k = int(config.global_features)
+        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
+
+    @staticmethod
+    def supports(config: Any) -> bool:
+        return not (config.input_transform_trained or config.feature_transform_trained)
+
+    def __call__(self, points: np.ndarray, counts: np.ndarray, parallel: bool = False) -> np.ndarray:
+        """Global feature of every frame (see the class); ``parallel``: on two threads if
+        :func:`_two_threads` allows."""
+        pts = np.ascontiguousarray(points, dtype=self.dtype)
+        counts = np.ascontiguousarray(counts, dtype=np.intp)
+        starts = np.zeros(counts.shape[0], dtype=np.intp)
+        np.cumsum(counts[:-1], out=starts[1:])
+        out = np.empty((counts.shape[0], self.gw.shape[1]), dtype=self.dtype)
+        weights = (self.w0, self.b0, self.ws, self.bs, self.gw, self.gb, self.dtype.type(0))
+        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(
+                parallel and _available(features_parallel, self._loaded,
+                                        (pts, starts, counts, *weights, out))):
+            try:
+                features_parallel(pts, starts, counts, *weights, out)
+            finally:
+                _PARALLEL.release()
+        else:       # called directly: a wrapper would be one more level to compile
+            frame_range(pts, starts, counts, 0, counts.shape[0], *weights, out)
+        return out if out.shape[1] == self.k else np.ascontiguousarray(out[:, :self.k])
+
+
+#: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
+_PARALLEL = threading.Lock()
+
+
+def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...]) -> bool:
+    """Whether the two-thread ``kernel`` may run on ``args``: always where two-thread kernels
+    are compiled on demand (:data:`tpnet_ref.engines.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, the
+    library's default);
+    else (``tpnet demo``, ``predict``, ``animate``) only if numba has it for these argument
+    types, compiled in this process or in its cache (loaded then), so that a short command never
+    stops to compile it -- the one-thread kernel gives the same bits. ``memo``: the caller's
+    answers, by kernel (its argument types do not change)."""
+    if compile_watch.TWO_THREAD_KERNELS_ON_DEMAND:
+        return True
+    got = memo.get(kernel)
+    if got is None:
+        got = memo[kernel] = compile_watch.compiled_or_cached(kernel, args)
+        if not got:
+            _SKIPPED.add(kernel.__name__)
+    return got
+
+
+#: the two-thread kernels that :func:`_available` found missing in this process
+_SKIPPED: set[str] = set()
+
+
+def two_thread_kernels_skipped() -> tuple[str, ...]:
+    """The two-thread kernels that ran on one thread in this process because numba did not have
+    them and they are not compiled on demand (:func:`_available`), sorted."""
+    return tuple(sorted(_SKIPPED))
+
+
+def _two_threads(parallel: bool) -> bool:
+    """Whether a call asked to run ``parallel`` takes the two-thread kernels now: only inside a
+    :func:`tpnet_ref.engines.blas.one_thread` block (a one-thread BLAS), and one such call at a time.
+    Beside a multi-threaded BLAS, whose threads spin between calls, numba's second thread waits
+    for a core and costs several times what it saves; beside a one-thread BLAS it pays
+    (docs/performance.md)."""
+    return parallel and in_one_thread() and _PARALLEL.acquire(blocking=False)
+
+
+class NumbaHead:
+    """A model's prediction network laid out for the kernels above (built once per model), the
+    :class:`tpnet_ref.engines.interface.Head` "numba": ``params`` in the file's order (``model.params``),
+    ``unit_order`` the model's (:mod:`tpnet_ref.engines.unit_order`; None: the file's order) -- only the
+    layout, and so the order of the sums, depends on it. Its calls take the second thread that
+    :data:`tpnet_ref.engines.thread_policy.adaptive` offers (``threaded``); the bits do not depend on it."""
+
+    name = "numba"
+    threaded = True
+
+    def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype,
+                 unit_order: dict[str, np.ndarray] | None = None,
+                 max_batch: int | None = None) -> None:
+        #: the largest batch it runs (None: any; :data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH`)
+        self.max_batch = max_batch
+        self.dtype = dt = np.dtype(dtype)
+        self.relu = config.lstm_activation == "relu"
+        if not self.relu and config.lstm_activation != "tanh":
+            raise ValueError(f"unknown LSTM activation {config.lstm_activation!r}: "
+                             "expected 'relu' or 'tanh'")
+        order = unit_order or {}
+        # the global features' order (BiLSTM 1's kernel rows; project() takes the file's order)
+        self.feature_order = order.get("global")
+        prev = self.feature_order
+        kernels, recs, gks, csts, gammas, betas = [], [], [], [], [], []
+        for i, u in enumerate(config.lstm_units, start=1):
+            po = order.get(f"lstm{i}")
+            per_dir = ((np.arange(u), np.arange(u)) if po is None else
+                       (po[po < u], po[po >= u] - u))
+            n = padded_columns(4 * u, dt)
+            c_in = params[f"lstm{i}.fwd.kernel"].shape[0]
+            kern = np.zeros((2, c_in, n), dtype=dt)
+            rec = np.zeros((2, u, n), dtype=dt)
+            gk = np.zeros((2, n), dtype=dt)
+            cst = np.zeros((2, n), dtype=dt)
+            for d, name in enumerate(("fwd", "bwd")):
+                cols = np.concatenate([g * u + per_dir[d] for g in range(4)])
+                k = np.take(params[f"lstm{i}.{name}.kernel"], cols, axis=1)
+                if prev is not None:
+                    k = np.take(k, prev, axis=0)
+                kern[d, :, :4 * u] = k
+                rec[d, :, :4 * u] = np.take(np.take(params[f"lstm{i}.{name}.recurrent"],
+                                                    per_dir[d], axis=0), cols, axis=1)
+                b = np.asarray(params[f"lstm{i}.{name}.bias"], dtype=np.float64)[cols]
+                if i > 1 and self.relu:     # LayerNorm i-1 folded into this projection
+                    k64 = k.astype(np.float64)
+                    gk[d, :4 * u] = gammas[-1] @ k64
+                    cst[d, :4 * u] = betas[-1] @ k64 + b
+                else:
+                    cst[d, :4 * u] = b
+            prev = np.concatenate([per_dir[0], u + per_dir[1]])   # this layer's outputs
+            gammas.append(np.asarray(params[f"ln{i}.gamma"], dtype=np.float64)[prev])
+            betas.append(np.asarray(params[f"ln{i}.beta"], dtype=np.float64)[prev])
+            kernels.append(kern)
+            recs.append(rec)
+            gks.append(gk)
+            csts.append(cst)
+        self.kernels, self.recs = tuple(kernels), tuple(recs)
+        self.gks, self.csts = tuple(gks), tuple(csts)
+        self.units = tuple(int(u) for u in config.lstm_units)
+        self.gammas = tuple(np.ascontiguousarray(g, dtype=dt) for g in gammas)
+        self.betas = tuple(np.ascontiguousarray(b, dtype=dt) for b in betas)
+        self.head_w = np.ascontiguousarray(np.asarray(params["head.w"])[prev], dtype=dt)
+        self.head_b = np.ascontiguousarray(params["head.b"], dtype=dt)
+        t = dt.type
+        self.out_shape = (config.n_out, config.dim)
+        self.one, self.eps = t(1.0), t(config.layer_norm_eps)
+        self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
+        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
+
+    def project(self, features: np.ndarray, batch: int = 1) -> np.ndarray:
+        """BiLSTM 1's input projection of each frame's feature ``(F, k)`` -> ``(F, 2N)``, in this
+        head's layout (:meth:`project_rows`, bias included)."""
+        return self.project_rows(features, two_threads(), batch).reshape(len(features), -1)
+
+    def __call__(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
+        """``features (B, m, k)`` -> ``(B, n_out, dim)`` in [0, 1]; ``proj1`` ``(m, B, 2N)``:
+        :meth:`project` of the frames, time-major, if already known."""
+        batch, m = features.shape[:2]
+        parallel = two_threads()
+        if proj1 is None:
+            proj1 = self.project_rows(features.transpose(1, 0, 2).reshape(m * batch, -1),
+                                      parallel, batch)
+        y, bad = self.run(proj1.reshape(m * batch, 2, -1, 4), m, batch, parallel)
+        if bad:
+            raise overflow_error(self.dtype, f"BiLSTM {bad}")
+        if not np.isfinite(y).all():
+            raise overflow_error(self.dtype, "the output layer")
+        return y.reshape(-1, *self.out_shape)
+
+    def project_rows(self, x: np.ndarray, parallel: bool = False, batch: int = 1) -> np.ndarray:
+        """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, N)``
+        (each direction's gates i, f, c, o, then zero padding up to ``N``, whole vectors).
+        ``parallel``: the two directions on two threads if :func:`_two_threads` allows.
+        ``batch``: the rows are ``R / batch`` steps of ``batch`` windows, time-major (only
+        groups the rows that share weight reads; the result is the same whatever it is)."""
+        k = self.kernels[0]
+        rows = x.shape[0]
+        out = np.empty((rows, 2, k.shape[2]), dtype=self.dtype)
+        if self.feature_order is not None:
+            x = x[:, self.feature_order]
+        x = np.ascontiguousarray(x, dtype=self.dtype)
+        steps, bsz = (rows // batch, batch) if batch > 0 and rows % batch == 0 else (rows, 1)
+        if _two_threads(parallel and _available(project_parallel, self._loaded,
+                                                (x, k, self.csts[0], out, steps, bsz))):
+            try:
+                project_parallel(x, k, self.csts[0], out, steps, bsz)
+            finally:
+                _PARALLEL.release()
+        else:
+            project_serial(x, k, self.csts[0], out, steps, bsz)
+        return out
+
+    def run(self, xp1: np.ndarray, steps: int, batch: int,
+            parallel: bool = False) -> tuple[np.ndarray, int]:
+        """The network from BiLSTM 1's projection ``xp1`` (:meth:`project_rows`' rows, time-major,
+        ``T*B`` of them, any shape with ``2N`` numbers per row) -> ``(y (B, n_out*dim) in
+        [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0. ``parallel``: each
+        layer's two directions on two threads if :func:`_two_threads` allows."""
+        xp1 = np.ascontiguousarray(xp1, dtype=self.dtype).reshape(steps * batch, 2, -1)
+        args = (xp1, self.kernels, self.recs, self.gks, self.csts, self.units, self.gammas,
+                self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
+                self.eps, self.limit)
+        if _two_threads(parallel and _available(head_parallel, self._loaded, args)):
+            try:
+                return head_parallel(*args)
+            finally:
+                _PARALLEL.release()
+        return head_serial(*args)
+
+
+__all__ = ["NumbaHead", "NumbaFeatures", "two_thread_kernels_skipped", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]

@@ -1,0 +1,239 @@
+"""The Numba engine's product kernel: ``x @ w`` reading only the weight rows that a non-zero
+input multiplies, each output one chain of fused multiply-adds
+(:mod:`tpnet_ref.engines.numba_engine` says why and how); shared by the prediction network's
+kernels (:mod:`tpnet_ref.engines.numba_lstm`) and the feature extractor's
+(:mod:`tpnet_ref.engines.numba_features`). numba's cache keys a compiled kernel to its own
+file's time stamp: after editing this file, delete the other two modules' cached kernels
+(``tpnet_ref/engines/__pycache__/numba_*``), which inline these.
+
+Argument names (every kernel below; rows are time-major where there are steps, row t*B + b)::
+
+    x             the input rows (R, C), the left operand
+    w, kern       a weight matrix (C, N), C-contiguous, N whole 64-byte vectors (kern: one
+                  direction's input kernel)
+    out           the result rows (R, N)
+    grp           row groups (G, 3): first row, stride between its rows, number of rows
+    r0, rs, g     one group's first row, stride and number of rows (rstep: rs)
+    act, ns       per group, the input columns non-zero in some row of the group, in increasing
+                  order (G, C), and how many of them there are (G,)
+    j, j0         where in a group's act a chain of weight rows starts
+    steps, bsz    T steps of B windows (R = T*B)
+    per_window    group each window's steps together (else runs of consecutive rows)
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..extras import require
+
+numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
+from llvmlite import ir  # noqa: E402
+from numba import njit, types  # noqa: E402
+from numba.core import cgutils  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
+
+#: weight rows each call of the product kernel streams together (a chain of this many fused
+#: multiply-adds per accumulator load and store; 8 rows read side by side, each sequentially)
+CHAIN = 8
+#: input rows that share each weight row read (one window's m = 4 steps at B = 1); the
+#: kernels below are instantiated for 1 .. 4 rows
+GROUP_ROWS = 4
+_VECTOR_BYTES = 64
+
+
+def padded_columns(n: int, dtype: Any) -> int:
+    """``n`` columns rounded up to whole vectors of ``dtype`` (64 bytes)."""
+    lanes = _VECTOR_BYTES // np.dtype(dtype).itemsize
+    return -(-n // lanes) * lanes
+
+
+def pad_columns(w: np.ndarray, dtype: Any) -> np.ndarray:
+    """``w (C, N)`` or ``(N,)`` with zero columns appended up to :func:`padded_columns`, in
+    ``dtype``, C-contiguous."""
+    n = w.shape[-1]
+    out = np.zeros(w.shape[:-1] + (padded_columns(n, dtype),), dtype=dtype)
+    out[..., :n] = w
+    return out
+
+
+# ------------------------------------------------------------------ the product kernel
+
+def _row_kernel(rows: int, chain: int):
+    """An intrinsic ``k(x, r0, rstep, w, act, j0, out)``: for the rows ``r = r0 + i * rstep``,
+    ``i < rows``, ``out[r, :] = fma(x[r, k_last], w[k_last], ... fma(x[r, k_0], w[k_0], out[r]))``
+    over the ``chain`` weight rows ``k = act[j0 .. j0 + chain - 1]`` in that order, every column
+    of ``w (C, N)`` (C-contiguous, ``N`` whole 64-byte vectors), ``out`` 2-D with contiguous
+    rows. The ``chain`` weight rows are streamed side by side, each sequentially, one vector
+    of each per step; each accumulator is loaded and stored once per call."""
+
+    @intrinsic
+    def kernel(typingctx, x, r0, rstep, w, act, j0, out):
+        ok = (isinstance(x, types.Array) and isinstance(w, types.Array)
+              and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
+              and x.dtype == w.dtype == out.dtype and w.layout == "C"
+              and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
+        if not ok:
+            return None
+        sig = types.void(x, r0, rstep, w, act, j0, out)
+
+        def codegen(context, builder, signature, args):
+            xt, wt, at, ot = (signature.args[i] for i in (0, 3, 4, 6))
+            xa, wa, aa, oa = (context.make_array(t)(context, builder, v) for t, v in
+                              ((xt, args[0]), (wt, args[3]), (at, args[4]), (ot, args[6])))
+            r0i, rs, j0i = (context.cast(builder, args[i], signature.args[i], types.intp)
+                            for i in (1, 2, 5))
+            elt = context.get_value_type(xt.dtype)
+            size = xt.dtype.bitwidth // 8
+            lanes = _VECTOR_BYTES // size
+            vty = ir.VectorType(elt, lanes)
+            intp = context.get_value_type(types.intp)
+            i8p = ir.IntType(8).as_pointer()
+            fma = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(vty, [vty] * 3), f"llvm.fma.v{lanes}f{size * 8}")
+            undef = ir.Constant(vty, ir.Undefined)
+            splat = ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes)
+            i32_0 = ir.Constant(ir.IntType(32), 0)
+            ncol = builder.extract_value(wa.shape, 1)
+
+            def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
+                stride = builder.extract_value(arr.strides, 0)
+                p = builder.gep(builder.bitcast(arr.data, i8p), [builder.mul(row, stride)])
+                return builder.bitcast(p, elt.as_pointer())
+
+            rowi = [builder.add(r0i, builder.mul(rs, ir.Constant(intp, r))) for r in range(rows)]
+            xrows = [row_ptr(xa, r) for r in rowi]
+            orows = [row_ptr(oa, r) for r in rowi]
+            ks = [builder.load(builder.gep(aa.data, [builder.add(j0i, ir.Constant(intp, q))]))
+                  for q in range(chain)]
+            wrows = [builder.gep(wa.data, [builder.mul(k, ncol)]) for k in ks]
+            avs = [[builder.shuffle_vector(builder.insert_element(
+                undef, builder.load(builder.gep(xr, [k])), i32_0), undef, splat) for k in ks]
+                for xr in xrows]
+            nvec = builder.udiv(ncol, ir.Constant(intp, lanes))
+            with cgutils.for_range(builder, nvec) as loop:
+                off = builder.mul(loop.index, ir.Constant(intp, lanes))
+                ws = [builder.load(builder.bitcast(builder.gep(wr, [off]), vty.as_pointer()),
+                                   align=size) for wr in wrows]
+                for r in range(rows):
+                    p = builder.bitcast(builder.gep(orows[r], [off]), vty.as_pointer())
+                    acc = builder.load(p, align=size)
+                    for q in range(chain):
+                        acc = builder.call(fma, [avs[r][q], ws[q], acc])
+                    builder.store(acc, p, align=size)
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return kernel
+
+
+_KC = tuple(_row_kernel(r, CHAIN) for r in range(1, GROUP_ROWS + 1))
+_K1 = tuple(_row_kernel(r, 1) for r in range(1, GROUP_ROWS + 1))
+_KC1, _KC2, _KC3, _KC4 = _KC
+_K11, _K12, _K13, _K14 = _K1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def groups(steps, bsz, per_window):
+    """Row groups ``(first, stride, count)`` of ``T*B`` time-major rows (row ``t*B + b``):
+    ``per_window``: each window's steps, up to ``GROUP_ROWS`` at a time (a window's steps
+    share most of their non-zero inputs); else runs of up to ``GROUP_ROWS`` consecutive rows."""
+    if per_window:
+        chunks = -(-steps // GROUP_ROWS)
+        grp = np.empty((bsz * chunks, 3), dtype=np.intp)
+        for b in range(bsz):
+            for ci in range(chunks):
+                t0 = ci * GROUP_ROWS
+                g = b * chunks + ci
+                grp[g, 0] = t0 * bsz + b
+                grp[g, 1] = bsz
+                grp[g, 2] = min(GROUP_ROWS, steps - t0)
+    else:
+        rows = steps * bsz
+        grp = np.empty((-(-rows // GROUP_ROWS), 3), dtype=np.intp)
+        for gi in range(grp.shape[0]):
+            grp[gi, 0] = gi * GROUP_ROWS
+            grp[gi, 1] = 1
+            grp[gi, 2] = min(GROUP_ROWS, rows - gi * GROUP_ROWS)
+    return grp
+
+
+@njit(cache=True, nogil=True, inline="always")
+def active(x, grp, act, ns):
+    """For each row group ``(first, stride, count)`` of ``x (R, C)``, the columns ``k``
+    non-zero (or NaN) in some row of the group, in increasing order, into ``act[group]``, and
+    how many into ``ns[group]``."""
+    for gi in range(grp.shape[0]):
+        r0, rs, g = grp[gi, 0], grp[gi, 1], grp[gi, 2]
+        a = act[gi]
+        n = 0
+        for k in range(x.shape[1]):
+            for i in range(g):
+                if x[r0 + i * rs, k] != 0:
+                    a[n] = k
+                    n += 1
+                    break
+        ns[gi] = n
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _chain(x, r0, rs, g, w, act, j, out):
+    """:func:`_row_kernel`'s ``CHAIN`` rows ``act[j ..]`` for a group of ``g`` rows."""
+    if g == 4:
+        _KC4(x, r0, rs, w, act, j, out)
+    elif g == 3:
+        _KC3(x, r0, rs, w, act, j, out)
+    elif g == 2:
+        _KC2(x, r0, rs, w, act, j, out)
+    else:
+        _KC1(x, r0, rs, w, act, j, out)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _single(x, r0, rs, g, w, act, j, out):
+    """:func:`_row_kernel`'s single row ``act[j]`` for a group of ``g`` rows."""
+    if g == 4:
+        _K14(x, r0, rs, w, act, j, out)
+    elif g == 3:
+        _K13(x, r0, rs, w, act, j, out)
+    elif g == 2:
+        _K12(x, r0, rs, w, act, j, out)
+    else:
+        _K11(x, r0, rs, w, act, j, out)
+
+
+@njit(cache=True, nogil=True)
+def product(x, w, grp, act, ns, out):
+    """``out[r] = x[r] @ w`` for every row of ``x (R, C)`` in the groups ``grp``,
+    ``w (C, N)``, ``out (R, N)``: each group streams the weight rows of its own non-zero inputs
+    (:func:`active`'s ``act``, ``ns``), ``CHAIN`` at a time, in increasing order, every
+    column's sum one chain of fused multiply-adds from +0."""
+    for gi in range(grp.shape[0]):
+        r0, rs, g = grp[gi, 0], grp[gi, 1], grp[gi, 2]
+        for i in range(g):
+            out[r0 + i * rs, :] = 0
+        a, n = act[gi], ns[gi]
+        j = 0
+        while j + CHAIN <= n:
+            _chain(x, r0, rs, g, w, a, j, out)
+            j += CHAIN
+        while j < n:
+            _single(x, r0, rs, g, w, a, j, out)
+            j += 1
+
+
+@njit(cache=True, nogil=True)
+def project_dir(x, kern, out, steps, bsz):
+    """One direction's product ``out = x @ kern`` (no bias) for the ``T*B`` time-major rows of
+    ``x``, each window's steps in groups reading only the kernel rows of their non-zero inputs."""
+    grp = groups(steps, bsz, True)
+    act = np.empty((grp.shape[0], x.shape[1]), dtype=np.intp)
+    ns = np.empty(grp.shape[0], dtype=np.intp)
+    active(x[:, :], grp, act, ns)        # [:, :]: every call of product one layout
+    product(x[:, :], kern, grp, act, ns, out)
+
+
+__all__ = ["CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns", "groups", "active", "product",
+           "project_dir"]
