@@ -8,7 +8,7 @@ with the one-body test's shortcut for scattered frames (``checks._cannot_hold_a_
 without it (the pairwise grouping for every such frame), interleaved round by round; the
 Numba engine's compiled first pass (``model.screen``: what ``predict`` runs instead of both
 when it decides the window); and ``predict`` itself on both windows, for the share
-(docs/performance.md, "Input checks").
+(docs/performance.md, "Every size at one window").
 """
 from __future__ import annotations
 

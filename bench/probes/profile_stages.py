@@ -1,6 +1,7 @@
 """Where one B = 1 prediction of the shipped model spends its time, stage by stage.
 
     PYTHONPATH=bench python bench/probes/profile_stages.py [--reps 300] [--engine numpy|numba]
+        [--size full|half|quarter]
 
 Inputs: 64 windows of simulated test cases (``_common.scene_windows``), normalised, one
 after another, a one-thread BLAS. Each stage's time is the median over predictions of the time
@@ -89,9 +90,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--reps", type=int, default=300)
     ap.add_argument("--engine", default="numpy", choices=("numpy", "numba"))
+    ap.add_argument("--size", default="full", choices=("full", "half", "quarter"),
+                    help="which shipped size (default: the full one)")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
-    model = tpnet_ref.load(engine=args.engine)
+    model = tpnet_ref.load(engine=args.engine, size=args.size)
+    if model.screen is not None:          # the Numba engine's first pass, where it decides
+        STAGES["input checks: the compiled first pass"] = (type(model.screen), "__call__")
     _, x256 = scene_windows(model)
     wins = list(x256[::4])
     spent: dict[str, float] = collections.defaultdict(float)
