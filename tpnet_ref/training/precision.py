@@ -33,7 +33,7 @@ def resolve_compile(mode: str, device: str) -> str:
 #: the arithmetic of a training step: ``float32``, or ``bf16`` (mixed precision:
 #: ``torch.autocast`` to bfloat16 runs the matrix products, the LSTM gates and the max pool in
 #: bfloat16; the parameters, their gradients and Adam's state stay float32, and so do the layers
-#: that read or write coordinates and the loss, :func:`tpnet_ref.torch_model.full_precision`);
+#: that read or write coordinates and the loss, :func:`tpnet_ref.training.torch_model.full_precision`);
 #: ``auto`` chooses per machine (:func:`choose_precision`)
 PRECISIONS = ("auto", "float32", "bf16")
 #: ``auto`` takes bf16 where its timed step is at least this much faster than float32's

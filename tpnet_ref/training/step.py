@@ -39,7 +39,7 @@ def loss_fn(net: Any, x: Any, y: Any, steps: int, first_weight: float,
     plus ``shape_weight`` times the same sum of shape Chamfer distances (centred sets) and
     ``match_weight`` times the same sum of matched (earth mover's) distances; with
     ``grad_steps`` G in 1..steps-1 over the last G predictions alone, the others made without
-    gradient (the pushforward trick, :meth:`~tpnet_ref.torch_model.TorchTPNet.recursive_loss`)."""
+    gradient (the pushforward trick, :meth:`~tpnet_ref.training.torch_model.TorchTPNet.recursive_loss`)."""
     return net.recursive_loss(x, y[:, :steps], first_weight=first_weight,
                               shape_weight=shape_weight, match_weight=match_weight,
                               grad_steps=grad_steps)
