@@ -47,6 +47,8 @@ from .config import NORM_HI, NORM_LO, normalize
 from .extras import require
 from .protocol import FRAME_EVERY, SIM_ROWS
 from .sim.cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+from .sim.cases3d import (TRAIN_AZIMUTHS_DEG, TRAIN_ELEVATIONS_DEG, TRAIN_FORCES3D,
+                          TRAIN_POSITIONS3D)
 from .sim.scene import SceneParams, simulate, validate_params
 
 FORMAT = "tpnet_ref.data/3"
@@ -75,6 +77,38 @@ def train_grid(forces: Sequence[float] = TRAIN_FORCES, angles: Sequence[float] =
         pos = pos[:positions]
     out = [(f, a, x, y) for f in forces for a in angles for x, y in pos]
     return np.asarray(out, dtype=float).reshape(-1, 4)
+
+
+def train_grid3d(forces: Sequence[float] = TRAIN_FORCES3D,
+                 azimuths: Sequence[float] = TRAIN_AZIMUTHS_DEG,
+                 elevations: Sequence[float] = TRAIN_ELEVATIONS_DEG,
+                 positions: int | None = None, per_direction: int = 1) -> np.ndarray:
+    """``(T, 6)`` (force, azimuth_deg, elevation_deg, x, y, z) of the 3-D training grid
+    (docs/spec.md §8): every direction (elevations outermost, then azimuths) ``per_direction``
+    times, ``T = len(elevations) * len(azimuths) * per_direction``. The ``c``-th throw towards
+    the direction ``(azimuths[a], elevations[e])`` has the force ``forces[(a + e + c) % F]``, so
+    each force meets every azimuth and every elevation (``per_direction = F``: every force in
+    every direction, the full product), and throw ``t`` starts at position ``t % P`` of the first
+    ``positions`` of the 75 (all by default). The default grid: 342 throws, the 2-D grid's
+    spacing in every dimension."""
+    pos = np.asarray(TRAIN_POSITIONS3D, dtype=float)
+    if positions is not None:
+        if isinstance(positions, bool) or not 1 <= int(positions) <= len(pos):
+            raise ValueError(f"positions: must be in 1..{len(pos)}, got {positions}")
+        pos = pos[:int(positions)]
+    if isinstance(per_direction, bool) or int(per_direction) < 1:
+        raise ValueError(f"per_direction: must be >= 1, got {per_direction}")
+    f = [float(v) for v in forces]
+    for name, values in (("forces", f), ("azimuths", azimuths), ("elevations", elevations)):
+        if len(values) == 0:
+            raise ValueError(f"{name}: need at least one value")
+    out = []
+    for ie, e in enumerate(elevations):
+        for ia, a in enumerate(azimuths):
+            for c in range(int(per_direction)):
+                x, y, z = pos[len(out) % len(pos)]
+                out.append((f[(ia + ie + c) % len(f)], float(a), float(e), x, y, z))
+    return np.asarray(out, dtype=float).reshape(-1, 6)
 
 
 def wall_contact(frames: np.ndarray, params: SceneParams | None = None,
@@ -488,6 +522,6 @@ def calibration_windows(model: Any, n_trajectories: int = 36, seed: int = 0,
     return np.concatenate([np.concatenate([o[i] for o in out]) for i in range(len(trajs))])
 
 
-__all__ = ["calibration_cases", "calibration_windows", "generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
+__all__ = ["calibration_cases", "calibration_windows", "generate", "load_windows", "load_trajectories", "train_grid", "train_grid3d", "wall_contact",
            "collision_frames", "sample_windows", "released_windows", "WINDOW_MODES", "scene_convention", "check_scene", "FORMAT",
            "N_TARGETS"]
