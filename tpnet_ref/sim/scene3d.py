@@ -316,9 +316,9 @@ def substeps_for(force: float, params: SceneParams3D | None = None) -> int:
     travel = math.ceil(v * p.dt / p.max_travel)
     n = max(p.min_substeps, spring, travel)
     if n > p.max_substeps:
-        what = ("frequency", f"{p.frequency:g} Hz springs") if spring >= travel else (
-            "force", f"a throw of force {force:g} ({v:.4g} units/s)")
-        raise ValueError(f"{what[0]}: {what[1]} need {n} substeps per step of {p.dt:.4g} s, more "
+        what = ("frequency", f"{p.frequency:g} Hz springs need") if spring >= travel else (
+            "force", f"a throw of force {force:g} ({v:.4g} units/s) needs")
+        raise ValueError(f"{what[0]}: {what[1]} {n} substeps per step of {p.dt:.4g} s, more "
                          f"than max_substeps = {p.max_substeps}; beyond what the scene resolves")
     return int(n)
 
