@@ -338,7 +338,7 @@ def check_throw(force: Any, azimuth_deg: Any, elevation_deg: Any, x: Any, y: Any
                 params: SceneParams3D) -> tuple[float, ...]:
     """The six throw parameters as floats, or a one-line ``ValueError``/``TypeError`` naming
     the first the scene cannot take: finite numbers, ``force >= 0``, elevation in [-90, 90], the
-    ball inside the box (particle centres at most one particle radius inside a wall)."""
+    whole ball inside the box (the centre in [3.15, 41.85] on every axis by default)."""
     p = params
     force = _check_number(force, "force")
     azimuth_deg = _check_number(azimuth_deg, "azimuth_deg")
@@ -357,7 +357,7 @@ def check_throw(force: Any, azimuth_deg: Any, elevation_deg: Any, x: Any, y: Any
         raise ValueError(f"x, y, z: coordinates up to {extent:g} cannot resolve particles of "
                          f"radius {p.particle_radius:g} in float64")
     if p.walls:
-        reach = p.ball_radius - p.particle_radius
+        reach = p.ball_radius + p.particle_radius
         lo, hi = p.free_lo + reach, p.free_hi - reach
         for name, v in (("x", x), ("y", y), ("z", z)):
             if not lo <= v <= hi:
