@@ -5,6 +5,7 @@
 
     PYTHONPATH=. python bench/stability.py --long   # only the first-step and long-run tables
     PYTHONPATH=. python bench/stability.py --first-step   # only the first-step table
+    PYTHONPATH=. python bench/stability.py --3d     # only the 3-D scene's tables (sim3d extra)
 
 Energies: E_motion = kinetic (linear + rotational) + gravitational, E_total adds the springs'
 potential energy as ideal springs of stiffness mu (2 pi f)^2. Positions in world units; the free
@@ -140,7 +141,74 @@ def long_table() -> None:
               f"{e[-1] / e0:.4f} | {e0 / e[0]:.4f} | {tr[1:].min():.3f} / {tr[1:].max():.3f} |")
 
 
+def tables_3d() -> None:
+    """The 3-D scene (tpnet_ref.sim.scene3d): stiff springs, extreme throws, refused cases."""
+    from tpnet_ref.sim import scene3d as s3
+
+    cp = s3.contact_pairs3d()
+
+    def throw(*case, steps=600, **kw):
+        p = s3.SceneParams3D(**kw)
+        sc = s3.build_scene3d(*case, p)
+        t = time.perf_counter()
+        tr = np.empty((steps, sc.n, 3))
+        e = np.empty(steps)
+        for k in range(steps):
+            sc.step()
+            tr[k] = sc.positions()
+            e[k] = sc.energy()
+        length = np.linalg.norm(tr[:, sc.pairs[:, 1]] - tr[:, sc.pairs[:, 0]], axis=2)
+        gap = np.linalg.norm(tr[:, cp[:, 0]] - tr[:, cp[:, 1]], axis=2).min()
+        return (tr, e, (np.abs(length - sc.rest) / sc.rest).max(), gap, sc.substeps,
+                time.perf_counter() - t)
+
+    print("## 3-D: stiff springs: F=1.6, azimuth 225, elevation -35, start (35, 35, 35), "
+          "600 steps")
+    print("| f (Hz) | omega_max dt (stiffest mode) | substeps | finite | min centre | "
+          "max centre | max abs(L-L0)/L0 | max E / E0 | E end / E0 | s |")
+    print("|" + "---|" * 10)
+    for f in (1.0, 2.0, 4.0, 8.0, 16.0, 64.0):
+        tr, e, st, _, n, sec = throw(1.6, 225.0, -35.0, 35.0, 35.0, 35.0, frequency=f)
+        w = s3.omega_max(s3.SceneParams3D(frequency=f))
+        print(f"| {f:g} | {w / 45:.2f} | {n} | {np.isfinite(tr).all()} | {tr.min():.4f} | "
+              f"{tr.max():.4f} | {st:.3f} | {e.max() / e[0]:.4f} | {e[-1] / e[0]:.4f} | "
+              f"{sec:.1f} |")
+    print()
+    print("## 3-D: extreme throws: 8 directions (azimuth 0, 90, 180, 270 at elevation 0; "
+          "45 and 225 at +-35), starts (41, 41, 41) and (4, 4, 4), 600 steps")
+    print("| force | f (Hz) | substeps | finite | min centre | max centre | max speed (units/s) "
+          "| min gap of unsprung pairs | s per throw |")
+    print("|" + "---|" * 9)
+    dirs = [(0, 0), (90, 0), (180, 0), (270, 0), (45, 35), (45, -35), (225, 35), (225, -35)]
+    for force, f in ((1.6, 1.0), (4.0, 1.0), (8.0, 1.0), (16.0, 1.0), (16.0, 8.0)):
+        lo, hi, vmax, gmin, fin, secs = 99.0, -99.0, 0.0, 99.0, True, []
+        for az, el in dirs:
+            for c in ((41.0, 41.0, 41.0), (4.0, 4.0, 4.0)):
+                tr, _, _, gap, n, sec = throw(force, az, el, *c, frequency=f)
+                fin &= bool(np.isfinite(tr).all())
+                lo, hi, gmin = min(lo, tr.min()), max(hi, tr.max()), min(gmin, gap)
+                vmax = max(vmax, 45 * np.linalg.norm(np.diff(tr, axis=0), axis=2).max())
+                secs.append(sec)
+        print(f"| {force:g} | {f:g} | {n} | {fin} | {lo:.4f} | {hi:.4f} | {vmax:.1f} | "
+              f"{gmin:.3f} | {np.mean(secs):.1f} |")
+    print()
+    print("## 3-D: at and beyond the substep limit (2,000 per step): 45 rows, or the one-line "
+          "error")
+    for kw, force in (({"frequency": 1000.0}, 1.6), ({}, 300.0), ({"frequency": 5000.0}, 1.6),
+                      ({}, 1000.0), ({}, float("nan"))):
+        name = f"force {force:g}" + "".join(f", {k} {v:g}" for k, v in kw.items())
+        try:
+            tr, _, _, _, n, sec = throw(force, 225.0, -35.0, 35.0, 35.0, 35.0, steps=45, **kw)
+            print(f"- {name}: {n} substeps, finite {np.isfinite(tr).all()}, min / max centre "
+                  f"{tr.min():.4f} / {tr.max():.4f}, {sec:.1f} s")
+        except ValueError as exc:
+            print(f"- {name}: ValueError: {exc}")
+
+
 def main() -> int:
+    if "--3d" in sys.argv[1:]:
+        tables_3d()
+        return 0
     if "--spin" in sys.argv[1:]:
         spin_table()
         return 0

@@ -1,36 +1,44 @@
-"""The tracked tree stays small enough to travel to a remote GPU machine with a checkpoint.
+"""The tracked tree stays small enough to travel to a remote GPU machine with a run's state.
 
 ``tools/gpu_train.sh`` sends the working tree (tracked files and untracked files git does not
-ignore) plus the paths it carries, 64 MiB in all (docs/training.md, weights/README.md). A call
-that resumes the full network carries its model-only checkpoint (4 bytes per parameter) and the
-wheels the machine lacks (pymunk, cffi, pycparser: 1.3 MiB), so the tracked tree must leave room
-for them. This test fails when a commit would take that room (a weights file more, a data file
-committed by mistake) and names the largest files; weights/README.md ("What git tracks") says
-which weights files are tracked and why.
+ignore) plus the paths it carries, 64 MiB in all (docs/training.md, weights/README.md). A run's
+state does not travel as one checkpoint: ``gpu_train.sh stage`` cuts it into bundles of at most
+``UP_MIB`` MiB (its default read from the script, 24), one a call, and each call carries one
+bundle and the wheels the machine lacks (pymunk, cffi, pycparser: 1.3 MiB), so the tracked tree
+must leave room for a bundle and the wheels: 64 - 24 - 2 = 38 MiB. This test fails when a
+commit would take that room (a weights file more, a data file committed by mistake) and names
+the largest files; weights/README.md ("What git tracks") says which weights files are tracked
+and why.
 """
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
 
-import numpy as np
 import pytest
-
-from tpnet_ref.config import TPNetConfig, param_shapes
 
 REPO = Path(__file__).resolve().parent.parent
 MIB = 1 << 20
 DEVICE_TREE = 64 * MIB
-#: the wheels (1.3 MiB), checkpoint.json and log.jsonl, and the torch payload's own overhead
+#: the wheels (1.3 MiB), checkpoint.json, log.jsonl and the manifest the first bundle holds
 CARRY_EXTRA = 2 * MIB
 
 
+def up_mib() -> int:
+    """The default size of a staged bundle, MiB: ``UP_MIB=${UP_MIB:-N}`` in tools/gpu_train.sh."""
+    text = (REPO / "tools" / "gpu_train.sh").read_text()
+    found = re.search(r"\bUP_MIB=\$\{UP_MIB:-(\d+)\}", text)
+    assert found, "tools/gpu_train.sh sets no default UP_MIB=${UP_MIB:-N}"
+    return int(found.group(1))
+
+
 def carry_reserve() -> int:
-    """Bytes a resuming call of the full network carries: its float32 parameters + extras."""
-    n = sum(int(np.prod(s)) for s in param_shapes(TPNetConfig()).values())
-    return 4 * n + CARRY_EXTRA
+    """Bytes a call carries besides the tree: one bundle of the run's state (``UP_MIB`` MiB,
+    staged by ``gpu_train.sh stage``) and the extras."""
+    return up_mib() * MIB + CARRY_EXTRA
 
 
 def tracked_bytes() -> tuple[int, list[tuple[int, str]]]:
@@ -44,17 +52,20 @@ def tracked_bytes() -> tuple[int, list[tuple[int, str]]]:
     return sum(s for s, _ in sizes), sorted(sizes, reverse=True)
 
 
-def test_the_carry_reserve_is_the_full_networks_model_only_checkpoint():
-    # 7,101,756 parameters (docs/training.md): 28.4 MB, the 27.1 MiB model-only payload
-    assert 27 * MIB < carry_reserve() - CARRY_EXTRA < 28 * MIB
+def test_the_carry_reserve_is_one_staged_bundle_and_the_wheels():
+    # a run's state goes up in bundles of UP_MIB (24 MiB), one a call, with the wheels
+    assert up_mib() == 24
+    assert carry_reserve() == 26 * MIB
+    assert DEVICE_TREE - carry_reserve() == 38 * MIB
 
 
 @pytest.mark.skipif(shutil.which("git") is None or not (REPO / ".git").exists(),
                     reason="not a git checkout")
-def test_tracked_tree_leaves_room_for_a_carried_checkpoint():
+def test_tracked_tree_leaves_room_for_a_staged_bundle():
     total, sizes = tracked_bytes()
     limit = DEVICE_TREE - carry_reserve()
     biggest = ", ".join(f"{n} {s / MIB:.1f} MiB" for s, n in sizes[:5])
     assert total <= limit, (f"the tracked tree is {total / MIB:.1f} MiB, over {limit / MIB:.1f} "
-                            f"MiB (64 MiB to a GPU machine less a carried checkpoint); largest: "
+                            f"MiB (64 MiB to a GPU machine less a staged bundle and the "
+                            f"wheels); largest: "
                             f"{biggest}")

@@ -14,6 +14,7 @@ from types import ModuleType
 EXTRAS: dict[str, str] = {
     "metrics": "the Chamfer metrics and the Numba inference engine (numba)",
     "sim": "the soft-body simulator (pymunk, numba)",
+    "sim3d": "the 3-D scene, a soft ball in a box (MuJoCo)",
     "plot": "figures (matplotlib)",
     "eval": "the evaluation protocol and the demo (metrics, sim, plot, tqdm)",
     "train": "training (PyTorch, scipy, tqdm)",

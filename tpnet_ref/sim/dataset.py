@@ -3,17 +3,22 @@
 File layout (HDF5, written by ``tpnet data generate``)::
 
     /                       attrs: m, n_targets, frame_every, steps, seed, norm_lo, norm_hi,
-                                   scene (JSON of SceneParams), format, and the scene
+                                   scene (JSON of SceneParams), format, dim (2 or 3; a file
+                                   without it is 2-D), and for dim = 2 the scene
                                    convention: impulse_point ("ring_centre" or
                                    "particle_centre"), sleep (bool)
-    /train/params           (T, 4) float64   force, angle_deg, x, y per trajectory
-    /train/positions        (T, F, N, 2) float32  world units, model frames (every 4th row)
-    /train/normalized       (T, F, N, 2) float32  (x - NORM_LO) / (NORM_HI - NORM_LO)
-    /train/contact          (T, F, 4) bool   some particle touches the left/right/bottom/top wall
+    /train/params           (T, 4) float64   force, angle_deg, x, y per trajectory (dim = 3:
+                                             (T, 6) force, azimuth_deg, elevation_deg, x, y, z)
+    /train/positions        (T, F, N, D) float32  world units, model frames (every 4th row);
+                                             D = dim (N = 30 in 2-D, 42 in 3-D)
+    /train/normalized       (T, F, N, D) float32  (x - NORM_LO) / (NORM_HI - NORM_LO)
+    /train/contact          (T, F, 2 D) bool some particle touches the wall at the low / high
+                                             end of each axis (x, y[, z]): left, right,
+                                             bottom, top[, floor, ceiling] in 2-D[3-D]
     /train/done             (T,) bool        trajectory written (resuming skips these)
     /train/windows          (W, 3) int64     trajectory, first frame, kind (1 wall collision,
                                              0 normal interval, 2 whole-trajectory window)
-    /train/rows             (T, S, N, 2) float32  normalised, EVERY simulator row (only in a
+    /train/rows             (T, S, N, D) float32  normalised, EVERY simulator row (only in a
                                              file made with ``windows="released"``)
     /train/windows_released (W', 3) int64    trajectory, first simulator ROW, kind: the released
                                              preprocessing's windows (:func:`released_windows`;
@@ -31,6 +36,11 @@ refuse (one-line ``ValueError``) a file made with another convention than the on
 (default: the simulator's default, ``SceneParams()``) unless ``allow_other_scene=True``. A file
 without the attributes was made before they existed, with ``impulse_point="particle_centre"``
 and the ``sleep`` recorded in its ``scene`` JSON.
+
+The 3-D scene (docs/spec.md §8, :mod:`tpnet_ref.sim.scene3d`) writes the same layout with
+``dim = 3`` (``generate(..., dim=3)``, ``tpnet data generate --dim 3``). Every reader takes the
+dimension it expects (``dim=2`` unless told, or a ``SceneParams3D`` given as ``scene``) and
+refuses a file of the other in one line naming both, whatever ``allow_other_scene`` says.
 """
 from __future__ import annotations
 
@@ -47,7 +57,9 @@ from ..config import NORM_HI, NORM_LO, normalize
 from ..extras import require
 from .protocol import FRAME_EVERY, SIM_ROWS
 from .cases import TRAIN_ANGLES_DEG, TRAIN_FORCES, TRAIN_POSITIONS
+from .cases3d import train_grid3d
 from .scene import SceneParams, simulate, validate_params
+from .scene3d import SceneParams3D, check_throw, simulate3d, validate_params3d
 
 FORMAT = "tpnet_ref.data/3"
 #: the convention of files written before it was recorded
@@ -77,16 +89,19 @@ def train_grid(forces: Sequence[float] = TRAIN_FORCES, angles: Sequence[float] =
     return np.asarray(out, dtype=float).reshape(-1, 4)
 
 
-def wall_contact(frames: np.ndarray, params: SceneParams | None = None,
+def wall_contact(frames: np.ndarray, params: SceneParams | SceneParams3D | None = None,
                  margin: float = 0.02) -> np.ndarray:
-    """``(F, 4)`` bool: some particle centre is within ``radius + skin + margin`` of the left,
-    right, bottom, top wall. ``frames``: ``(F, N, 2)`` world units."""
+    """``(F, 2 D)`` bool: some particle centre is within ``radius + skin + margin`` of the wall
+    at the low and the high end of each axis: left, right, bottom, top (2-D; the 3-D scene adds
+    floor and ceiling, its walls have no skin). ``frames``: ``(F, N, D)`` world units."""
     p = params or SceneParams()
-    reach = p.particle_radius + p.wall_skin + margin
-    lo = frames.min(axis=1)          # (F, 2)
+    reach = p.particle_radius + getattr(p, "wall_skin", 0.0) + margin
+    lo = frames.min(axis=1)          # (F, D)
     hi = frames.max(axis=1)
-    return np.stack([lo[:, 0] < p.free_lo + reach, hi[:, 0] > p.free_hi - reach,
-                     lo[:, 1] < p.free_lo + reach, hi[:, 1] > p.free_hi - reach], axis=1)
+    cols = []
+    for a in range(frames.shape[-1]):
+        cols += [lo[:, a] < p.free_lo + reach, hi[:, a] > p.free_hi - reach]
+    return np.stack(cols, axis=1)
 
 
 def collision_frames(contact: np.ndarray) -> np.ndarray:
@@ -164,6 +179,12 @@ def released_windows(rows: np.ndarray, rng: np.random.Generator, m: int, whole: 
     return np.stack([np.concatenate([normal, coll]), kinds], axis=1).astype(np.int64)
 
 
+def released_whole(n_trajectories: int) -> int:
+    """How many of ``n_trajectories`` training trajectories the released preprocessing keeps
+    whole: ``int(0.035 n)`` (240 of the 2-D grid's 6,875; 11 of the 3-D grid's 342)."""
+    return int(RELEASED_WHOLE_FRACTION * int(n_trajectories))
+
+
 def _draw(rng: np.random.Generator, pool: np.ndarray, k: int) -> np.ndarray:
     if k <= 0 or len(pool) == 0:
         return np.zeros(0, dtype=np.int64)
@@ -171,10 +192,18 @@ def _draw(rng: np.random.Generator, pool: np.ndarray, k: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- generation
-def _simulate_one(job: tuple[int, tuple[float, float, float, float], int, dict]) -> tuple:
-    """Worker: one trajectory -> (index, rows (S, N, 2) float64: every simulator row)."""
-    idx, (f, a, x, y), steps, scene = job
-    return idx, simulate(f, a, x, y, steps, params=SceneParams(**scene))
+#: the dimensions a dataset can have, and each one's case columns
+DIMS = (2, 3)
+CASE_COLUMNS = {2: ("force", "angle_deg", "x", "y"),
+                3: ("force", "azimuth_deg", "elevation_deg", "x", "y", "z")}
+
+
+def _simulate_one(job: tuple[int, tuple[float, ...], int, dict]) -> tuple:
+    """Worker: one trajectory -> (index, rows (S, N, D) float64: every simulator row)."""
+    idx, case, steps, scene = job
+    if len(case) == 6:
+        return idx, simulate3d(*case, steps, params=SceneParams3D(**scene))
+    return idx, simulate(*case, steps, params=SceneParams(**scene))
 
 
 def _frames_of(m: Any, steps: Any, workers: Any, windows: Any, seed: Any, whole: Any) -> int:
@@ -197,15 +226,39 @@ def _frames_of(m: Any, steps: Any, workers: Any, windows: Any, seed: Any, whole:
     return n_frames
 
 
-def _check_starts(splits: dict[str, np.ndarray], p: SceneParams) -> None:
-    """Every case's force >= 0 and, with walls, its start centre inside the box."""
-    reach = p.ring_radius - p.particle_radius
-    lo, hi = p.free_lo + reach, p.free_hi - reach
+def _scene_of(params: SceneParams | SceneParams3D | None,
+              dim: Any) -> SceneParams | SceneParams3D:
+    """The scene of a ``dim``-D dataset: ``params`` (default: that dimension's default scene)
+    checked to be of that dimension and valid (one-line errors)."""
+    if isinstance(dim, bool) or dim not in DIMS:
+        raise ValueError(f"dim: must be 2 or 3, got {dim!r}")
+    kind = SceneParams if dim == 2 else SceneParams3D
+    p = kind() if params is None else params
+    if not isinstance(p, kind):
+        raise ValueError(f"params: dim = {dim} needs a {kind.__name__}, got "
+                         f"{type(p).__name__}")
+    (validate_params if dim == 2 else validate_params3d)(p)
+    return p
+
+
+def _check_starts(splits: dict[str, np.ndarray], p: SceneParams | SceneParams3D) -> None:
+    """Every case's force >= 0 and its start inside the box (2-D: with walls, the start centre;
+    3-D: :func:`~tpnet_ref.sim.scene3d.check_throw`); a one-line ``ValueError`` naming the
+    first case the scene cannot simulate."""
     for split, cases in splits.items():
         name = "grid" if split == "train" else "test_cases"
         bad = np.flatnonzero(cases[:, 0] < 0)
         if bad.size:
             raise ValueError(f"{name}[{bad[0]}]: force must be >= 0, got {cases[bad[0], 0]}")
+        if isinstance(p, SceneParams3D):
+            for i, case in enumerate(cases):
+                try:
+                    check_throw(*case, p)
+                except ValueError as exc:
+                    raise ValueError(f"{name}[{i}]: {exc}") from None
+            continue
+        reach = p.ring_radius - p.particle_radius
+        lo, hi = p.free_lo + reach, p.free_hi - reach
         if p.walls:
             bad = np.flatnonzero(((cases[:, 2:] < lo) | (cases[:, 2:] > hi)).any(axis=1))
             if bad.size:
@@ -213,26 +266,30 @@ def _check_starts(splits: dict[str, np.ndarray], p: SceneParams) -> None:
                                  f"the body outside the box; must be in [{lo:g}, {hi:g}]")
 
 
-def _create_split(g: Any, cases: np.ndarray, n_frames: int, n: int, rows: int | None) -> None:
-    """A split's datasets in a new file: its cases, positions, contacts, what is done; with
-    ``rows`` (the released windows) every simulator row too."""
+def _create_split(g: Any, cases: np.ndarray, n_frames: int, n: int, rows: int | None,
+                  dim: int = 2) -> None:
+    """A split's datasets in a new file: its cases, positions (``dim`` coordinates), contacts
+    (two walls per axis), what is done; with ``rows`` (the released windows) every simulator
+    row too."""
     t = len(cases)
     g.create_dataset("params", data=cases)
-    shape = (t, n_frames, n, 2)
-    chunks = (1, n_frames, n, 2)
+    shape = (t, n_frames, n, dim)
+    chunks = (1, n_frames, n, dim)
     g.create_dataset("positions", shape=shape, dtype="f4", chunks=chunks)
     g.create_dataset("normalized", shape=shape, dtype="f4", chunks=chunks)
-    g.create_dataset("contact", shape=(t, n_frames, 4), dtype=bool)
+    g.create_dataset("contact", shape=(t, n_frames, 2 * dim), dtype=bool)
     g.create_dataset("done", shape=(t,), dtype=bool)
     if rows is not None:
-        g.create_dataset("rows", shape=(t, rows, n, 2), dtype="f4", chunks=(1, rows, n, 2))
+        g.create_dataset("rows", shape=(t, rows, n, dim), dtype="f4", chunks=(1, rows, n, dim))
 
 
 def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, *, m: int = 4,
              steps: int = SIM_ROWS, seed: int = 0, workers: int = 1, whole: int = 0,
-             params: SceneParams | None = None, progress: bool = True,
-             windows: str = "model") -> dict:
-    """Simulate ``grid`` (``(T, 4)`` force, angle, x, y) and ``test_cases`` into HDF5 ``path``.
+             params: SceneParams | SceneParams3D | None = None, progress: bool = True,
+             windows: str = "model", dim: int = 2) -> dict:
+    """Simulate ``grid`` (``(T, 4)`` force, angle, x, y) and ``test_cases`` into HDF5 ``path``;
+    ``dim=3``: the 3-D scene (``(T, 6)`` force, azimuth, elevation, x, y, z; ``params`` a
+    ``SceneParams3D``), the same layout with ``dim = 3`` recorded.
 
     Resumable: an existing file with the same settings keeps its finished trajectories.
     Deterministic: the simulation is deterministic and windows are drawn from
@@ -244,19 +301,19 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     import h5py
 
     n_frames = _frames_of(m, steps, workers, windows, seed, whole)
-    p = SceneParams() if params is None else params
-    validate_params(p)
+    p = _scene_of(params, dim)
     scene = dataclasses.asdict(p)
     settings = {"format": FORMAT, "m": int(m), "n_targets": N_TARGETS,
                 "frame_every": FRAME_EVERY, "steps": int(steps), "seed": int(seed),
                 "whole": int(whole), "norm_lo": NORM_LO, "norm_hi": NORM_HI,
-                "scene": json.dumps(scene, sort_keys=True),
-                "impulse_point": p.impulse_point, "sleep": bool(p.sleep)}
+                "scene": json.dumps(scene, sort_keys=True), "dim": int(dim)}
+    if dim == 2:
+        settings.update(impulse_point=p.impulse_point, sleep=bool(p.sleep))
     if windows != "model":              # files of the default mode keep their old attributes
         settings["windows"] = windows
-    splits = {"train": _cases(grid, "grid")}
+    splits = {"train": _cases(grid, "grid", dim)}
     if test_cases is not None:
-        splits["test"] = _cases(test_cases, "test_cases")
+        splits["test"] = _cases(test_cases, "test_cases", dim)
     _check_starts(splits, p)            # every case checked before the file is touched
     n = p.n_particles
     mode = "a" if os.path.exists(path) else "w"
@@ -268,6 +325,9 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     except OSError as exc:
         raise ValueError(f"{path}: cannot open for writing as HDF5 ({exc})") from None
     with h5 as h:
+        if "train" in h and file_dim(h) != dim:
+            raise ValueError(f"{path}: holds a {file_dim(h)}-D dataset (dim = {file_dim(h)}), "
+                             f"not dim = {dim}; use another file")
         made = _attr(h.attrs["windows"]) if "windows" in h.attrs else "model"
         if "train" in h and made != windows:
             raise ValueError(f"{path}: was written with windows={made!r}, not {windows!r}; "
@@ -285,7 +345,7 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
                                  "use another file")
             if "params" not in g:
                 _create_split(g, cases, n_frames, n, steps if split == "train"
-                              and windows == "released" else None)
+                              and windows == "released" else None, dim)
             done = g["done"][...]
             todo = [i for i in range(t) if not done[i]]
             counts[f"{split}_skipped"] = t - len(todo)
@@ -299,13 +359,19 @@ def generate(path: str, grid: np.ndarray, test_cases: np.ndarray | None = None, 
     return counts
 
 
-def _cases(a: Any, name: str) -> np.ndarray:
-    """``(T, 4)`` finite float cases (force, angle, x, y)."""
+def _cases(a: Any, name: str, dim: int = 2) -> np.ndarray:
+    """``(T, 4)`` finite float cases (force, angle, x, y); ``dim=3``: ``(T, 6)`` (force,
+    azimuth, elevation, x, y, z)."""
     arr = as_real_array(a, name)
-    if arr.ndim == 1 and arr.size == 4:
+    width = len(CASE_COLUMNS[dim])
+    if arr.ndim == 1 and arr.size == width:
         arr = arr[None]
-    if arr.ndim != 2 or arr.shape[1] != 4 or arr.shape[0] == 0:
-        raise ValueError(f"{name}: expected shape (T, 4) (force, angle, x, y), got {arr.shape}")
+    if arr.ndim != 2 or arr.shape[1] != width or arr.shape[0] == 0:
+        other = 3 if dim == 2 else 2
+        hint = (f"; {len(CASE_COLUMNS[other])} columns are {other}-D cases"
+                if arr.ndim == 2 and arr.shape[1] == len(CASE_COLUMNS[other]) else "")
+        raise ValueError(f"{name}: expected shape (T, {width}) ({', '.join(CASE_COLUMNS[dim])}) "
+                         f"for dim = {dim}, got {arr.shape}{hint}")
     return check_finite(arr.astype(float), name)
 
 
@@ -314,7 +380,7 @@ def _attr(v: Any) -> Any:
 
 
 def _run(g: Any, cases: np.ndarray, todo: list[int], steps: int, scene: dict, workers: int,
-         p: SceneParams, progress: bool, split: str) -> None:
+         p: SceneParams | SceneParams3D, progress: bool, split: str) -> None:
     if not todo:
         return
     jobs = [(i, tuple(cases[i]), steps, scene) for i in todo]
@@ -395,6 +461,20 @@ def _write_released_windows(g: Any, m: int, seed: int, whole: int) -> int:
 
 
 # --------------------------------------------------------------------------- reading
+def file_dim(h: Any) -> int:
+    """The dimension of a dataset file (open ``h5py.File``): its ``dim`` attribute, 2 without."""
+    return int(_attr(h.attrs["dim"])) if "dim" in h.attrs else 2
+
+
+def check_dim(h: Any, path: str, dim: int) -> None:
+    """A one-line ``ValueError`` when the file's dimension is not ``dim``."""
+    got = file_dim(h)
+    if got != dim:
+        ask = "dim=3 (--dim 3)" if got == 3 else "dim=2 (the default)"
+        raise ValueError(f"{path}: a {got}-D dataset (dim = {got}); this reader expects "
+                         f"dim = {dim}: read it with {ask}")
+
+
 def scene_convention(h: Any) -> dict[str, Any]:
     """``{"impulse_point": ..., "sleep": ...}`` a dataset file (open ``h5py.File``) was made with."""
     a = h.attrs
@@ -407,10 +487,19 @@ def scene_convention(h: Any) -> dict[str, Any]:
     return {"impulse_point": point, "sleep": sleep}
 
 
-def check_scene(h: Any, path: str, expected: SceneParams | None = None,
-                allow_other_scene: bool = False) -> dict[str, Any]:
+def check_scene(h: Any, path: str, expected: SceneParams | SceneParams3D | None = None,
+                allow_other_scene: bool = False, dim: int | None = None) -> dict[str, Any]:
     """The file's scene convention; a one-line ``ValueError`` when it is not ``expected``'s
-    (default ``SceneParams()``) unless ``allow_other_scene``."""
+    (default ``SceneParams()``) unless ``allow_other_scene``, and always when the file's
+    dimension is not ``dim`` (default: 3 for a ``SceneParams3D``, else 2). A 3-D file has no
+    convention to check: ``{"dim": 3}``."""
+    if dim is None:
+        dim = 3 if isinstance(expected, SceneParams3D) else 2
+    check_dim(h, path, dim)
+    if dim == 3:
+        return {"dim": 3}
+    if isinstance(expected, SceneParams3D):
+        raise ValueError(f"scene: a SceneParams3D for a {dim}-D reader")
     got = scene_convention(h)
     want = expected or SceneParams()
     if not allow_other_scene:
@@ -424,16 +513,19 @@ def check_scene(h: Any, path: str, expected: SceneParams | None = None,
 
 
 def load_windows(path: str, split: str = "train", *, normalized: bool = True,
-                 kinds: Sequence[int] | None = None, scene: SceneParams | None = None,
-                 allow_other_scene: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Training windows as arrays: inputs ``(W, m, N, 2)`` and targets ``(W, 8, N, 2)``
+                 kinds: Sequence[int] | None = None,
+                 scene: SceneParams | SceneParams3D | None = None,
+                 allow_other_scene: bool = False,
+                 dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Training windows as arrays: inputs ``(W, m, N, D)`` and targets ``(W, 8, N, D)``
     (float32; model coordinates unless ``normalized=False``). ``kinds`` filters by window kind
     (0 normal, 1 wall collision, 2 whole trajectory). The file must have been made with
-    ``scene``'s convention (default ``SceneParams()``) unless ``allow_other_scene``."""
+    ``scene``'s convention (default ``SceneParams()``) unless ``allow_other_scene``, and be of
+    dimension ``dim`` (:func:`check_scene`: 2 unless told or ``scene`` is 3-D)."""
     import h5py
 
     with h5py.File(path, "r") as h:
-        check_scene(h, path, scene, allow_other_scene)
+        check_scene(h, path, scene, allow_other_scene, dim)
         m = int(h.attrs["m"])
         nt = int(h.attrs["n_targets"])
         g = h[split]
@@ -451,15 +543,17 @@ def load_windows(path: str, split: str = "train", *, normalized: bool = True,
 
 
 def load_trajectories(path: str, split: str = "test", *, normalized: bool = False,
-                      scene: SceneParams | None = None,
-                      allow_other_scene: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """All frames of a split: ``(T, F, N, 2)`` float32 and their ``(T, 4)`` parameters. The
-    file must have been made with ``scene``'s convention (default ``SceneParams()``) unless
-    ``allow_other_scene``."""
+                      scene: SceneParams | SceneParams3D | None = None,
+                      allow_other_scene: bool = False,
+                      dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """All frames of a split: ``(T, F, N, D)`` float32 and their ``(T, 4)`` parameters
+    (``(T, 6)`` in 3-D). The file must have been made with ``scene``'s convention (default
+    ``SceneParams()``) unless ``allow_other_scene``, and be of dimension ``dim``
+    (:func:`check_scene`)."""
     import h5py
 
     with h5py.File(path, "r") as h:
-        check_scene(h, path, scene, allow_other_scene)
+        check_scene(h, path, scene, allow_other_scene, dim)
         g = h[split]
         return g["normalized" if normalized else "positions"][...], g["params"][...]
 
@@ -506,6 +600,6 @@ def calibration_windows(model: Any, n_trajectories: int = 36, seed: int = 0,
     return np.concatenate([np.concatenate([o[i] for o in out]) for i in range(len(trajs))])
 
 
-__all__ = ["calibration_cases", "calibration_windows", "generate", "load_windows", "load_trajectories", "train_grid", "wall_contact",
+__all__ = ["calibration_cases", "calibration_windows", "generate", "load_windows", "load_trajectories", "train_grid", "train_grid3d", "wall_contact",
            "collision_frames", "sample_windows", "released_windows", "WINDOW_MODES", "scene_convention", "check_scene", "FORMAT",
-           "N_TARGETS"]
+           "N_TARGETS", "DIMS", "CASE_COLUMNS", "file_dim", "check_dim", "released_whole"]

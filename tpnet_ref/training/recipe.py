@@ -175,7 +175,8 @@ class WindowData:
     (the file's windows stop 8 frames before a trajectory's end). Train/validation split by
     trajectory, the same for every ``horizon``. A file made with another scene convention than
     the simulator's default is refused unless ``allow_other_scene``
-    (:func:`tpnet_ref.sim.dataset.check_scene`).
+    (:func:`tpnet_ref.sim.dataset.check_scene`), and a file of another dimension than ``dim`` (2, or 3
+    for the 3-D scene's) always.
 
     ``windows="released"`` trains on the released preprocessing's windows
     (``/train/windows_released``: starts at any simulator row, frames ``FRAME_EVERY`` rows
@@ -186,14 +187,14 @@ class WindowData:
 
     def __init__(self, path: str | os.PathLike, val_fraction: float, seed: int,
                  limit_windows: int | None = None, allow_other_scene: bool = False,
-                 horizon: int = N_STEPS_MAX, windows: str = "model") -> None:
+                 horizon: int = N_STEPS_MAX, windows: str = "model", dim: int = 2) -> None:
         import h5py
 
         if not Path(path).is_file():
             raise FileNotFoundError(f"dataset not found: {path}")
         with h5py.File(path, "r") as h:
             # a file made with another scene convention trains another physics
-            check_scene(h, str(path), allow_other_scene=allow_other_scene)
+            check_scene(h, str(path), allow_other_scene=allow_other_scene, dim=dim)
             self.m = int(h.attrs["m"])
             self.n_targets = int(h.attrs["n_targets"])
             g = h["train"]
