@@ -53,7 +53,7 @@ MODULES = {
     "reference": ["tests/test_engines_reference.py", "tests/test_engines_layers.py",
                   "tests/test_conformance.py::test_trace_names_in_order_and_result_unchanged"],
     "layers": ["tests/test_engines_layers.py", "tests/test_engines_reference.py"],
-    "checks": ["tests/test_checks.py", "tests/test_model.py"],
+    "checks": ["tests/test_checks.py", "tests/test_engines_numba_checks.py", "tests/test_model.py"],
     "native": ["tests/test_weights_native.py", "tests/test_integrity.py"],
     "hdf5": ["tests/test_weights_hdf5.py", "tests/test_untrusted_files.py", "tests/test_weights_native.py"],
     # (tests/test_invariance.py runs the same checkers on more networks: 70 s more a mutant)
