@@ -102,19 +102,11 @@ def _band(threshold):
 
 
 @njit(cache=True, nogil=True)
-def _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out):
-    """Frame ``f`` of ``x`` in model coordinates (the model's dtype, as ``canonical_points``
-    computes them) into its rows of ``out``, sorted by x then y when ``sort``."""
-    n = x.shape[1]
-    base = f * n
-    zero = out.dtype.type(0.0)
-    for i in range(n):
-        for k in range(2):
-            v = out.dtype.type(x[f, i, k])
-            out[base + i, k] = v + zero if normalized else (v - lo_d) / scale_d
-    if not sort:
-        return
-    for i in range(1, n):                       # insertion sort: a frame is a few dozen points
+def _sort_rows(out, base, n):
+    """Rows ``base .. base + n - 1`` of ``out (P, 2)`` sorted in place by x then y: an insertion
+    sort (a frame is a few dozen points), stable as ``np.lexsort`` (rows that tie on both are
+    the same numbers)."""
+    for i in range(1, n):
         px, py = out[base + i, 0], out[base + i, 1]
         j = i - 1
         while j >= 0 and (out[base + j, 0] > px or (out[base + j, 0] == px and out[base + j, 1] > py)):
@@ -126,23 +118,28 @@ def _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out):
 
 
 @njit(cache=True, nogil=True)
+def _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out):
+    """Frame ``f`` of ``x`` in model coordinates (the model's dtype, as ``canonical_points``
+    computes them) into its rows of ``out``, sorted by x then y when ``sort``."""
+    n = x.shape[1]
+    zero = out.dtype.type(0.0)
+    for i in range(n):
+        for k in range(2):
+            v = out.dtype.type(x[f, i, k])
+            out[f * n + i, k] = v + zero if normalized else (v - lo_d) / scale_d
+    if sort:
+        _sort_rows(out, f * n, n)
+
+
+@njit(cache=True, nogil=True)
 def sort_frames(points, n, out):
     """``out``: ``points (F * n, 2)`` with each frame of ``n`` rows sorted by x then y (stable,
-    as ``np.lexsort``; rows that tie on both are the same numbers)."""
+    as ``np.lexsort``)."""
     for f in range(points.shape[0] // n):
-        base = f * n
         for i in range(n):
-            out[base + i, 0] = points[base + i, 0]
-            out[base + i, 1] = points[base + i, 1]
-        for i in range(1, n):
-            px, py = out[base + i, 0], out[base + i, 1]
-            j = i - 1
-            while j >= 0 and (out[base + j, 0] > px or (out[base + j, 0] == px and out[base + j, 1] > py)):
-                out[base + j + 1, 0] = out[base + j, 0]
-                out[base + j + 1, 1] = out[base + j, 1]
-                j -= 1
-            out[base + j + 1, 0] = px
-            out[base + j + 1, 1] = py
+            out[f * n + i, 0] = points[f * n + i, 0]
+            out[f * n + i, 1] = points[f * n + i, 1]
+        _sort_rows(out, f * n, n)
 
 
 @njit(cache=True, nogil=True)
