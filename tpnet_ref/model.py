@@ -3,7 +3,7 @@
 :meth:`TPNet.predict` is ``check -> canonical points -> frame_features -> sequence_head ->
 denormalise`` (data flow with shapes: docs/architecture.md; the same network written to be read:
 :mod:`tpnet_ref.reference`). The feature extractor is the NumPy fast path
-(:mod:`tpnet_ref.fast_numpy`) or the Numba one; the prediction network runs on one of the
+(:mod:`tpnet_ref.engines.numpy_engine`) or the Numba one; the prediction network runs on one of the
 model's heads (:mod:`tpnet_ref.engines.interface`: NumPy, Numba, scene-specialised), every one tested
 against the reference; a rollout's loop is :mod:`tpnet_ref.engines.rollout`. Permutation invariance
 is exact: each frame's points are put in canonical order first (:mod:`tpnet_ref.point_order`;
@@ -36,7 +36,7 @@ class TPNet:
     :func:`tpnet_ref.load` or an importer in :mod:`tpnet_ref.weights`. ``engine``: "numpy",
     "numba" (the compiled head, extra ``metrics``) or "auto" (numba when installed);
     ``unit_order``: the layout of the fast paths (:mod:`tpnet_ref.unit_order`); ``used``: the
-    masks of a scene specialisation (:mod:`tpnet_ref.specialize`); ``sort_points``: put each
+    masks of a scene specialisation (:mod:`tpnet_ref.engines.specialised`); ``sort_points``: put each
     frame in canonical order before the network (the default; False runs the points in the order
     given, for checking the network's own invariance: :meth:`with_point_sort`). Every choice
     gives the same results up to rounding."""
@@ -122,7 +122,7 @@ class TPNet:
         """The same network computing only the units that ``windows`` ``(B, m, N, dim)`` (the
         scene's calibration windows) use, the same function on every input up to rounding
         (docs/tolerances.md): a window that would wake a
-        dropped unit is computed in full (:mod:`tpnet_ref.specialize`). Same ``predict`` /
+        dropped unit is computed in full (:mod:`tpnet_ref.engines.specialised`). Same ``predict`` /
         ``predict_batch`` / ``rollout`` API; ``counts`` says how many windows fell back."""
         return self.with_specialization(S.calibrate(self, windows, normalized))
 
@@ -141,9 +141,9 @@ class TPNet:
                 f"params={self.num_params:,}, dtype={self.dtype.name}, engine={self.engine}{spec})")
 
     def save(self, path: str | os.PathLike, **provenance: Any) -> None:
-        """Write the native HDF5 weights file (:mod:`tpnet_ref.native`) in the model's dtype
+        """Write the native HDF5 weights file (:mod:`tpnet_ref.weights.native`) in the model's dtype
         (bit-exact), with its ``meta`` and ``provenance`` as root attributes, its unit order,
-        its specialisation's masks and the digest of all of it (:mod:`tpnet_ref.native`)."""
+        its specialisation's masks and the digest of all of it (:mod:`tpnet_ref.weights.native`)."""
         groups = {}
         if self.specialization is not None:
             groups[S.GROUP] = S.group(self.specialization.used)
@@ -217,7 +217,7 @@ class TPNet:
     def _threads(self, what: str, batch: int, points: int, held: bool = False) -> Any:
         """The block a call's work runs in: always a one-thread BLAS, and
         :data:`tpnet_ref.engines.thread_policy.adaptive`, which lets the parts that may take a second thread (the
-        feature extractor's blocks of :data:`~tpnet_ref.fast_numpy.BLOCK_POINTS` points, the
+        feature extractor's blocks of :data:`~tpnet_ref.engines.numpy_engine.BLOCK_POINTS` points, the
         numba head's two directions) take it while that measures faster (the same bits either
         way). A call with nothing to share runs on one thread."""
         head = self.head_for(batch)
@@ -300,7 +300,7 @@ class TPNet:
 def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
          engine: str = "auto") -> TPNet:
     """A :class:`TPNet` from a native weights file; ``path=None`` loads the shipped m = 4 model
-    (:func:`tpnet_ref.native.default_weights_path`; a one-line ``FileNotFoundError``
+    (:func:`tpnet_ref.weights.shipped.default_weights_path`; a one-line ``FileNotFoundError``
     when there is none). A file written by a specialised model loads specialised. ``engine``:
     see :class:`TPNet`; "auto" (the default) is the Numba head where numba is installed."""
     if np.dtype(dtype) not in (np.dtype(np.float32), np.dtype(np.float64)):

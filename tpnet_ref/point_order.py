@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-#: up to this many points the canonical order is one lexsort (measured 120 points: 19 -> 5 us);
-#: above it, row-wise stable argsorts (1,024 frames of 30 points: 1.5 ms instead of 7 ms)
+#: up to this many points the canonical order is one lexsort; above it, row-wise stable argsorts
+#: (each the faster at its sizes)
 SMALL_SORT = 512
 
 
