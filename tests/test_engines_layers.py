@@ -192,3 +192,31 @@ def test_a_projection_of_all_zero_columns_is_zero_in_the_given_buffer_too(spans)
     buf = np.full((3, 5), 7.0, np.float32)
     assert L.project_spans(x, kernel, None, spans, out=buf) is buf
     np.testing.assert_array_equal(buf, np.zeros((3, 5)))
+
+
+# ------------------------------------------------------------------ found by a fresh mutation sample
+# (tools/mutation.py layers --sample 40 --fresh-seed: seed 226287594; docs/testing.md)
+@pytest.mark.parametrize("row, used", [([0.0, 0.0, 0.0, 0.0], 0), ([3.0, 0.0, 0.0, 0.0], 1),
+                                       ([0.0, -2.0, 0.0, 0.0], 2), ([0.0, 0.0, 0.0, np.nan], 4)])
+def test_used_columns_is_one_past_the_last_column_that_is_not_zero(row, used):
+    """``used_columns``: one past the last column with a non-zero (or NaN) entry in any row, 0 when
+    every entry is zero; with ``start``, counted from ``start``."""
+    x = np.array([row, np.zeros(4)])
+    assert L.used_columns(x) == used and L.used_columns(x[:1]) == used
+    assert L.used_columns(np.concatenate([np.ones((2, 3)), x], axis=1), 3) == used
+    assert L.used_columns(np.concatenate([x, np.ones((2, 2))], axis=1), 0, 4) == used
+
+
+def test_the_folded_layer_norm_product_reads_each_column_once_at_a_range_boundary():
+    """Each direction's columns cut after its last non-zero one: non-zeros in the last column of
+    one range and the first of the next are each multiplied once, the product equal to
+    ``layer_norm(h) @ K``."""
+    rng = np.random.default_rng(4)
+    h = np.zeros((3, 16))
+    h[:, [2, 7, 8]] = rng.normal(size=(3, 3))
+    gamma, beta = rng.normal(size=16), rng.normal(size=16)
+    kernel = rng.normal(size=(16, 5))
+    want = L.layer_norm(h, gamma, beta, 1e-3) @ kernel
+    got = L.project_layer_norm(h, gamma, beta, 1e-3, kernel, None, gamma @ kernel, beta @ kernel,
+                               [(0, 8), (8, 16)])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

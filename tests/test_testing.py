@@ -4,6 +4,7 @@ export under onnxruntime; its one-line report of a shrunk window, its lazy impor
 and the example of docs/testing.md run as written."""
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -31,7 +32,8 @@ def impl():
 def test_import_does_not_load_hypothesis():
     code = ("import sys, tpnet_ref.testing as t; assert 'hypothesis' not in sys.modules; "
             "t.windows(); assert 'hypothesis' in sys.modules")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       cwd=ROOT)                      # this tree's tpnet_ref, not an installed one
     assert r.returncode == 0, r.stderr[-2000:]
 
 
@@ -140,7 +142,8 @@ def test_the_kit_never_imports_torch():
     of sys.modules (and so does the first example of docs/testing.md, below)."""
     code = ("import sys, tpnet_ref.testing as t; t.windows(); "
             "assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       cwd=ROOT)
     assert r.returncode == 0, r.stderr[-2000:]
 
 
@@ -152,8 +155,10 @@ def test_the_docs_first_example_runs_without_torch(tmp_path):
     script = tmp_path / "example.py"
     script.write_text("import sys\nsys.modules['torch'] = None   # as if torch were not installed\n"
                       + blocks[0])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(     # this tree's tpnet_ref first
+        [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
     r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                       timeout=600, cwd=ROOT)
+                       timeout=600, cwd=ROOT, env=env)
     assert r.returncode == 0, r.stderr[-2000:]
     out = r.stdout.strip().splitlines()
     assert out[0].startswith("permutation_invariant: my_predict passed on 20 windows")
@@ -578,3 +583,323 @@ def test_agreement_reports_its_units(model):
                                       max_examples=3, seed=2)
     assert r <= 1e-4 and "model coordinates from the float64 reference" in r.report
     assert "passed on 3 windows (m=4, N=" in r.report
+
+
+# ------------------------------------------------------------------ the documented defaults and edges
+# Each strategy parameter's default, range and error, and each checker's tolerance, default
+# example count, seed and report, at and around its edges (read from the code and its docs).
+def _drawn(strategy, max_examples=100, seed=0):
+    """The windows ``permutation_invariant`` draws from ``strategy`` (each also once permuted)."""
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return np.zeros((1, 2))
+    testing.permutation_invariant(record, strategy, max_examples=max_examples, seed=seed)
+    return seen
+
+
+def test_the_default_windows_spread_their_points_by_each_documented_scale():
+    """``windows()`` spreads a frame's points around its centre by one of ``SCALES`` -- 1e-3, 1,
+    45 or 1e3 world units -- and draws each; seen exactly in a tied first frame, whose x take the
+    centre and one spread either side."""
+    assert testing.SCALES == (1e-3, 1.0, 45.0, 1e3)
+    spreads = set()
+    for w in _drawn(testing.windows(n=64, ragged=False, ties=True), max_examples=60):
+        x = np.unique(w[0][:, 0])
+        if len(x) == 3:
+            spreads.add(float(f"{(x[2] - x[0]) / 2:.3g}"))
+    assert spreads == {1e-3, 1.0, 45.0, 1e3}
+
+
+def test_the_rounding_bound_is_the_one_docs_testing_md_states():
+    """``TOLERANCE``: 5e-4 world units in float32, 1e-11 in float64, as docs/testing.md says and
+    its table's "test tolerance" column gives each implementation."""
+    text = (ROOT / "docs" / "testing.md").read_text()
+    rows = re.findall(r"^\| [^|]+ \| (float32|float64) \| [^|]+ \| [^|]+ \| ([0-9.e-]+) \|$",
+                      text, flags=re.M)
+    assert {dt for dt, _ in rows} == {"float32", "float64"}
+    assert all(float(tol) == TOLERANCE[dt] for dt, tol in rows), rows
+    assert "5e-4 world units in float32, 1e-11 in float64" in " ".join(text.split())
+    assert TOLERANCE == {"float32": 5e-4, "float64": 1e-11}
+
+
+def _same_windows(a, b):
+    return len(a) == len(b) and all(len(v) == len(w) and all(np.array_equal(f, g) for f, g in zip(v, w))
+                                    for v, w in zip(a, b))
+
+
+def test_the_default_windows_are_the_documented_ones():
+    """``windows()`` is ``windows(m=4, n=(1, 64), ragged=None, scales=(1e-3, 1, 45, 1e3),
+    centre=(-100, 100), ties=None, step=(0, 0), normalized=False)``: the same windows for the same
+    seed. Seen with the smallest spread: centres within 100 world units of the origin, 1 to 64
+    points a frame, at rest in time."""
+    told = testing.windows(m=4, n=(1, 64), ragged=None, scales=(1e-3, 1.0, 45.0, 1e3),
+                           centre=(-100.0, 100.0), ties=None, step=(0.0, 0.0), normalized=False)
+    assert _same_windows(_drawn(testing.windows(), max_examples=30, seed=7),
+                         _drawn(told, max_examples=30, seed=7))
+    centres, sizes, moves = [], [], []
+    for w in _drawn(testing.windows(scales=[1e-3], ties=False), max_examples=200):
+        c = np.array([f.mean(axis=0) for f in w])
+        centres.extend(c.ravel())
+        sizes.extend(len(f) for f in w)
+        moves.extend(np.hypot(*(c[1:] - c[:-1]).T))
+    assert -100.01 <= min(centres) < -50.0 and 50.0 < max(centres) <= 100.01
+    assert min(sizes) == 1 and 32 < max(sizes) <= 64
+    assert max(moves) < 0.01
+
+
+def test_a_moving_window_heads_in_every_direction_and_a_step_range_from_0_moves():
+    """The direction of motion is drawn over the whole circle (every eighth of it seen), and
+    ``step=(0, 2)`` moves windows by up to 2 world units a frame, not only at rest."""
+    angles = []
+    for w in _drawn(testing.windows(m=2, n=4, step=(1.0, 1.0), scales=[1e-3], ties=False),
+                    max_examples=300):
+        d = w[1].mean(axis=0) - w[0].mean(axis=0)
+        angles.append(np.arctan2(d[1], d[0]) % (2 * np.pi))
+    assert set((np.array(angles) // (np.pi / 4)).astype(int).tolist()) == set(range(8))
+    moves = [float(np.hypot(*(w[1].mean(axis=0) - w[0].mean(axis=0))))
+             for w in _drawn(testing.windows(m=2, n=4, step=(0.0, 2.0), scales=[1e-3],
+                                             ties=False), max_examples=50)]
+    assert 1.0 < max(moves) <= 2.01
+
+
+def test_every_window_draws_its_own_points():
+    """Windows of the same shape, spread and centre differ in their points: each draws its own
+    random numbers (a handful of seeds would repeat a handful of patterns)."""
+    from hypothesis import given, settings
+    seen = []
+
+    @settings(max_examples=100, database=None, deadline=None, derandomize=True)
+    @given(testing.windows(m=1, n=8, scales=[1.0], centre=(0.0, 0.0), ties=False))
+    def draw(w):
+        seen.append(w[0].tobytes())
+
+    draw()
+    assert len(set(seen)) > 80, len(set(seen))
+
+
+def test_normalized_windows_are_the_world_windows_in_model_coordinates():
+    """``normalized=True``: each point is ``(x - 1.1438) / 42.7124`` of the world window drawn."""
+    for w in _drawn(testing.windows(m=2, n=4, scales=[1e-3], centre=(20.0, 20.0),
+                                    normalized=True), max_examples=10):
+        for f in w:
+            np.testing.assert_allclose(f * 42.7124 + 1.1438, 20.0, rtol=0, atol=0.01)
+
+
+@pytest.mark.parametrize("kw, error, message", [
+    ({"m": True}, TypeError, r"windows: m must be an int, a \(lo, hi\) range or a list of "
+                             r"choices, got True"),
+    ({"n": 2.5}, TypeError, r"windows: n must be an int, .*, got 2.5$"),
+    ({"n": (5,)}, TypeError, r"windows: n must be an int, .*, got \(5,\)$"),
+    ({"n": (1, 2, 3)}, TypeError, r"windows: n must be an int, .*, got \(1, 2, 3\)$"),
+    ({"n": (0, 4)}, ValueError, r"windows: n must be at least 1, got \(0, 4\)$"),
+    ({"m": []}, ValueError, r"windows: m must be at least 1, got \[\]$"),
+    ({"scales": []}, ValueError, r"windows: scales must be positive spreads, got \[\]$"),
+    ({"scales": [0.0]}, ValueError, r"windows: scales must be positive spreads, got \[0.0\]$"),
+    ({"scales": [1.0, -0.5]}, ValueError, r"windows: scales must be positive spreads, got "
+                                          r"\[1.0, -0.5\]$"),
+])
+def test_each_bad_strategy_argument_is_refused_saying_what_is_wrong(kw, error, message):
+    with pytest.raises(error, match=message):
+        testing.windows(**kw)
+
+
+def test_a_range_with_equal_bounds_draws_that_number():
+    drawn = _drawn(testing.windows(m=(2, 2), n=(3, 3)), max_examples=5)
+    assert {(len(w), len(f)) for w in drawn for f in w} == {(2, 3)}
+
+
+def test_a_seed_draws_the_same_windows_again_and_no_seed_new_ones():
+    def draws(seed):
+        return [np.concatenate(w) for w in _drawn(testing.windows(m=2, n=(1, 8)),
+                                                  max_examples=10, seed=seed)]
+
+    def same(a, b):
+        return len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert same(draws(5), draws(5))
+    assert not same(draws(None), draws(None))
+
+
+def test_frame_order_matters_draws_20_moving_windows_by_default():
+    """``frame_order_matters``' default windows: m = 4 frames, each 0.5 to 2 world units from the
+    one before (seen on the windows of the smallest spread), 20 of them unless told, as its
+    report says; ``one_point_matters`` checks 20 windows by default too."""
+    steps, medians = [], []
+
+    def centres(window):
+        c = np.array([f.mean(axis=0) for f in window])
+        if min(len(f) for f in window) >= 4 and max(np.ptp(f, axis=0).max() for f in window) < 0.05:
+            s = np.hypot(*np.diff(c, axis=0).T)     # a rotated window's last step wraps around
+            steps.extend(s)
+            medians.append(float(np.median(s)))
+        return c
+    got = testing.frame_order_matters(centres, seed=0)
+    assert got.report.startswith("frame_order_matters: centres passed on 20 windows (m=4, ")
+    seen = []
+
+    def record(window):
+        seen.append([np.array(f) for f in window])
+        return centres(window)
+    testing.frame_order_matters(record, seed=2, max_examples=10)
+    default, seen = seen, []
+    testing.frame_order_matters(record, testing.windows(m=4, step=(0.5, 2.0)), seed=2,
+                                max_examples=10)
+    assert _same_windows(default, seen)
+    testing.frame_order_matters(centres, seed=0, max_examples=100)
+    assert medians and min(steps) >= 0.49 and min(medians) < 0.75, (min(steps), min(medians))
+    assert 1.25 < max(medians) <= 2.01, max(medians)
+    got = testing.one_point_matters(lambda w: np.concatenate(w), seed=0)
+    assert " passed on 20 windows (m=4, " in got.report
+
+
+def test_frame_order_matters_refuses_windows_of_one_frame():
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: needs windows of 2 frames or "
+                                              r"more, got m=1, N=\(3,\)"):
+        testing.frame_order_matters(lambda w: np.concatenate(w), testing.windows(m=1, n=3),
+                                    max_examples=5)
+
+
+def test_a_change_of_at_most_tol_fails_the_non_vacuity_checks():
+    """``frame_order_matters`` and ``one_point_matters`` need a change of more than ``tol``."""
+    def everything(window):
+        return np.concatenate(window)
+    moving = testing.windows(m=3, n=(2, 5), step=(0.5, 2.0))
+    with pytest.raises(PropertyFailure, match=r"^frame_order_matters: everything changed by only "
+                                              r"\S+ \(needs more than 1e\+09\) on reversing"):
+        testing.frame_order_matters(everything, moving, tol=1e9, max_examples=5)
+    with pytest.raises(PropertyFailure, match=r"^one_point_matters: everything changed by only "
+                                              r"\S+ \(needs more than 1e\+09\) when point"):
+        testing.one_point_matters(everything, moving, tol=1e9, max_examples=5)
+
+
+def test_an_exact_port_agrees_with_the_reference_at_tol_0(impl):
+    """The tolerance is inclusive: a difference of exactly ``tol`` (here 0) passes."""
+    from tpnet_ref import reference
+    model = impl.base["float64"]
+    params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
+
+    def exact(window):
+        return reference.forward(model.config, params, window)
+    got = testing.agrees_with_reference(exact, model, tol=0.0,
+                                        windows=testing.windows(m=4, n=(1, 8)), max_examples=5)
+    assert got == 0.0
+    assert got.report.endswith("at most 0 world units from the float64 reference (tolerance 0)")
+
+
+def test_an_output_too_long_or_not_finite_is_named(impl):
+    model = impl.base["float64"]
+    one_point = testing.windows(m=4, n=1)
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: output shapes differ, "
+                                              r"\(31, 2\) against \(30, 2\)$"):
+        testing.agrees_with_reference(lambda w: np.zeros((31, 2)), model, tol=1.0,
+                                      windows=one_point, max_examples=3)
+
+    def not_a_number(window):
+        return np.full((30, 2), np.nan)
+    with pytest.raises(PropertyFailure, match=r"^agrees_with_reference: not_a_number is inf from "
+                                              r"the float64 reference \(tolerance 1\)"):
+        testing.agrees_with_reference(not_a_number, model, tol=1.0, windows=one_point,
+                                      max_examples=3)
+
+
+def test_the_report_gives_the_coordinates_seen_below_0_too():
+    got = testing.permutation_invariant(lambda w: np.zeros((1, 2)),
+                                        testing.windows(m=2, n=3, scales=[1e-3],
+                                                        centre=(-60.0, -50.0)), max_examples=5)
+    lo, hi = map(float, re.search(r"coordinates in \[(\S+), (\S+)\]\)", got.report).groups())
+    assert -60.01 <= lo <= hi <= -49.99, got.report
+
+
+def test_a_report_names_a_method_by_its_class_and_a_callable_object_by_its_type(impl):
+    model = impl.base["float64"]
+    got = testing.agrees_with_reference(model.predict, model, tol=TOLERANCE["float64"],
+                                        windows=testing.windows(m=4, n=(1, 4)), max_examples=3)
+    assert got.report.startswith("agrees_with_reference: TPNet.predict passed on 3 windows")
+
+    class Port:
+        def __call__(self, window):
+            return np.zeros((1, 2))
+    got = testing.permutation_invariant(Port(), testing.windows(m=2, n=2), max_examples=2)
+    assert got.report.startswith("permutation_invariant: Port passed on 2 windows")
+
+
+def test_the_measured_tolerances_reported_are_the_least_and_the_largest_seen(impl):
+    """Without ``tol`` the report gives the range of the tolerances measured on the windows it
+    drew: ``measured_tolerance`` of each, the least and the largest."""
+    model = impl.base["float64"]
+    seen = []
+
+    def predict(window):
+        seen.append([np.array(f) for f in window])
+        return model.predict(window)
+    got = testing.agrees_with_reference(predict, model, windows=testing.windows(m=4, n=(2, 6)),
+                                        max_examples=8, seed=3)
+    limits = [testing.measured_tolerance(model, w) for w in seen]
+    assert len(seen) == 8 and 0 < min(limits) < max(limits) < 1e-3
+    assert max(limits) != limits[-1]              # the largest is not merely the last one
+    assert got.report.endswith(f"(tolerance measured from float32 rounding, {min(limits):.3g}.."
+                               f"{max(limits):.3g})"), got.report
+
+
+def test_a_failure_on_windows_of_3_d_points_lists_their_first_two_coordinates():
+    def first_points(window):
+        return np.stack([f[0] for f in window])
+    lifted = testing.windows(m=1, n=2).map(
+        lambda w: [np.column_stack([f, np.full(len(f), 7.0)]) for f in w])
+    with pytest.raises(PropertyFailure, match=r"minimal window: m=1, N=\(2,\), coordinates in "
+                                              r"\[\S+, \S+\], frames: \(\S+, \S+\) \(\S+, \S+\), "
+                                              r"permutations \[\[1, 0\]\]$"):
+        testing.permutation_invariant(first_points, lifted, max_examples=50)
+
+
+def test_one_point_matters_reports_how_far_it_moved_the_point():
+    """The report's distance is the frame's reach from its centroid, twice, plus ``distance``."""
+    def constant(window):
+        return np.zeros((30, 2))
+    with pytest.raises(PropertyFailure) as exc:
+        testing.one_point_matters(constant, testing.windows(m=1, n=2, scales=[1.0], ties=False),
+                                  distance=2.0, max_examples=5)
+    msg = str(exc.value)
+    to = float(re.search(r"moved to (\S+) from the centroid", msg).group(1))
+    pts = np.array(re.findall(r"\(([-\d.e+]+), ([-\d.e+]+)\)", msg.split("frames: ")[1]),
+                   dtype=float)
+    reach = np.linalg.norm(pts - pts.mean(axis=0), axis=1).max()
+    assert reach > 0.1 and to == pytest.approx(2 * reach + 2.0, rel=5e-3), msg
+
+
+@pytest.mark.parametrize("blind_to, where", [
+    ("the first frame", r"point \d+ of frame 0 "),
+    ("the last frame", r"point \d+ of frame 2 "),
+    ("each frame's first point", r"point 0 of frame \d "),
+    ("each frame's last point", r"point 2 of frame \d "),
+])
+def test_one_point_matters_moves_any_point_of_any_frame(blind_to, where):
+    """A function blind to one frame, or to one place in each frame, fails: some window has that
+    frame's (that place's) point moved, and the report names it."""
+    def blind(window):
+        if blind_to == "the first frame":
+            kept = window[1:]
+        elif blind_to == "the last frame":
+            kept = window[:-1]
+        elif blind_to == "each frame's first point":
+            kept = [f[1:] for f in window]
+        else:
+            kept = [f[:-1] for f in window]
+        return np.concatenate(kept)
+    with pytest.raises(PropertyFailure, match=rf"^one_point_matters: blind changed by only 0 "
+                                              rf"\(needs more than 0\) when {where}"):
+        testing.one_point_matters(blind, testing.windows(m=3, n=3), max_examples=50, seed=0)
+
+
+def test_an_error_of_the_function_checked_comes_out_as_itself():
+    """A function that raises on some windows and breaks the property on others: the check
+    raises the failure of the smallest window, the function's own error, not a group of them."""
+    def brittle(window):
+        if len(window) == 1:
+            raise ZeroDivisionError("one frame")
+        return np.stack([f[0] for f in window])
+    with pytest.raises(ZeroDivisionError, match="one frame") as exc:
+        testing.permutation_invariant(brittle, testing.windows(m=[1, 2], n=(2, 4)),
+                                      max_examples=100, seed=0)
+    assert not any("reproduce_failure" in n for n in getattr(exc.value, "__notes__", []))
