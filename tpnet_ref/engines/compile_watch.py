@@ -121,4 +121,19 @@ def compiled_or_cached(kernel: Any, args: tuple[Any, ...]) -> bool:
         return False
 
 
-__all__ = ["CompileWatch", "COMPILING", "EVENT", "TWO_THREAD_KERNELS_ON_DEMAND", "compiled_or_cached"]
+def may_compile(kernel, key, memo: dict, args: tuple) -> bool:
+    """Whether the optional ``kernel`` (the same results exist without it) may run on ``args``:
+    always where the library compiles such kernels on demand
+    (:data:`TWO_THREAD_KERNELS_ON_DEMAND`, its default); in the short
+    commands (``tpnet demo``, ``predict``, ``animate``) only when numba already has it, compiled
+    in this process or in its cache, so that they never stop to compile it. ``memo``: the
+    answers by ``key`` (the argument types)."""
+    if TWO_THREAD_KERNELS_ON_DEMAND:
+        return True
+    got = memo.get(key)
+    if got is None:
+        got = memo[key] = compiled_or_cached(kernel, args)
+    return got
+
+
+__all__ = ["CompileWatch", "COMPILING", "EVENT", "TWO_THREAD_KERNELS_ON_DEMAND", "compiled_or_cached", "may_compile"]

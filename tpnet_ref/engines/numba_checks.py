@@ -347,25 +347,11 @@ def screen(x, m, normalized, norm_lo, scale, lo_d, scale_d, limit, one_window, s
     return _CLEAR, 0.0, 0.0
 
 
-def may_compile(kernel, key, memo: dict, args: tuple) -> bool:
-    """Whether the optional ``kernel`` (the same results exist without it) may run on ``args``:
-    always where the library compiles such kernels on demand
-    (:data:`tpnet_ref.engines.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, its default); in the short
-    commands (``tpnet demo``, ``predict``, ``animate``) only when numba already has it, compiled
-    in this process or in its cache, so that they never stop to compile it. ``memo``: the
-    answers by ``key`` (the argument types)."""
-    if compile_watch.TWO_THREAD_KERNELS_ON_DEMAND:
-        return True
-    got = memo.get(key)
-    if got is None:
-        got = memo[key] = compile_watch.compiled_or_cached(kernel, args)
-    return got
-
-
 class Screen:
     """:func:`screen` as a model's way into a prediction (``model.screen``, built by
     :func:`tpnet_ref.engines.interface.build_screen` for the Numba engine). Like the two-thread kernels, it
-    runs in the short commands only when numba already has it (:func:`may_compile`)."""
+    runs in the short commands only when numba already has it
+    (:func:`tpnet_ref.engines.compile_watch.may_compile`)."""
 
     def __init__(self) -> None:
         self._memo: dict = {}
@@ -394,7 +380,7 @@ class Screen:
                  else np.inf)
         args = (frames, c.m, normalized, c.norm_lo, c.norm_hi - c.norm_lo, model._lo,
                 model._scale, limit, one, model.sort_points, pts)
-        if not may_compile(screen, (frames.dtype, pts.dtype), self._memo, args):
+        if not compile_watch.may_compile(screen, (frames.dtype, pts.dtype), self._memo, args):
             return None
         code, a, b = screen(*args)
         if code == _UNDECIDED:
@@ -413,13 +399,13 @@ class Screen:
                 or points.shape[0] != n * len(counts) or (counts != n).any()):
             return None
         out = np.empty_like(points, order="C")
-        if not may_compile(sort_frames, ("sort", points.dtype, points.flags.c_contiguous),
-                           self._memo, (points, n, out)):
+        key = ("sort", points.dtype, points.flags.c_contiguous)
+        if not compile_watch.may_compile(sort_frames, key, self._memo, (points, n, out)):
             return None
         sort_frames(points, n, out)
         return out
 
 
-__all__ = ["screen", "Screen", "MAX_POINTS", "may_compile", "sort_frames", "warn_verdict",
+__all__ = ["screen", "Screen", "MAX_POINTS", "sort_frames", "warn_verdict",
            "VERDICT_CLEAR", "VERDICT_UNDECIDED", "VERDICT_SPAN", "VERDICT_RADIUS", "VERDICT_FALL",
            "VERDICT_STEP"]

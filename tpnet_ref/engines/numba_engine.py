@@ -124,13 +124,9 @@ def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...]) -> boo
     types, compiled in this process or in its cache (loaded then), so that a short command never
     stops to compile it -- the one-thread kernel gives the same bits. ``memo``: the caller's
     answers, by kernel (its argument types do not change)."""
-    if compile_watch.TWO_THREAD_KERNELS_ON_DEMAND:
-        return True
-    got = memo.get(kernel)
-    if got is None:
-        got = memo[kernel] = compile_watch.compiled_or_cached(kernel, args)
-        if not got:
-            _SKIPPED.add(kernel.__name__)
+    got = compile_watch.may_compile(kernel, kernel, memo, args)
+    if not got:
+        _SKIPPED.add(kernel.__name__)
     return got
 
 

@@ -15,7 +15,8 @@ import numpy as np
 from numba import njit
 
 from ..checks import overflow_error
-from .numba_checks import may_compile, sort_frames
+from .compile_watch import may_compile
+from .numba_checks import sort_frames
 from .numba_features import frame_range
 from .numba_lstm import head_serial, project_serial
 
@@ -107,7 +108,7 @@ def run_rest(model, feats, buf, first: int, s0: int, steps: int, batch: int,
              out: np.ndarray) -> bool:
     """Steps ``s0 ..`` of a rollout as :func:`rollout_steps` (``fusable`` checked by the
     caller), raising the overflow errors the step-by-step loop raises; False (nothing run)
-    where the kernel may not be compiled now (:func:`tpnet_ref.engines.numba_checks.may_compile`)."""
+    where the kernel may not be compiled now (:func:`tpnet_ref.engines.compile_watch.may_compile`)."""
     args = _args(model, feats, buf, first, s0, steps, batch, out)
     head = model.head_for(batch)
     key = (out.dtype, len(head.recs), len(model.engine_features.ws))
