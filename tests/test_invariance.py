@@ -97,12 +97,16 @@ def mixed_across_frames(segment_max):
     return lambda x, counts: segment_max(np.roll(x, 1, axis=0), counts)
 
 
-def sort_ignoring_ties(canonical_order):
-    """The canonical order by x alone: points that tie in x keep their input order."""
-    def order(points, counts):
+def sort_ignoring_ties(sorted_points):
+    """The canonical order by x alone, on every path (the compiled sort of equal frames and
+    :func:`~tpnet_ref.point_order.canonical_order` of ragged ones): points that tie in x keep
+    their input order."""
+    def broken(self, points, counts):
+        if not self.sort_points:
+            return points
         frame_id = np.repeat(np.arange(len(counts)), counts)
-        return np.lexsort([points[:, 0], frame_id])
-    return order
+        return points[np.lexsort([points[:, 0], frame_id])]
+    return broken
 
 
 #: name -> (module, attribute, broken replacement, property that must catch it)
@@ -110,7 +114,7 @@ MUTANTS = {
     "first point instead of max": (L, "segment_max", first_point, "network"),
     "position-weighted sum": (L, "segment_max", position_weighted_sum, "network"),
     "points mixed across frames": (L, "segment_max", mixed_across_frames, "network"),
-    "a sort that ignores ties": (M, "canonical_order", sort_ignoring_ties, "pipeline"),
+    "a sort that ignores ties": (M.TPNet, "sorted_points", sort_ignoring_ties, "pipeline"),
 }
 
 
