@@ -340,6 +340,7 @@ def _cli_run(args: argparse.Namespace) -> int:
 
     from ..training.checkpoint import load_parent
     from ..training.loop import train
+    from ..sim.dataset import file_dim
     from ..training.recipe import Recipe, size_config
 
     recipe = None
@@ -348,8 +349,8 @@ def _cli_run(args: argparse.Namespace) -> int:
         if not Path(args.data).is_file():
             raise FileNotFoundError(f"dataset not found: {args.data}")
         with h5py.File(args.data, "r") as h:
-            m = int(h.attrs["m"])
-        cfg = size_config(args.size, m=m, lstm_activation=args.lstm_activation)
+            m, dim = int(h.attrs["m"]), file_dim(h)
+        cfg = size_config(args.size, m=m, dim=dim, lstm_activation=args.lstm_activation)
         if args.init_from:   # the parent's network, for this dataset's window length m
             cfg = dataclasses.replace(load_parent(args.init_from)[2], m=m)
         recipe = Recipe(recipe=args.recipe, epochs=args.epochs or Recipe.epochs,

@@ -52,21 +52,26 @@ LOG_NAME = "log.jsonl"
 def init_head_template(net: Any, data: "WindowData", weight_scale: float = 0.1) -> None:
     """Data-dependent initialisation of the sigmoid head (``--head-init template``).
 
-    The head's bias becomes the logit of a ring of the body's rest radius (measured on the
+    The head's bias becomes the logit of a ring (a sphere in 3-D) of the body's rest radius (measured on the
     first frame of the training trajectories) around the mean training position, and its
     weights are scaled by ``weight_scale``: the untrained network then outputs a ring of the
     right size near the middle of the data instead of 30 points scattered around 0.5, so the
     first steps learn motion instead of first collapsing the point cloud into a shape. Output
     order is free (the loss is a Chamfer distance), so ring index ``i`` is only a slot."""
     train_traj = np.setdiff1d(np.arange(data.frames.shape[0]), data.val_traj)
-    f0 = data.frames[train_traj, 0].astype(np.float64)                  # (T, N, 2)
-    radius = float(np.linalg.norm(f0 - f0.mean(1, keepdims=True), axis=-1).mean())
-    centre = data.frames[train_traj].astype(np.float64).reshape(-1, 2).mean(0)
     n_out, dim = net.config.n_out, net.config.dim
-    if dim != 2:
-        raise ValueError("template head initialisation is defined for 2-D points")
-    a = 2 * np.pi * np.arange(n_out) / n_out
-    ring = centre + radius * np.stack([np.sin(a), np.cos(a)], axis=1)
+    f0 = data.frames[train_traj, 0].astype(np.float64)                  # (T, N, dim)
+    radius = float(np.linalg.norm(f0 - f0.mean(1, keepdims=True), axis=-1).mean())
+    centre = data.frames[train_traj].astype(np.float64).reshape(-1, dim).mean(0)
+    if dim == 2:
+        a = 2 * np.pi * np.arange(n_out) / n_out
+        unit = np.stack([np.sin(a), np.cos(a)], axis=1)
+    else:                       # a Fibonacci sphere: n_out points spread evenly
+        z = 1 - (2 * np.arange(n_out) + 1) / n_out
+        a = np.pi * (3 - np.sqrt(5)) * np.arange(n_out)
+        r = np.sqrt(1 - z * z)
+        unit = np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
+    ring = centre + radius * unit
     ring = np.clip(ring, 1e-4, 1 - 1e-4)
     with torch.no_grad():
         net.head.bias.copy_(torch.from_numpy(np.log(ring / (1 - ring)).reshape(-1)))
@@ -261,7 +266,7 @@ def _start_state(run_dir: Path, recipe: Recipe | None,
 def _load_data(data_path: str | os.PathLike, r: Recipe, s: TrainSettings) -> WindowData:
     data = WindowData(data_path, r.val_fraction, r.split_seed, s.limit_windows,
                       s.allow_other_scene, horizon=max(N_STEPS_MAX, r.rollout),
-                      windows=r.windows)
+                      windows=r.windows, dim=r.tpnet_config.dim)
     if data.m != r.tpnet_config.m:
         raise ValueError(f"dataset has m={data.m}, the recipe's network m={r.tpnet_config.m}")
     if len(data.train_win) == 0:
