@@ -42,6 +42,7 @@ def test_a_3d_file_trains_a_3d_network_with_the_released_recipe(file3d, tmp_path
     assert rc == 0
     state = json.loads((run / "checkpoint.json").read_text())
     assert state["recipe"]["config"]["dim"] == 3 and state["step"] == 2
+    assert state["recipe"]["config"]["n_out"] == 42              # the ball's points
     vals = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
     val = [v for v in vals if v["kind"] == "val"][-1]
     assert np.isfinite([val["val_loss"], val["val_cd8"], val["val_es8"]]).all()
@@ -51,7 +52,7 @@ def test_a_3d_file_trains_a_3d_network_with_the_released_recipe(file3d, tmp_path
 
 def test_the_template_head_is_a_sphere_of_the_rest_radius(file3d):
     r = R.Recipe(recipe="paper", epochs=1, batch=8, val_fraction=0.2, head_init="template",
-                 config=R.size_config("tiny", dim=3).to_dict())
+                 config=R.size_config("tiny", dim=3, n_out=42).to_dict())
     data = R.WindowData(file3d, r.val_fraction, r.split_seed, dim=3)
     torch.manual_seed(0)
     net = TorchTPNet(r.tpnet_config)

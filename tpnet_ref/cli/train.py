@@ -350,7 +350,10 @@ def _cli_run(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"dataset not found: {args.data}")
         with h5py.File(args.data, "r") as h:
             m, dim = int(h.attrs["m"]), file_dim(h)
-        cfg = size_config(args.size, m=m, dim=dim, lstm_activation=args.lstm_activation)
+            n_points = int(h["train/normalized"].shape[2]) if "train/normalized" in h else 30
+        # the file's dimension and body (30 points in 2-D, 42 in 3-D) give the network's
+        cfg = size_config(args.size, m=m, dim=dim, n_out=n_points,
+                          lstm_activation=args.lstm_activation)
         if args.init_from:   # the parent's network, for this dataset's window length m
             cfg = dataclasses.replace(load_parent(args.init_from)[2], m=m)
         recipe = Recipe(recipe=args.recipe, epochs=args.epochs or Recipe.epochs,
