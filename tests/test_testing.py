@@ -842,14 +842,14 @@ def test_the_measured_tolerances_reported_are_the_least_and_the_largest_seen(imp
                                f"{max(limits):.3g})"), got.report
 
 
-def test_a_failure_on_windows_of_3_d_points_lists_their_first_two_coordinates():
+def test_a_failure_on_windows_of_3_d_points_lists_all_three_coordinates():
     def first_points(window):
         return np.stack([f[0] for f in window])
     lifted = testing.windows(m=1, n=2).map(
         lambda w: [np.column_stack([f, np.full(len(f), 7.0)]) for f in w])
     with pytest.raises(PropertyFailure, match=r"minimal window: m=1, N=\(2,\), coordinates in "
-                                              r"\[\S+, \S+\], frames: \(\S+, \S+\) \(\S+, \S+\), "
-                                              r"permutations \[\[1, 0\]\]$"):
+                                              r"\[\S+, \S+\], frames: \(\S+, \S+, 7\) "
+                                              r"\(\S+, \S+, 7\), permutations \[\[1, 0\]\]$"):
         testing.permutation_invariant(first_points, lifted, max_examples=50)
 
 

@@ -1,9 +1,10 @@
 """Property tests for any TP-Net implementation: hypothesis strategies and checkers.
 
 A TP-Net, in any framework, is a function from a window -- ``m`` frames, each an unordered set
-of 2-D points ``(N_t, 2)`` -- to the next point set ``(n_out, 2)``. The checkers here take any
-such callable ``fn(window) -> points`` (a NumPy array, a torch tensor, anything ``np.asarray``
-reads; a window is a list of ``m`` float64 arrays) and test it with hypothesis:
+of points ``(N_t, dim)``, 2-D or 3-D -- to the next point set ``(n_out, dim)``. The checkers here
+take any such callable ``fn(window) -> points`` (a NumPy array, a torch tensor, anything
+``np.asarray`` reads; a window is a list of ``m`` float64 arrays) and test it with hypothesis,
+on the windows of :func:`windows` (2-D by default, ``windows(dim=3)`` for a 3-D network):
 
 - :func:`permutation_invariant` -- permuting each frame's points independently (the
   ``(N!)^m`` per-frame permutations) changes the output by at most ``tol``;
@@ -124,7 +125,8 @@ def _describe(window: Sequence[np.ndarray], perms: Sequence[np.ndarray] | None =
     hi = max(float(f.max()) for f in window)
     text = f"m={len(window)}, N={sizes}, coordinates in [{lo:.4g}, {hi:.4g}]"
     if sum(sizes) <= 12:
-        pts = "; ".join(" ".join(f"({x:.6g}, {y:.6g})" for x, y in f[:, :2]) for f in window)
+        pts = "; ".join(" ".join("(" + ", ".join(f"{v:.6g}" for v in p) + ")" for p in f)
+                        for f in window)
         text += f", frames: {pts}"
     if perms is not None:
         moved = [p.tolist() for p in perms]
@@ -137,8 +139,9 @@ def _describe(window: Sequence[np.ndarray], perms: Sequence[np.ndarray] | None =
 def windows(m: int | tuple[int, int] | list[int] = 4, n: int | tuple[int, int] = (1, 64),
             ragged: bool | None = None, scales: Sequence[float] = SCALES,
             centre: tuple[float, float] = (-100.0, 100.0), ties: bool | None = None,
-            step: tuple[float, float] = (0.0, 0.0), normalized: bool = False) -> Any:
-    """A hypothesis strategy for windows: lists of ``m`` float64 arrays ``(N_t, 2)``.
+            step: tuple[float, float] = (0.0, 0.0), normalized: bool = False,
+            dim: int = 2) -> Any:
+    """A hypothesis strategy for windows: lists of ``m`` float64 arrays ``(N_t, dim)``.
 
     ``m``, ``n``: a number, an inclusive range ``(lo, hi)`` or a list of choices (each at
     least 1); ``ragged``: frames of different sizes (None: either); ``scales``: the spreads of the points around the frame's centre, drawn
@@ -146,8 +149,10 @@ def windows(m: int | tuple[int, int] | list[int] = 4, n: int | tuple[int, int] =
     ``ties`` (None: either): in the first frame, the second half of the points repeats the
     first half and one coordinate takes only three values (exact ties and duplicate points);
     ``step``: the range of the distance each frame moves from the one before (a window that
-    moves in time); ``normalized``: the windows in model coordinates, ``(x - 1.1438) / 42.7124``.
-    Shrinks towards fewer frames, fewer points, the first scale, seed 0."""
+    moves in time, in a random direction); ``normalized``: the windows in model coordinates,
+    ``(x - 1.1438) / 42.7124``; ``dim``: coordinates per point (2, the default, draws exactly
+    what it always drew; 3 for a 3-D network). Shrinks towards fewer frames, fewer points, the
+    first scale, seed 0."""
     st = _hypothesis().strategies
 
     def ints(v: Any, name: str) -> Any:
@@ -166,6 +171,9 @@ def windows(m: int | tuple[int, int] | list[int] = 4, n: int | tuple[int, int] =
             return st.integers(*v)
         return st.just(choices[0]) if len(choices) == 1 else st.sampled_from(choices)
 
+    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
+        raise ValueError(f"windows: dim must be a whole number of coordinates >= 1, got {dim!r}")
+    dim = int(dim)
     if not len(scales) or min(scales) <= 0:
         raise ValueError(f"windows: scales must be positive spreads, got {list(scales)!r}")
 
@@ -183,9 +191,8 @@ def windows(m: int | tuple[int, int] | list[int] = 4, n: int | tuple[int, int] =
         tied = draw(tie)
         speed = draw(st.floats(*step)) if step[1] > 0 else 0.0
         rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
-        angle = rng.uniform(0, 2 * np.pi)
-        v = speed * np.array([np.cos(angle), np.sin(angle)])
-        frames = [c + t * v + scale * rng.standard_normal((k, 2)) for t, k in enumerate(sizes)]
+        v = speed * _direction(rng, dim)
+        frames = [c + t * v + scale * rng.standard_normal((k, dim)) for t, k in enumerate(sizes)]
         if tied:
             f = frames[0]
             f[len(f) // 2:] = f[:len(f) - len(f) // 2]
@@ -195,6 +202,16 @@ def windows(m: int | tuple[int, int] | list[int] = 4, n: int | tuple[int, int] =
         return frames
 
     return window()
+
+
+def _direction(rng: np.random.Generator, dim: int) -> np.ndarray:
+    """A random unit vector of ``dim`` coordinates: in 2-D from one angle (the draws the 2-D
+    windows always made), else a normalised Gaussian vector."""
+    if dim == 2:
+        angle = rng.uniform(0, 2 * np.pi)
+        return np.array([np.cos(angle), np.sin(angle)])
+    u = rng.standard_normal(dim)
+    return u / max(float(np.linalg.norm(u)), 1e-300)
 
 
 _window_strategy = windows      # the checkers' parameter ``windows`` hides the function
@@ -319,7 +336,7 @@ def agrees_with_reference(fn: Callable[[Window], Any], model: Any, tol: float | 
     params = {k: np.asarray(v, dtype=np.float64) for k, v in model.params.items()}
     config = model.config
     strategy = windows if windows is not None else _window_strategy(
-        m=config.m, normalized=normalized)
+        m=config.m, normalized=normalized, dim=config.dim)
     worst, seen, tols = [0.0], _Seen(), [np.inf, 0.0]
     key = "head.sigmoid" if normalized else "output"
 
@@ -403,7 +420,7 @@ def one_point_matters(fn: Callable[[Window], Any], windows: Any = None, tol: flo
         reach = float(np.max(np.linalg.norm(f - centroid, axis=1)))
         away = f[i] - centroid
         norm = float(np.linalg.norm(away))
-        u = away / norm if norm > 0 else np.array([1.0, 0.0])
+        u = away / norm if norm > 0 else np.eye(f.shape[1])[0]
         moved = [g.copy() for g in w]
         moved[t][i] = centroid + (2 * reach + distance) * u
         d = _diff(_call(fn, w), _call(fn, moved), "one_point_matters")

@@ -9,9 +9,10 @@ def add_cli(sub: Any) -> None:
     p = sub.add_parser("export", help="write the model in another format (onnx)")
     fmt = p.add_subparsers(dest="format", metavar="FORMAT")
     fmt.required = True
-    q = fmt.add_parser("onnx", help="an ONNX file: input window (batch, m, N, 2) float32 in "
-                                    "world units -> prediction (batch, n_out, 2) in world units; "
-                                    "batch and N dynamic, LSTMs as ONNX LSTM ops (opset 17)")
+    q = fmt.add_parser("onnx", help="an ONNX file: input window (batch, m, N, dim) float32 in "
+                                    "world units -> prediction (batch, n_out, dim) in world "
+                                    "units, dim the model's (2, or 3 for a 3-D model); batch and "
+                                    "N dynamic, LSTMs as ONNX LSTM ops (opset 17)")
     q.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
     q.add_argument("-o", "--output", required=True, metavar="OUT.onnx",
                    help="the ONNX file to write, exactly at this path")

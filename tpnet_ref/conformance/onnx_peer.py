@@ -5,9 +5,10 @@ Built directly from a :class:`tpnet_ref.model.TPNet` (float32) with ``onnx.helpe
 layers are MatMul/Add/Relu on ``(B*m*N, C)``, max-pooling is ReduceMax over the points, the
 LSTMs are ONNX's fused ``LSTM`` op (bidirectional, activations Sigmoid/Relu/Relu as Keras'
 ``activation='relu'``, gate order converted from Keras i,f,c,o to ONNX i,o,f,c),
-LayerNormalization (opset 17). Input ``window`` ``(B, m, N, 2)``, output ``prediction``
-``(B, n_out, 2)``, both normalised or, with ``world_units``, both in world units (the
-normalisation and its inverse are in the graph). The batch is dynamic, and N too unless fixed.
+LayerNormalization (opset 17). Input ``window`` ``(B, m, N, dim)``, output ``prediction``
+``(B, n_out, dim)`` (``dim`` the model's: 2, or 3 for a 3-D model), both normalised or, with
+``world_units``, both in world units (the normalisation and its inverse are in the graph). The
+batch is dynamic, and N too unless fixed.
 
 The graph computes what :meth:`TPNet.predict_batch` computes, without its input checks and
 without the canonical point order (max-pooling is invariant: the results differ by rounding
@@ -159,15 +160,16 @@ def build_onnx(model, n_points: int | None = 30, opset: int = 17, world_units: b
 
 def export_onnx(model, path: str | os.PathLike, opset: int = 17) -> dict[str, str]:
     """Write ``model`` as an ONNX file for other runtimes (``tpnet export onnx``): input
-    ``window`` float32 ``(batch, m, N, 2)`` in world units, output ``prediction``
-    ``(batch, n_out, 2)`` in world units, batch and N dynamic, LSTMs as ONNX ``LSTM`` ops.
+    ``window`` float32 ``(batch, m, N, dim)`` in world units, output ``prediction``
+    ``(batch, n_out, dim)`` in world units (``dim`` the model's, 2 or 3), batch and N dynamic,
+    LSTMs as ONNX ``LSTM`` ops.
     Returns the metadata written with it (also readable as the file's ``metadata_props``)."""
     from onnx import helper
 
     proto = build_onnx(model, n_points=None, opset=opset, world_units=True)
     c = model.config
     meta = {"producer": "tpnet_ref.onnx_peer.export_onnx", "m": str(c.m), "n_out": str(c.n_out),
-            "units": "world", "norm_lo": repr(c.norm_lo), "norm_hi": repr(c.norm_hi),
+            "dim": str(c.dim), "units": "world", "norm_lo": repr(c.norm_lo), "norm_hi": repr(c.norm_hi),
             **{f"weights_{k}": str(model.meta[k]) for k in ("source", "created")
                if k in model.meta}}
     helper.set_model_props(proto, meta)
