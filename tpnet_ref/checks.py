@@ -113,9 +113,10 @@ def check_window(window: Any, m: int, dim: int, dtype: np.dtype,
                         "load the file first, e.g. np.load(path), or run `tpnet predict PATH`")
     if isinstance(window, np.ndarray) or not isinstance(window, Sequence):
         arr = as_real_array(window, name)
-        if arr.ndim != 3 or arr.shape[-1] != dim:
-            raise ValueError(f"{name}: expected shape (m={m}, N, {dim}) or a sequence of m "
-                             f"arrays (N_i, {dim}), got an array of shape {arr.shape}")
+        if arr.ndim != 3 or arr.shape[-1] != dim:   # a 2-D window to a 3-D model, or back: both dims
+            note = f" (the model is {dim}-D, these points {arr.shape[2]}-D)" if arr.ndim == 3 else ""
+            raise ValueError(f"{name}: expected shape (m={m}, N, {dim}) or a sequence of m arrays "
+                             f"(N_i, {dim}){note}, got an array of shape {arr.shape}")
         frames = [arr[i] for i in range(arr.shape[0])]
     else:
         frames = list(window)
@@ -144,8 +145,7 @@ def check_windows(windows: Any, m: int, dim: int, dtype: np.dtype) -> tuple[list
                              f"windows, got an array of shape {arr.shape}")
         b, mm, n, d = arr.shape
         if b and mm == m and n and d == dim and np.isfinite(arr).all() and _fits(arr, dtype):
-            # the whole batch checked at once (what check_window finds frame by frame); anything
-            # wrong is named by the loop below
+            # the whole batch at once (what check_window finds frame by frame); the loop below names a fault
             return list(arr.reshape(b * m, n, dim)), b
         windows = list(arr)
     elif isinstance(windows, (str, bytes, os.PathLike)):
@@ -167,9 +167,9 @@ class OutsideTrainingRangeWarning(UserWarning):
 
 
 #: the training scene in model coordinates: particle centres inside the box's free area
-#: [1.15, 43.85] world units map to [0, 1]; a margin of 5 % is still accepted
+#: [1.15, 43.85] world units map to [0, 1] (3-D: -0.002..1.001 on its grid); a 5 % margin accepted
 RANGE_LO, RANGE_HI = -0.05, 1.05
-#: the body's mean distance from its centroid, world units: a ring of radius 2, deformed
+#: the body's mean distance from its centroid, world units: a ring (3-D: a ball, 1.78..2.15) of radius 2
 RADIUS_RANGE = (1.0, 3.0)
 #: the radius is judged on frames of at least this many points only (a partial arc of the ring,
 #: as an occluded observation gives, has a shifted centroid)
@@ -178,19 +178,17 @@ RADIUS_MIN_POINTS = 20
 
 def training_range_problem(frames: np.ndarray | list[np.ndarray], norm_lo: float,
                            norm_hi: float, normalized: bool = False) -> str | None:
-    """Why ``frames`` (model coordinates: an ``(F, N, 2)`` array, or a list of ``(N_i, 2)``
+    """Why ``frames`` (model coordinates: an ``(F, N, dim)`` array, or a list of ``(N_i, dim)``
     frames) lie outside the training range, or ``None``. ``norm_lo``, ``norm_hi``: the model's
-    world-unit normalisation; ``normalized``: whether the caller passed model coordinates (for
-    the hint)."""
+    world-unit normalisation; ``normalized``: whether the caller passed model units (the hint)."""
     scale = norm_hi - norm_lo
     if isinstance(frames, np.ndarray):
         groups = [frames]
     elif len({f.shape[0] for f in frames}) == 1:
-        groups = [np.stack(frames)]                     # (F, N, 2) at once when N is shared
+        groups = [np.stack(frames)]                     # (F, N, dim) at once when N is shared
     else:
         groups = [f[None] for f in frames]
-    lo = min(float(g.min()) for g in groups)
-    hi = max(float(g.max()) for g in groups)
+    lo, hi = min(float(g.min()) for g in groups), max(float(g.max()) for g in groups)
     if lo < RANGE_LO or hi > RANGE_HI:
         return span_problem(lo, hi, norm_lo, norm_hi, normalized)
     for g in groups:
@@ -199,7 +197,7 @@ def training_range_problem(frames: np.ndarray | list[np.ndarray], norm_lo: float
         r = np.sqrt(((g - g.mean(axis=1, keepdims=True)) ** 2).sum(axis=2)).mean(axis=1) * scale
         bad = r[(r < RADIUS_RANGE[0]) | (r > RADIUS_RANGE[1])]
         if bad.size:
-            return radius_problem(float(bad[0]), normalized)
+            return radius_problem(float(bad[0]), normalized, g.shape[2])
     return None
 
 
@@ -215,18 +213,18 @@ def span_problem(lo: float, hi: float, norm_lo: float, norm_hi: float, normalize
             f"units, outside the training box [{norm_lo:g}, {norm_hi:g}]")
 
 
-def radius_problem(radius: float, normalized: bool) -> str:
-    """:func:`training_range_problem`'s words for a frame's mean radius (world units)."""
+def radius_problem(radius: float, normalized: bool, dim: int = 2) -> str:
+    """:func:`training_range_problem`'s words for a frame's mean radius (world units), ``dim``-D."""
     hint = (" (model coordinates given as world units? pass normalized=True)"
             if not normalized and radius < 0.1 else "")
     return (f"a frame's mean radius is {radius:.3g} world units; the trained body "
-            f"is a ring of radius 2 (accepted {RADIUS_RANGE[0]:g}..{RADIUS_RANGE[1]:g})"
+            f"is a {'ring' if dim == 2 else 'ball'} of radius 2 (accepted "
+            f"{RADIUS_RANGE[0]:g}..{RADIUS_RANGE[1]:g})"
             + hint)
 
 
 def warn_outside_training_range(frames: np.ndarray | list[np.ndarray], norm_lo: float, norm_hi: float,
-                                name: str, normalized: bool = False,
-                                stacklevel: int | None = None) -> bool:
+                                name: str, normalized: bool = False, stacklevel: int | None = None) -> bool:
     """One-line :class:`OutsideTrainingRangeWarning` if :func:`training_range_problem` finds one
     (``stacklevel`` None: the first caller outside the package); whether it warned."""
     problem = training_range_problem(frames, norm_lo, norm_hi, normalized)
@@ -488,17 +486,17 @@ class FrameSpacingWarning(OutsideTrainingRangeWarning):
     (:func:`motion_problem`); the result is computed unchanged."""
 
 
-#: a frame needs at least this many points: fewer than 3 cannot span an area, so they cannot
-#: outline a body (the model was trained on 30 points per frame)
+#: a frame needs at least this many points: fewer than 3 cannot span an area nor outline a body
 MIN_FRAME_POINTS = 3
 #: the accepted mean move of a window's centroid per frame, world units, for windows not in free
 #: fall (:func:`free_fall_rows` reads those): the training windows (frames 4 simulator rows =
 #: 4/45 s apart) move 0.025 to 2.08. With both rules, of every m = 4 window of 200 training-grid
 #: trajectories (float32), 0.18 % at the model's spacing are flagged, 93.9 % of consecutive rows,
-#: 89.3 % of every 2nd row, 82.4 % of every 8th (``python bench/robustness.py --motion 200``)
+#: 89.3 % of every 2nd row, 82.4 % of every 8th (``python bench/robustness.py --motion 200``); of
+#: the 3-D grid's 342 trajectories (docs/spec.md §8, the same speeds) 0.04 %, 93.4, 87.8, 82.2 %
 MOTION_RANGE = (0.1, 2.5)
-#: the scene's gravity (world units / s², downwards), simulator step (s) and simulator rows per
-#: model frame (docs/spec.md §3; the same as the scene's ``SceneParams`` and
+#: the scene's gravity (world units / s², down the last axis: y in 2-D, z in 3-D), simulator step
+#: (s) and rows per model frame (docs/spec.md §3, §8; the same as the scenes' ``SceneParams`` and
 #: ``protocol.REFERENCE_DT`` / ``FRAME_EVERY``, which this bottom layer cannot import: a test
 #: holds them equal): a body in free fall has its centroid's second difference
 #: (0, -GRAVITY * (FRAME_ROWS * SIM_DT)²) per frame, whatever its springs do (internal forces)
@@ -511,32 +509,32 @@ FREE_FALL_TOL = 0.05 * GRAVITY * SIM_DT ** 2
 
 
 def free_fall_rows(centroids: np.ndarray) -> float | None:
-    """The simulator rows between frames that a window's centroid path ``(m, 2)`` shows when the
-    body is in free fall (its second differences all ``(0, -g (rows * dt)²)`` within
+    """The simulator rows between frames that a window's centroid path ``(m, dim)`` shows when the
+    body is in free fall (its second differences all ``(0, .., -g (rows * dt)²)`` within
     :data:`FREE_FALL_TOL`), or ``None`` when it is not (a contact, a body at rest, m < 4)."""
     if len(centroids) < 4:
         return None
     dd = centroids[2:] - 2.0 * centroids[1:-1] + centroids[:-2]
-    fall = -dd[:, 1]
-    if (np.abs(dd[:, 0]).max() > FREE_FALL_TOL or np.ptp(fall) > FREE_FALL_TOL
+    fall = -dd[:, -1]                       # gravity along the last axis, as in both scenes
+    if (np.abs(dd[:, :-1]).max(initial=0.0) > FREE_FALL_TOL or np.ptp(fall) > FREE_FALL_TOL
             or fall.mean() < 0.5 * GRAVITY * SIM_DT ** 2):
         return None
     return float(np.sqrt(fall.mean() / GRAVITY) / SIM_DT)
 
 
-def sparse_frames_problem(counts: Sequence[int]) -> str | None:
-    """Why a window of frames with ``counts`` points is too sparse to be a body, or ``None``."""
+def sparse_frames_problem(counts: Sequence[int], dim: int = 2) -> str | None:
+    """Why a window of ``dim``-D frames of ``counts`` points is too sparse for a body, or ``None``."""
     few = [i for i, n in enumerate(counts) if n < MIN_FRAME_POINTS]
     if not few:
         return None
     i = few[0]
     return (f"frame {i} has {counts[i]} point(s){f' ({len(few)} frames have too few)' if len(few) > 1 else ''}; "
             f"a body's outline needs at least {MIN_FRAME_POINTS} (fewer cannot span an area; the "
-            f"model was trained on 30 per frame)")
+            f"model was trained on {30 if dim == 2 else 42} per frame)")
 
 
 def motion_problem(world: np.ndarray | list[np.ndarray]) -> str | None:
-    """Why the frames of one window (world units: ``(m, N, 2)`` or a list of ``(N_i, 2)``)
+    """Why the frames of one window (world units: ``(m, N, dim)`` or a list of ``(N_i, dim)``)
     look spaced in time otherwise than the training windows, or ``None``: a body in free fall
     whose centroid falls as at another spacing than :data:`FRAME_ROWS` rows
     (:func:`free_fall_rows`, one row or more off), else the mean distance between consecutive
@@ -591,26 +589,27 @@ def _caller_level() -> int:
 
 def warn_about_input(frames: list[np.ndarray], norm_lo: float, norm_hi: float,
                      normalized: bool, name: str, one_window: bool) -> None:
-    """The input warnings of a prediction on checked ``frames``: for ``one_window`` a :class:`NotOneBodyWarning` when its frames do not look like one body (stray points,
-    two blobs, a frame far from its neighbours), otherwise an
-    :class:`OutsideTrainingRangeWarning` when it leaves the training range (stray points trip
-    both; one line names the likely cause); then, for input inside the training range, a
-    :class:`TooFewPointsWarning` for a frame of fewer than :data:`MIN_FRAME_POINTS` points and,
-    for ``one_window``, a :class:`FrameSpacingWarning` when :func:`motion_problem` finds its
-    frames otherwise spaced in time than the training windows'."""
-    scale = norm_hi - norm_lo
+    """The input warnings of a prediction on checked ``frames``: for ``one_window`` a
+    :class:`NotOneBodyWarning` when its frames do not look like one body (stray points, two blobs,
+    a frame far from its neighbours), otherwise an :class:`OutsideTrainingRangeWarning` when it
+    leaves the training range (stray points trip both; one line names the likely cause); then, for
+    input inside the training range, a :class:`TooFewPointsWarning` for a frame of fewer than
+    :data:`MIN_FRAME_POINTS` points and, for ``one_window``, a :class:`FrameSpacingWarning` when
+    :func:`motion_problem` finds its frames otherwise spaced in time than the training windows'.
+    3-D frames (docs/spec.md §8) get all but the one-body test (its outline, the 2-D ring's)."""
+    scale, dim = norm_hi - norm_lo, frames[0].shape[1]
     with np.errstate(over="ignore", invalid="ignore"):      # far-out input: judged, not warned twice
         x: Any = ([np.asarray(f, dtype=np.float64) for f in frames]
                   if len({f.shape[0] for f in frames}) > 1 else
                   np.asarray(np.stack(frames), dtype=np.float64))      # (F, N, dim) at once
         each = (lambda fn: fn(x)) if isinstance(x, np.ndarray) else (lambda fn: [fn(f) for f in x])
         world = each(lambda f: f * scale + norm_lo) if normalized else x
-        if one_window and warn_not_one_body(world, name):
+        if one_window and dim == 2 and warn_not_one_body(world, name):
             return
         model = x if normalized else each(lambda f: (f - norm_lo) / scale)
         if warn_outside_training_range(model, norm_lo, norm_hi, name, normalized):
             return
-        sparse = sparse_frames_problem([len(f) for f in frames])
+        sparse = sparse_frames_problem([len(f) for f in frames], dim)
         if sparse:
             warnings.warn(f"{name}: too few points: {sparse}; the prediction is an "
                           "extrapolation", TooFewPointsWarning, stacklevel=_caller_level())

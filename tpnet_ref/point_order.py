@@ -1,8 +1,8 @@
 """The canonical order of a frame's points: what makes permutation invariance exact.
 
-Each frame's points are sorted lexicographically (x, then y) before the feature extractor, so
-every permutation of a frame produces the very same matrix and hence bit-identical output
-(docs/architecture.md, "Exact permutation invariance"). NumPy only.
+Each frame's points are sorted lexicographically (x, then y, then z in 3-D: every coordinate in
+turn) before the feature extractor, so every permutation of a frame produces the very same matrix
+and hence bit-identical output (docs/architecture.md, "Exact permutation invariance"). NumPy only.
 """
 from __future__ import annotations
 
