@@ -2,12 +2,13 @@
 
 The 3-D twins of ``chamfer_kernels`` with the same interfaces: for each point of one set, the
 squared Euclidean distance to its nearest neighbour in the other set and that neighbour's index,
-in float64. Brute force (both directions in one pass) for small sets; for larger ones a uniform
-3-D grid (cell list) over the target set, searched shell by shell around the query's cell. Inside
-a shell, a row of cells (or one cell) whose box is no nearer than the best distance found so far
-is skipped; a skipped cell holds no point nearer than that, so skipping never changes the result,
-and the search stops once a lower bound on the distance to every unscanned cell is at least the
-best distance found.
+in float64. Brute force (both directions in one pass, each row of the distance matrix
+vectorized) for small sets; for larger ones a uniform 3-D grid (cell list) over the target set:
+a query scans the 2 x 2 x 2 cells nearest to it, which is exact when the nearest point found is
+no farther than every other cell; otherwise it scans every cell that meets the ball of that
+distance. A row of cells (or a cell at a row's end) whose box is no nearer than the best
+distance found so far is skipped: it holds no point nearer than that, so skipping never changes
+the result. Every geometric bound is lowered by a rounding margin, as in 2-D.
 """
 from __future__ import annotations
 
@@ -28,19 +29,23 @@ def _scratch(m):
 
 @njit(cache=True, inline="always")
 def _brute_rows(A, s, i):
-    """Squared distances from A[i] to every point of B into s[4] (a row of the distance matrix).
+    """Squared distances from A[i] to every point of B into s[4] (a row of the distance matrix),
+    and the column minima s[3] lowered to them.
 
     s holds B's coordinates by axis in s[0], s[1], s[2] (``_fill``); the arithmetic is that of a
     single distance, so the row vectorizes without changing a bit of any value."""
     ax = A[i, 0]
     ay = A[i, 1]
     az = A[i, 2]
-    bx, by, bz, t = s[0], s[1], s[2], s[4]
+    bx, by, bz, db, t = s[0], s[1], s[2], s[3], s[4]
     for j in range(t.shape[0]):
         dx = ax - bx[j]
         dy = ay - by[j]
         dz = az - bz[j]
-        t[j] = dx * dx + dy * dy + dz * dz
+        d = dx * dx + dy * dy + dz * dz
+        t[j] = d
+        e = db[j]
+        db[j] = d if d < e else e
 
 
 @njit(cache=True)
@@ -62,8 +67,9 @@ def _brute_pair(A, B, dA, iA, dB, iB, s):
     n = A.shape[0]
     m = B.shape[0]
     _fill(B, s)
-    db, t = s[3], s[4]
+    t = s[4]
     for j in range(m):
+        dB[j] = np.inf
         iB[j] = 0
     for i in range(n):
         _brute_rows(A, s, i)
@@ -74,13 +80,11 @@ def _brute_pair(A, B, dA, iA, dB, iB, s):
             if d < best:
                 best = d
                 bi = j
-            if d < db[j]:
-                db[j] = d
+            if d < dB[j]:
+                dB[j] = d
                 iB[j] = i
         dA[i] = best
         iA[i] = bi
-    for j in range(m):
-        dB[j] = db[j]
 
 
 @njit(cache=True)
@@ -97,27 +101,24 @@ def _brute_pair_dist(A, B, dA, dB, s):
         b2 = np.inf
         b3 = np.inf
         for j in range(0, t.shape[0], 4):
-            d0, d1, d2, d3 = t[j], t[j + 1], t[j + 2], t[j + 3]
-            b0 = min(b0, d0)
-            b1 = min(b1, d1)
-            b2 = min(b2, d2)
-            b3 = min(b3, d3)
-            db[j] = min(db[j], d0)
-            db[j + 1] = min(db[j + 1], d1)
-            db[j + 2] = min(db[j + 2], d2)
-            db[j + 3] = min(db[j + 3], d3)
+            b0 = min(b0, t[j])
+            b1 = min(b1, t[j + 1])
+            b2 = min(b2, t[j + 2])
+            b3 = min(b3, t[j + 3])
         dA[i] = min(min(b0, b1), min(b2, b3))
     for j in range(m):
         dB[j] = db[j]
 
 
 @njit(cache=True)
-def _brute_one(A, B, dA, iA, dB, iB, with_index):
-    s = _scratch(B.shape[0])
-    if with_index:
-        _brute_pair(A, B, dA, iA, dB, iB, s)
-    else:
-        _brute_pair_dist(A, B, dA, dB, s)
+def _brute_block(P, Q, ip, iq, dP, iP, dQ, iQ, with_index, lo, hi):
+    """Pairs lo:hi of a batch, with one work space."""
+    s = _scratch(Q.shape[1])
+    for b in range(lo, hi):
+        if with_index:
+            _brute_pair(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b], s)
+        else:
+            _brute_pair_dist(P[ip[b]], Q[iq[b]], dP[b], dQ[b], s)
 
 
 @njit(parallel=True, cache=True)
@@ -126,19 +127,17 @@ def nn_brute(P, Q, ip, iq, dP, iP, dQ, iQ, with_index):
 
     With ``with_index=False`` iP and iQ are left untouched.
     """
-    for b in prange(ip.shape[0]):
-        _brute_one(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b], with_index)
+    n = ip.shape[0]
+    nchunk = min(n, 256)
+    for c in prange(nchunk):
+        _brute_block(P, Q, ip, iq, dP, iP, dQ, iQ, with_index, c * n // nchunk,
+                     (c + 1) * n // nchunk)
 
 
 @njit(cache=True)
 def nn_brute_serial(P, Q, ip, iq, dP, iP, dQ, iQ, with_index):
     """``nn_brute`` on one thread (small work: no cost of starting the thread pool)."""
-    s = _scratch(Q.shape[1])
-    for b in range(ip.shape[0]):
-        if with_index:
-            _brute_pair(P[ip[b]], Q[iq[b]], dP[b], iP[b], dQ[b], iQ[b], s)
-        else:
-            _brute_pair_dist(P[ip[b]], Q[iq[b]], dP[b], dQ[b], s)
+    _brute_block(P, Q, ip, iq, dP, iP, dQ, iQ, with_index, 0, ip.shape[0])
 
 
 @njit(cache=True)
@@ -238,12 +237,13 @@ def _clamp_cell(f, n):
 
 
 @njit(cache=True)
-def _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin, box, c, best, bk):
-    """Scan the cells of ``box`` (i0, i1, j0, j1, k0, k1, inclusive) row by row, the query's
+def _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin, box, skip, best, bk):
+    """Scan the cells of ``box`` (i0, i1, j0, j1, k0, k1, inclusive) row by row, the middle
     layer and row first, skipping every row, and every cell at a row's ends, whose lower bound
-    is at least ``best``, and the cell ``c`` (cx, cy, cz; (-1, -1, -1) for none)."""
+    is at least ``best``, and the block ``skip`` (scanned already; same layout as ``box``)."""
     i0, i1, j0, j1, k0, k1 = box
-    cx, cy, cz = c
+    sa, sb, ja, jb, ka, kb = skip
+    cx, cy, cz = (i0 + i1) // 2, (j0 + j1) // 2, (k0 + k1) // 2
     for kk in range(k0 - 1, k1 + 1):   # first layer cz (when in the box), then the others
         k = cz if kk == k0 - 1 else kk
         if (kk == k0 - 1) != (k == cz) or k < k0 or k > k1:
@@ -266,11 +266,12 @@ def _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin, box, c, bes
             if a > b:
                 continue
             row = (k * ny + j) * nx
-            if k == cz and j == cy and a <= cx <= b:   # around the cell already scanned
-                best, bk = _scan(qx, qy, qz, pts, start[row + cx + 1], start[row + b + 1],
-                                 best, bk)
-                b = cx - 1
-            best, bk = _scan(qx, qy, qz, pts, start[row + a], start[row + b + 1], best, bk)
+            if ka <= k <= kb and ja <= j <= jb:   # around the cells already scanned
+                best, bk = _scan(qx, qy, qz, pts, start[row + max(a, sb + 1)],
+                                 start[row + max(b, sb) + 1], best, bk)
+                b = min(b, sa - 1)
+            best, bk = _scan(qx, qy, qz, pts, start[row + a], start[row + max(b, a - 1) + 1],
+                             best, bk)
     return best, bk
 
 
@@ -300,9 +301,10 @@ def _cells(lo, hi, x0, h, n):
 def grid_query(qx, qy, qz, pts, idx, start, nx, ny, nz, x0, y0, z0, h, slack):
     """Exact nearest neighbour of (qx, qy, qz) in a grid: (squared distance, original index).
 
-    First the query's cell (clamped to the grid), growing to a cube of cells around it while
-    that holds no point; then every cell that meets the ball of the best distance so far (grown
-    by the rounding margin): every point nearer than that lies in one of those cells.
+    First the 2 x 2 x 2 cells nearest to q, which settle most queries; else a cube of cells
+    around q's cell (clamped to the grid), grown while it holds no point, then every cell that
+    meets the ball of the best distance so far (grown by the rounding margin): every point
+    nearer than that lies in one of those cells.
     """
     fx = (qx - x0) / h
     fy = (qy - y0) / h
@@ -325,19 +327,9 @@ def grid_query(qx, qy, qz, pts, idx, start, nx, ny, nz, x0, y0, z0, h, slack):
     lb = min(lbx, lby, lbz) - margin
     if bk >= 0 and lb > 0.0 and best <= lb * lb:
         return best, idx[bk]
-    if bk >= 0:   # the ball of the best distance so far, as below
-        R = math.sqrt(best) * (1.0 + 1e-9) + margin
-        i0, i1 = _cells(qx - R, qx + R, x0, h, nx)
-        j0, j1 = _cells(qy - R, qy + R, y0, h, ny)
-        k0, k1 = _cells(qz - R, qz + R, z0, h, nz)
-        best, bk = _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin,
-                             (i0, i1, j0, j1, k0, k1), (-1, -1, -1), best, bk)
-        return best, idx[bk]
-    own = (cz * ny + cy) * nx + cx
-    best, bk = _scan(qx, qy, qz, pts, start[own], start[own + 1], np.inf, -1)
-    skip = (cx, cy, cz)   # scanned
+    skip = (ia, ib, ja, jb, ka, kb)   # scanned
     r = 1
-    while bk < 0:   # the cell is empty: a growing cube of cells around it
+    while bk < 0:   # they hold no point: a growing cube of cells around q's cell
         box = (max(cx - r, 0), min(cx + r, nx - 1), max(cy - r, 0), min(cy + r, ny - 1),
                max(cz - r, 0), min(cz + r, nz - 1))
         best, bk = _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin, box, skip,
@@ -347,8 +339,6 @@ def grid_query(qx, qy, qz, pts, idx, start, nx, ny, nz, x0, y0, z0, h, slack):
     i0, i1 = _cells(qx - R, qx + R, x0, h, nx)
     j0, j1 = _cells(qy - R, qy + R, y0, h, ny)
     k0, k1 = _cells(qz - R, qz + R, z0, h, nz)
-    if r > 1:
-        skip = (-1, -1, -1)
     best, bk = _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin,
                          (i0, i1, j0, j1, k0, k1), skip, best, bk)
     return best, idx[bk]
