@@ -27,7 +27,7 @@ def _scratch(m):
     return np.empty((5, (m + 3) // 4 * 4))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _brute_rows(A, s, i):
     """Squared distances from A[i] to every point of B into s[4] (a row of the distance matrix),
     and the column minima s[3] lowered to them.
@@ -210,7 +210,7 @@ def grid_build(T):
     return pts, idx, start, nx, ny, nz, lo[0], lo[1], lo[2], h, slack, cost
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _gap2(q, a, b, margin):
     """Squared distance from q to the interval [a, b], less ``margin`` before squaring."""
     g = max(a - q, q - b, margin) - margin
@@ -231,7 +231,7 @@ def _scan(qx, qy, qz, pts, p0, p1, best, bk):
     return best, bk
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _clamp_cell(f, n):
     return 0 if f < 0.0 else (n - 1 if f >= n else int(f))
 
@@ -275,7 +275,7 @@ def _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin, box, skip, 
     return best, bk
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _half(f, c, n, q, o, h):
     """Along one axis, the two cells nearest to q (cell c and its neighbour on q's side, within
     0..n-1) and q's distance to the nearest other cell (+inf where there is none)."""
@@ -291,7 +291,7 @@ def _half(f, c, n, q, o, h):
     return lo, hi, lb
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cells(lo, hi, x0, h, n):
     """The cells i0..i1 (clamped to 0..n-1) that meet the interval [lo, hi]."""
     return _clamp_cell((lo - x0) / h, n), _clamp_cell((hi - x0) / h, n)
