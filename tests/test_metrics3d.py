@@ -162,6 +162,35 @@ def test_large_sets_match_kdtree(case):
         assert position_error(P, Q, "paper", method=method) == pytest.approx(paper, rel=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["volume", "plane", "line", "thin slab", "one point"])
+def test_grid_cells_fit_flat_and_straight_sets(kind):
+    """The grid has about M / 3 cells whatever the set's shape (a plane is not one cell, a line
+    not a cube of empty cells), and no cell holds many points of uniform data."""
+    kernels = pytest.importorskip("tpnet_ref.metrics.chamfer_kernels3d")
+    rng = np.random.default_rng(12)
+    m = 9000
+    X = rng.random((m, 3)) * [1e3, 2.0, 0.5]
+    if kind == "plane":
+        X[:, 1] = 0.7
+    elif kind == "line":
+        X[:, 1:] = [0.7, -3.0]
+    elif kind == "thin slab":
+        X[:, 2] *= 1e-9
+    elif kind == "one point":
+        X[:] = X[0]
+    g = kernels.grid_build(X)
+    pts, idx, start, nx, ny, nz = g[:6]
+    cells = nx * ny * nz
+    counts = np.diff(start)
+    assert counts.sum() == m and sorted(idx) == list(range(m))
+    np.testing.assert_array_equal(pts, X[idx])
+    if kind == "one point":
+        assert cells == 1
+    else:
+        assert m / 3 / 8 <= cells <= 8 * m / 3, (nx, ny, nz)
+        assert counts.max() <= 40, counts.max()
+
+
 @pytest.mark.parametrize("spread", [1e-120, 1e-9, 1.0, 1e9, 1e120])
 def test_small_and_huge_spreads(spread):
     """Grid and brute force agree exactly at any scale; the k-d tree to rounding."""

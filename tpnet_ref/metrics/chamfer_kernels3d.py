@@ -145,9 +145,9 @@ def _cell_size(w1, w2, w3, cells):
     """Cell size for extents w1 >= w2 >= w3 and about ``cells`` cells: a volume's cube root, or
     for a flat (or straight) set the cells of its plane (or line), never more than ~8·cells."""
     h = (w1 / cells) ** (1.0 / 3.0) * w2 ** (1.0 / 3.0) * w3 ** (1.0 / 3.0)
-    if w3 < h:
+    if not (h > 0.0 and w3 >= h):
         h = math.sqrt(w1 / cells) * math.sqrt(w2)
-        if w2 < h:
+        if not (h > 0.0 and w2 >= h):
             h = w1 / cells
     if not (h > 0.0) or not (h < np.inf):
         h = max(w1, 1.0)  # all points coincide (callers keep |coordinates| < 1e150)
@@ -164,28 +164,27 @@ def grid_build(T):
     sum(count**2) (a cost estimate that is large when points crowd into a few cells).
     """
     m = T.shape[0]
-    lo = np.empty(3)
-    hi = np.empty(3)
-    for a in range(3):
-        lo[a] = np.inf
-        hi[a] = -np.inf
-    for k in range(m):
-        for a in range(3):
-            lo[a] = min(lo[a], T[k, a])
-            hi[a] = max(hi[a], T[k, a])
-    w = np.sort(hi - lo)
+    xlo, ylo, zlo = T[0, 0], T[0, 1], T[0, 2]
+    xhi, yhi, zhi = xlo, ylo, zlo
+    for k in range(1, m):
+        x, y, z = T[k, 0], T[k, 1], T[k, 2]
+        xlo, xhi = min(xlo, x), max(xhi, x)
+        ylo, yhi = min(ylo, y), max(yhi, y)
+        zlo, zhi = min(zlo, z), max(zhi, z)
+    wx, wy, wz = xhi - xlo, yhi - ylo, zhi - zlo
+    w2 = max(min(wx, wy), min(max(wx, wy), wz))   # the middle one
     cells = max(1.0, m / _OCCUPANCY)
-    h = _cell_size(w[2], w[1], w[0], cells)
-    nx = int(min((hi[0] - lo[0]) / h, cells)) + 1
-    ny = int(min((hi[1] - lo[1]) / h, cells)) + 1
-    nz = int(min((hi[2] - lo[2]) / h, cells)) + 1
+    h = _cell_size(max(wx, wy, wz), w2, min(wx, wy, wz), cells)
+    nx = int(min(wx / h, cells)) + 1
+    ny = int(min(wy / h, cells)) + 1
+    nz = int(min(wz / h, cells)) + 1
     ncell = nx * ny * nz
     cell = np.empty(m, np.int64)
     start = np.zeros(ncell + 1, np.int64)
     for k in range(m):
-        cx = min(int((T[k, 0] - lo[0]) / h), nx - 1)
-        cy = min(int((T[k, 1] - lo[1]) / h), ny - 1)
-        cz = min(int((T[k, 2] - lo[2]) / h), nz - 1)
+        cx = min(int((T[k, 0] - xlo) / h), nx - 1)
+        cy = min(int((T[k, 1] - ylo) / h), ny - 1)
+        cz = min(int((T[k, 2] - zlo) / h), nz - 1)
         c = (cz * ny + cy) * nx + cx
         cell[k] = c
         start[c + 1] += 1
@@ -206,8 +205,8 @@ def grid_build(T):
         idx[p] = k
     # Cell indices are monotone in each coordinate; rounding can misplace a point across a
     # boundary by a few ulps of the coordinates, so every bound is reduced by this margin.
-    slack = 1e-9 * (np.abs(lo).sum() + np.abs(hi).sum() + h)
-    return pts, idx, start, nx, ny, nz, lo[0], lo[1], lo[2], h, slack, cost
+    slack = 1e-9 * (abs(xlo) + abs(ylo) + abs(zlo) + abs(xhi) + abs(yhi) + abs(zhi) + h)
+    return pts, idx, start, nx, ny, nz, xlo, ylo, zlo, h, slack, cost
 
 
 @njit(cache=True)
