@@ -7,7 +7,7 @@ Prints the machine, then ratios measured in this run (best of several repeats ea
 2. one pair of N = 10^5 and 10^6 uniform points vs cKDTree(...).query(workers=-1) and pykdtree,
    both directions, same metric (released variant: sum of Euclidean nearest distances);
 3. first-call time in a fresh process with an empty numba cache, and with the cache warm;
-4. ns per point pair (time / (B·N·M)) in 2-D and in 3-D, measured side by side in this run, at
+4. ns per point pair (time / (B·N·M)) in 2-D and in 3-D on one thread, side by side in this run, at
    N = 30 (a batch of 10,000 pairs), N = 1000 (a batch of 20 pairs, and one pair); the target is
    3-D at least as fast per point pair as 2-D (``--dims`` runs this part alone).
 """
@@ -129,10 +129,15 @@ def bench_compile() -> None:
 
 def bench_dims(repeats: int) -> None:
     """[4]: 2-D and 3-D per point pair, each size's two timings interleaved (best of each):
-    wall time, and CPU time of the process (all threads; steadier on a loaded machine)."""
+    wall time, and CPU time of the process. On one numba thread: the work per point pair, which
+    a second thread on a shared machine (waiting for its core) would blur."""
     import time
 
+    import numba
+
     from tpnet_ref.metrics import position_error
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
     rng = np.random.default_rng(2)
     for n, batch in ((30, 10_000), (1000, 20), (1000, 1)):
         sets = {d: (rng.random((batch, n, d)), rng.random((batch, n, d))) for d in (2, 3)}
@@ -149,9 +154,10 @@ def bench_dims(repeats: int) -> None:
         pairs = batch * n * n / 1e9
         w = {d: wall[d] / pairs for d in wall}
         c = {d: cpu[d] / pairs for d in cpu}
-        print(f"[4] N = M = {n}, batch {batch}, released, method auto, ns per point pair: "
-              f"wall 2-D {w[2]:.3f}, 3-D {w[3]:.3f} (3-D / 2-D = {w[3] / w[2]:.2f}); "
+        print(f"[4] N = M = {n}, batch {batch}, released, method auto, one thread, ns per point "
+              f"pair: wall 2-D {w[2]:.3f}, 3-D {w[3]:.3f} (3-D / 2-D = {w[3] / w[2]:.2f}); "
               f"CPU 2-D {c[2]:.3f}, 3-D {c[3]:.3f} ({c[3] / c[2]:.2f}); target 3-D / 2-D <= 1")
+    numba.set_num_threads(threads)
 
 
 def main() -> None:

@@ -277,16 +277,13 @@ def _scan_box(qx, qy, qz, pts, start, nx, ny, x0, y0, z0, h, margin, box, skip, 
 @njit(cache=True)
 def _half(f, c, n, q, o, h):
     """Along one axis, the two cells nearest to q (cell c and its neighbour on q's side, within
-    0..n-1) and q's distance to the nearest other cell (+inf where there is none)."""
-    if f - c < 0.5:
-        lo, hi = max(c - 1, 0), c
-    else:
-        lo, hi = c, min(c + 1, n - 1)
-    lb = np.inf
-    if lo > 0:
-        lb = q - (o + lo * h)
-    if hi < n - 1:
-        lb = min(lb, o + (hi + 1) * h - q)
+    0..n-1) and q's distance to the nearest other cell (+inf where there is none). Without
+    branches on q's side, which is a coin toss for the processor's branch predictor."""
+    up = int(f - c >= 0.5)
+    lo = max(c - 1 + up, 0)
+    hi = min(c + up, n - 1)
+    lb = min(q - (o + lo * h) if lo > 0 else np.inf,
+             o + (hi + 1) * h - q if hi < n - 1 else np.inf)
     return lo, hi, lb
 
 
