@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit, prange
 
 # Mean number of target points per grid cell.
-_OCCUPANCY = 3.0
+_OCCUPANCY = 4.0
 
 
 @njit(cache=True)
