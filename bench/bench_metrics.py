@@ -6,7 +6,10 @@ Prints the machine, then ratios measured in this run (best of several repeats ea
 1. a batch of 10,000 pairs of 30-point sets vs a Python loop of cKDTree queries;
 2. one pair of N = 10^5 and 10^6 uniform points vs cKDTree(...).query(workers=-1) and pykdtree,
    both directions, same metric (released variant: sum of Euclidean nearest distances);
-3. first-call time in a fresh process with an empty numba cache, and with the cache warm.
+3. first-call time in a fresh process with an empty numba cache, and with the cache warm;
+4. ns per point pair (time / (B·N·M)) in 2-D and in 3-D on one thread, side by side in this run, at
+   N = 30 (a batch of 10,000 pairs), N = 1000 (a batch of 20 pairs, and one pair); the target is
+   3-D at least as fast per point pair as 2-D (``--dims`` runs this part alone).
 """
 from __future__ import annotations
 
@@ -104,6 +107,9 @@ rng = np.random.default_rng(0)
 position_error(rng.random((4, 30, 2)), rng.random((4, 30, 2)))           # brute force
 position_error(rng.random((2, 400, 2)), rng.random((2, 400, 2)))         # batched grid
 position_error(rng.random((30000, 2)), rng.random((30000, 2)))           # parallel grid
+position_error(rng.random((4, 30, 3)), rng.random((4, 30, 3)))           # the same in 3-D
+position_error(rng.random((2, 800, 3)), rng.random((2, 800, 3)))
+position_error(rng.random((30000, 3)), rng.random((30000, 3)))
 print(f"{time.perf_counter() - t0:.3f}")
 """
 
@@ -117,20 +123,58 @@ def bench_compile() -> None:
             out = subprocess.run([sys.executable, "-c", _FIRST_CALL], env=env, check=True,
                                  capture_output=True, text=True).stdout
             times.append(float(out.strip().splitlines()[-1]))
-    print(f"[3] fresh process, import + first calls of all three kernels: "
+    print(f"[3] fresh process, import + first calls of the kernels (2-D and 3-D): "
           f"empty numba cache {times[0]:.2f} s, warm cache {times[1]:.2f} s")
+
+
+def bench_dims(repeats: int) -> None:
+    """[4]: 2-D and 3-D per point pair, each size's two timings interleaved (best of each):
+    wall time, and CPU time of the process. On one numba thread: the work per point pair, which
+    a second thread on a shared machine (waiting for its core) would blur."""
+    import time
+
+    import numba
+
+    from tpnet_ref.metrics import position_error
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    rng = np.random.default_rng(2)
+    for n, batch in ((30, 10_000), (1000, 20), (1000, 1)):
+        sets = {d: (rng.random((batch, n, d)), rng.random((batch, n, d))) for d in (2, 3)}
+        for P, Q in sets.values():
+            position_error(P[:2], Q[:2], "released")   # load compiled kernels
+        wall = {2: np.inf, 3: np.inf}
+        cpu = {2: np.inf, 3: np.inf}
+        for _ in range(repeats):
+            for d, (P, Q) in sets.items():
+                c0, t0 = time.process_time(), time.perf_counter()
+                position_error(P, Q, "released")
+                wall[d] = min(wall[d], time.perf_counter() - t0)
+                cpu[d] = min(cpu[d], time.process_time() - c0)
+        pairs = batch * n * n / 1e9
+        w = {d: wall[d] / pairs for d in wall}
+        c = {d: cpu[d] / pairs for d in cpu}
+        print(f"[4] N = M = {n}, batch {batch}, released, method auto, one thread, ns per point "
+              f"pair: wall 2-D {w[2]:.3f}, 3-D {w[3]:.3f} (3-D / 2-D = {w[3] / w[2]:.2f}); "
+              f"CPU 2-D {c[2]:.3f}, 3-D {c[3]:.3f} ({c[3] / c[2]:.2f}); target 3-D / 2-D <= 1")
+    numba.set_num_threads(threads)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats, skip N = 10^6")
+    ap.add_argument("--dims", action="store_true", help="only [4], 2-D against 3-D")
     args = ap.parse_args()
     reps = 3 if args.quick else 7
     print(machine())
+    if args.dims:
+        bench_dims(2 * reps)
+        return
     bench_batch(reps)
     for n in ((100_000,) if args.quick else (100_000, 1_000_000)):
         bench_large(n, reps if n < 10 ** 6 else 3)
     bench_compile()
+    bench_dims(2 * reps)
 
 
 if __name__ == "__main__":

@@ -22,15 +22,16 @@ Shape error is the position error after centring each set on its own centroid. T
 two sums without any division (the paper's L_CD for ``"paper"`` and ``"squared"``; for
 ``"released"`` it equals the position error). The default variant stays ``"paper"``.
 
-Shapes: ``P`` is ``(..., N, 2)``, ``Q`` is ``(..., M, 2)``; N ≠ M is allowed and the leading
-dimensions broadcast. A single pair (both inputs 2-D) gives a Python ``float``; otherwise a
+Shapes: ``P`` is ``(..., N, d)``, ``Q`` is ``(..., M, d)`` with points of the same dim d = 2 or
+3 (``DIMS``); N ≠ M is allowed and the leading dimensions broadcast. A single pair (both inputs
+one set, ``(N, d)``) gives a Python ``float``; otherwise a
 float64 array with the broadcast leading shape, e.g. ``(B,)`` for a batch or ``(T,)`` for a
 rollout. Inputs may be any real dtype (float32, float64, integers); distances are computed and
 summed in float64, so the value does not depend on the input precision beyond the inputs'
 own rounding. Units are those of the inputs (normalized coordinates for the paper's table).
 
-Nearest neighbours are exact. Small pairs use brute force; large ones a uniform grid in numba
-(see ``docs/metrics.md``). numba (the ``metrics`` extra) is imported on first use, not by
+Nearest neighbours are exact. Small pairs use brute force; large ones a uniform 2-D or 3-D grid
+in numba (see ``docs/metrics.md``). numba (the ``metrics`` extra) is imported on first use, not by
 ``import tpnet_ref.metrics``.
 """
 from __future__ import annotations
@@ -39,20 +40,23 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..checks import NonFiniteResultError, as_point_sets
+from ..checks import NonFiniteResultError, as_point_sets, as_real_array
 from ..extras import require
 
-__all__ = ["position_error", "shape_error", "chamfer_loss", "VARIANTS"]
+__all__ = ["position_error", "shape_error", "chamfer_loss", "VARIANTS", "DIMS"]
 
 Variant = Literal["paper", "squared", "released"]
 Method = Literal["auto", "brute", "grid", "kdtree"]
 VARIANTS: tuple[str, ...] = ("paper", "squared", "released")
+#: the dims of points the metrics take (the last axis of P and Q)
+DIMS: tuple[int, ...] = (2, 3)
 _VARIANTS = VARIANTS
 _METHODS = ("auto", "brute", "grid", "kdtree")
 _REDUCTIONS = ("none", "sum", "mean")
 
 # Brute force when N·M <= _BRUTE_FACTOR·(N + M) (roughly min(N, M) <= 2·_BRUTE_FACTOR).
 _BRUTE_FACTOR = 128
+_BRUTE_FACTOR_3D = 256   # 3-D brute force vectorizes: it pays up to about 512 points a set
 # Work (distance evaluations) below which one thread beats starting the thread pool.
 _PARALLEL_WORK = 1 << 18
 # A pair with N + M >= _LARGE is handled alone, parallel over its query points.
@@ -64,9 +68,12 @@ _CROWDED = 64.0
 _HUGE = 1e150
 
 
-def _kernels():
+def _kernels(dim: int = 2):
     require("numba", "metrics")   # one line naming the extra when numba is missing
-    from . import chamfer_kernels  # imports numba; compiled code is cached on disk
+    if dim == 3:
+        from . import chamfer_kernels3d  # imports numba; compiled code is cached on disk
+        return chamfer_kernels3d
+    from . import chamfer_kernels
     return chamfer_kernels
 
 
@@ -76,17 +83,39 @@ def _check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
     return value
 
 
+def _point_dim(x: np.ndarray, name: str) -> int:
+    if x.ndim < 2 or x.shape[-1] not in DIMS:
+        raise ValueError(f"{name}: expected shape (..., N, 2) or (..., N, 3), got {x.shape}")
+    return x.shape[-1]
+
+
+def _check_dims(P: Any, Q: Any) -> tuple[np.ndarray, np.ndarray, int]:
+    """P and Q as arrays and their points' dim, 2 or 3, which they share (else a one-line
+    ValueError naming the argument)."""
+    Pa = as_real_array(P, "P")
+    dp = _point_dim(Pa, "P")
+    Qa = as_real_array(Q, "Q")
+    dq = _point_dim(Qa, "Q")
+    if dp != dq:   # the 3-D one is named, against the 2-D one
+        bad, shape, other, ok = ("P", Pa.shape, "Q", Qa.shape) if dp == 3 else \
+            ("Q", Qa.shape, "P", Pa.shape)
+        raise ValueError(f"{bad}: expected shape (..., N, 2) like {other} {ok}, got {shape}: "
+                         "P and Q must hold points of the same dim (2 or 3)")
+    return Pa, Qa, dp
+
+
 def _prepare(P: Any, Q: Any, centre: bool):
-    """Validate, centre if asked, flatten: (Pf (Bp, N, 2), Qf (Bq, M, 2), ip, iq (B,), lead)."""
-    Pa = as_point_sets(P, "P")
-    Qa = as_point_sets(Q, "Q")
+    """Validate, centre if asked, flatten: (Pf (Bp, N, d), Qf (Bq, M, d), ip, iq (B,), lead)."""
+    Pa, Qa, dim = _check_dims(P, Q)
+    Pa = as_point_sets(Pa, "P", dim)
+    Qa = as_point_sets(Qa, "Q", dim)
     lp, lq = Pa.shape[:-2], Qa.shape[:-2]
     try:
         lead = np.broadcast_shapes(lp, lq)
     except ValueError:
         raise ValueError(f"P and Q: leading dimensions {lp} (P) and {lq} (Q) do not broadcast") from None
-    Pf = np.ascontiguousarray(Pa.reshape(-1, Pa.shape[-2], 2), dtype=np.float64)
-    Qf = np.ascontiguousarray(Qa.reshape(-1, Qa.shape[-2], 2), dtype=np.float64)
+    Pf = np.ascontiguousarray(Pa.reshape(-1, Pa.shape[-2], dim), dtype=np.float64)
+    Qf = np.ascontiguousarray(Qa.reshape(-1, Qa.shape[-2], dim), dtype=np.float64)
     if centre:
         Pf = Pf - Pf.mean(axis=1, keepdims=True)
         Qf = Qf - Qf.mean(axis=1, keepdims=True)
@@ -126,16 +155,18 @@ def _nearest(Pf, Qf, ip, iq, method: str, with_index: bool = False):
         for b in range(B):
             _pair_kdtree(Pf[ip[b]], Qf[iq[b]], dP[b], iP[b], dQ[b], iQ[b])
         return dP, iP, dQ, iQ
-    K = _kernels()
+    dim = Pf.shape[2]
+    K = _kernels(dim)
     huge = max(np.abs(Pf).max(), np.abs(Qf).max()) > _HUGE
-    if method == "brute" or huge or (method == "auto" and N * M <= _BRUTE_FACTOR * (N + M)):
+    brute_factor = _BRUTE_FACTOR if dim == 2 else _BRUTE_FACTOR_3D
+    if method == "brute" or huge or (method == "auto" and N * M <= brute_factor * (N + M)):
         nn = K.nn_brute if B * N * M >= _PARALLEL_WORK else K.nn_brute_serial
         nn(Pf, Qf, ip, iq, dP, iP, dQ, iQ, with_index)
     elif N + M >= _LARGE or (B == 1 and 32 * (N + M) >= _PARALLEL_WORK):
         for b in range(B):
             A, C = Pf[ip[b]], Qf[iq[b]]
             ga, gc = K.grid_build(A), K.grid_build(C)
-            if method == "auto" and (ga[10] > _CROWDED * N or gc[10] > _CROWDED * M):
+            if method == "auto" and (ga[-1] > _CROWDED * N or gc[-1] > _CROWDED * M):
                 _pair_kdtree(A, C, dP[b], iP[b], dQ[b], iQ[b])
             else:
                 K.grid_query_all(ga, gc, dP[b], iP[b])
@@ -170,7 +201,9 @@ def _error(P: Any, Q: Any, variant: str, method: str, centre: bool, what: str):
 
 def position_error(P: Any, Q: Any, variant: Variant = "paper", *,
                    method: Method = "auto") -> float | np.ndarray:
-    """Position error E_p between ground truth ``P`` (..., N, 2) and prediction ``Q`` (..., M, 2).
+    """Position error E_p between ground truth ``P`` (..., N, d) and prediction ``Q`` (..., M, d).
+
+    d, the points' dim, is 2 or 3, the same for both.
 
     ``variant="paper"``: squared distances, both directions, divided by N = |P|.
     ``variant="squared"``: squared distances, both directions, no division (the reading the
@@ -196,7 +229,8 @@ def shape_error(P: Any, Q: Any, variant: Variant = "paper", *,
 def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
                  reduction: Literal["none", "sum", "mean"] = "mean",
                  return_grad: bool = False, method: Method = "auto") -> Any:
-    """Chamfer training loss between target ``P`` (..., N, 2) and prediction ``Q`` (..., M, 2).
+    """Chamfer training loss between target ``P`` (..., N, d) and prediction ``Q`` (..., M, d),
+    d = 2 or 3.
 
     Per pair: ``Σ_x min_y d(x, y) + Σ_y min_x d(x, y)`` with d the squared distance
     (``"paper"`` and ``"squared"``, L_CD: the two are the same loss) or the Euclidean distance
@@ -230,7 +264,7 @@ def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
     if not return_grad:
         return loss
     scale = 1.0 / B if (reduction == "mean" and B) else 1.0
-    Pb, Qb = Pf[ip], Qf[iq]                                        # (B, N, 2), (B, M, 2)
+    Pb, Qb = Pf[ip], Qf[iq]                                        # (B, N, d), (B, M, d)
     diffP = Pb - np.take_along_axis(Qb, iP[..., None], axis=1)     # x − nearest y
     diffQ = Qb - np.take_along_axis(Pb, iQ[..., None], axis=1)     # y − nearest x
     if variant in ("paper", "squared"):
@@ -242,16 +276,16 @@ def chamfer_loss(P: Any, Q: Any, variant: Variant = "paper", *,
             wQ = np.where(dQ > 0, scale / np.sqrt(dQ), 0.0)
     tP = wP[..., None] * diffP
     tQ = wQ[..., None] * diffQ
-    N, M = Pf.shape[1], Qf.shape[1]
-    gPb = tP.reshape(-1, 2).copy()
-    gQb = tQ.reshape(-1, 2).copy()
+    N, M, dim = Pf.shape[1], Qf.shape[1], Pf.shape[2]
+    gPb = tP.reshape(-1, dim).copy()
+    gQb = tQ.reshape(-1, dim).copy()
     rows = np.arange(B)[:, None]
-    np.add.at(gQb, (rows * M + iP).ravel(), -tP.reshape(-1, 2))
-    np.add.at(gPb, (rows * N + iQ).ravel(), -tQ.reshape(-1, 2))
+    np.add.at(gQb, (rows * M + iP).ravel(), -tP.reshape(-1, dim))
+    np.add.at(gPb, (rows * N + iQ).ravel(), -tQ.reshape(-1, dim))
     gP = np.zeros_like(Pf)
     gQ = np.zeros_like(Qf)
-    np.add.at(gP, ip, gPb.reshape(B, N, 2))
-    np.add.at(gQ, iq, gQb.reshape(B, M, 2))
+    np.add.at(gP, ip, gPb.reshape(B, N, dim))
+    np.add.at(gQ, iq, gQb.reshape(B, M, dim))
     P_shape, Q_shape = np.shape(P), np.shape(Q)
     dtP = np.asarray(P).dtype if np.asarray(P).dtype.kind == "f" else np.float64
     dtQ = np.asarray(Q).dtype if np.asarray(Q).dtype.kind == "f" else np.float64
