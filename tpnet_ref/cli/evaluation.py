@@ -36,8 +36,9 @@ def add_cli(sub: Any) -> None:
                                        "TP-Net's rollout from shuffled frames, side by side")
     p.add_argument("-o", "--output", default="rollout.gif", help="GIF to write")
     p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
-    p.add_argument("--case", type=float, nargs=4, default=None,
-                   metavar=("FORCE", "ANGLE", "X", "Y"), help="scene (default: test case 1)")
+    p.add_argument("--case", type=float, nargs="+", default=None, metavar="V",
+                   help="scene: FORCE ANGLE X Y, or for a 3-D model FORCE AZIMUTH ELEVATION X Y "
+                        "Z (default: test case 1 of the model's dimension)")
     p.add_argument("--last-frame", type=int, default=None,
                    help="last model frame shown (default: the last simulated, 149)")
     p.add_argument("--every", type=int, default=2, help="show every k-th model frame")
@@ -54,6 +55,9 @@ def add_cli(sub: Any) -> None:
                         "least, unless --baselines-only")
     p.add_argument("--baselines-only", action="store_true",
                    help="no model: baselines and simulator rows only")
+    p.add_argument("--dim", type=int, choices=(2, 3), default=None,
+                   help="the scene: 3 evaluates 3-D models on the 60 held-out 3-D throws "
+                        "(default: the weights' dimension, else 2)")
     p.add_argument("--m", type=int, nargs="+", default=None,
                    help="window lengths for the baselines (default: the models' m, else 4)")
     p.add_argument("--data", default=None,
@@ -108,9 +112,20 @@ def _cli_animate(args: Any) -> int:
 def _animate(args: Any) -> int:
     from ..evaluation import DEMO_CASE
     from ..evaluation.animate import animate
-    r = animate(args.output, args.weights, case=args.case or DEMO_CASE,
-                last_frame=args.last_frame, every=args.every, fps=args.fps, dpi=args.dpi,
-                seed=args.seed)
+    from ..evaluation.animate3d import DEMO_CASE3D, animate3d
+    from ..model import load
+    model = load(args.weights, dtype="float32")
+    dim = model.config.dim
+    want = 6 if dim == 3 else 4
+    if args.case is not None and len(args.case) != want:
+        raise ValueError(f"--case: a {dim}-D model's scene has {want} numbers, got "
+                         f"{len(args.case)}")
+    kw = dict(last_frame=args.last_frame, every=args.every, fps=args.fps, dpi=args.dpi,
+              seed=args.seed)
+    if dim == 3:
+        r = animate3d(args.output, case=args.case or DEMO_CASE3D, model=model, **kw)
+    else:
+        r = animate(args.output, args.weights, case=args.case or DEMO_CASE, **kw)
     size = Path(r["path"]).stat().st_size
     errs = ", ".join(f"@{h} {e:.3g}" for h, e in r["Ep_squared"].items())
     print(f"wrote {r['path']} ({r['gif_frames']} frames, {size / 1e6:.2f} MB); "
@@ -127,10 +142,41 @@ def _cli_eval(args: Any) -> int:
 
 def _eval(args: Any) -> int:
     from ..evaluation import run_eval
+    if _eval_dim(args) == 3:
+        return _eval3d(args)
     path = run_eval(args)
     text = Path(path).read_text()
     start = text.index("## The paper's table")
     end = text.index("## Protocol")
     print(text[start:end].rstrip())
     print(f"\nwrote {path} (and eval_curves.csv, figures) in {Path(path).parent}/")
+    return 0
+
+
+def _eval_dim(args: Any) -> int:
+    """The scene ``tpnet eval`` runs: ``--dim``, else the weights' dimension (all the same)."""
+    from ..model import load
+    dims = {load(w).config.dim for w in args.weights}
+    if len(dims) > 1:
+        raise ValueError("--weights: 2-D and 3-D models together; evaluate each dimension on "
+                         "its own")
+    if args.dim is not None and dims and dims != {args.dim}:
+        raise ValueError(f"--dim {args.dim}: the weights are {dims.pop()}-D")
+    return args.dim or (dims.pop() if dims else 2)
+
+
+def _eval3d(args: Any) -> int:
+    from ..evaluation.suite import default_out_dir
+    from ..evaluation.suite3d import run_eval3d
+    if args.baselines_only and args.weights:
+        raise ValueError("--baselines-only and --weights exclude each other")
+    if not args.baselines_only and not args.weights:
+        raise ValueError("give --weights PATH (repeatable) or --baselines-only")
+    path = run_eval3d(args.weights, data=args.data, cases=args.cases, horizon=args.horizon,
+                      seed=args.seed, out=args.out or default_out_dir(), repeats=args.repeats,
+                      plots=not args.no_plots, progress=not args.quiet,
+                      command=" ".join(["tpnet"] + sys.argv[1:]))
+    text = Path(path).read_text()
+    print(text[text.index("| m |"):].split("\n\n")[0])
+    print(f"\nwrote {path} (and eval3d_curves.csv, eval3d_cases.csv) in {Path(path).parent}/")
     return 0

@@ -26,8 +26,9 @@ def add_cli(sub: Any) -> None:
     p.set_defaults(func=_cli_info)
 
     p = sub.add_parser("predict", help="predict the next point set(s) from a window in a .npy file")
-    p.add_argument("window", help=".npy file holding an (m, N, 2) window in world units: m frames "
-                                  "4 simulation steps apart (every 4th row of `tpnet sim run`)")
+    p.add_argument("window", help=".npy file holding an (m, N, 2) window in world units ((m, N, "
+                                  "3) for a 3-D model): m frames 4 simulation steps apart "
+                                  "(every 4th row of `tpnet sim run`)")
     p.add_argument("--weights", default=None, help="native weights file (default: shipped m=4)")
     p.add_argument("--steps", type=int, default=1, help="frames to roll out")
     p.add_argument("--normalized", action="store_true", help="window is in model coordinates")
