@@ -340,6 +340,21 @@ def test_a_window_not_in_free_fall_is_judged_by_its_speed_alone():
     assert free_fall_rows(rest.mean(axis=1)) is None and "closer in time" in motion_problem(rest)
 
 
+def test_the_least_fall_read_as_free_fall_is_half_a_rows_fall():
+    """A centroid falling g dt² / 2 a frame (frames 1/sqrt(2) simulator rows apart) is the least
+    fall read as free fall: exactly that is read, and named by motion_problem as a fall; a hair
+    less is not, and the window is judged by its speed (here: at rest)."""
+    from tpnet_ref.checks import GRAVITY, SIM_DT, free_fall_rows, motion_problem
+    a = 0.5 * GRAVITY * SIM_DT ** 2
+    # thrown upwards: its second differences are exactly (0, -a) (no rounding in these sums)
+    c = np.array([[0.0, -a], [0.0, 0.0], [0.0, 0.0], [0.0, -a]])
+    assert free_fall_rows(c) == pytest.approx(np.sqrt(0.5), rel=1e-12)
+    assert "as if the frames were 0.71/45 s apart" in motion_problem(c[:, None, :])
+    less = c * (1 - 1e-12)
+    assert free_fall_rows(less) is None
+    assert "a body at rest" in motion_problem(less[:, None, :])
+
+
 def test_the_thrown_ring_of_the_demo_warns_on_consecutive_rows(net):
     pytest.importorskip("pymunk")
     from tpnet_ref.checks import FrameSpacingWarning
@@ -433,6 +448,13 @@ def test_point_sets_of_other_dimensions_and_empty_ones_when_allowed():
         as_point_set(np.zeros((1, 4, 2)), "p")
     assert as_point_set(np.zeros((0, 2)), "p", allow_empty=True).shape == (0, 2)
     assert as_point_set([[1, 2]], "p", dtype=np.float32).dtype == np.float32
+    # one point without the set's axis, or a number, is not a set of points
+    with pytest.raises(ValueError, match=r"^p: expected shape \(N, 2\), got \(2,\)$"):
+        as_point_set(np.array([20.0, 21.0]), "p")
+    with pytest.raises(ValueError, match=r"^p: expected shape \(N, 2\), got \(\)$"):
+        as_point_set(20.0, "p")
+    with pytest.raises(ValueError, match=r"^window\[0\]: expected shape \(N, 2\), got \(2,\)$"):
+        C.check_window([np.array([20.0, 21.0])] * 4, 4, 2, np.dtype(np.float32))
     from tpnet_ref.checks import as_point_sets
     with pytest.raises(ValueError, match=r"^P: contains 1 NaN"):
         as_point_sets(np.array([[[0.0, 1.0]], [[np.inf, 0.0]]]), "P")
