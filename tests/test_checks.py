@@ -720,6 +720,23 @@ def test_the_largest_group_is_the_body():
     assert out[30:].all() and not out[:30].any()
 
 
+def test_of_two_pieces_that_fit_with_the_body_one_at_a_time_the_larger_joins():
+    """Pieces join the body largest first: of a piece of 5 and one of 3 points, each within the
+    body's reach (3.6) with it alone but not both together, the 5 join and the 3 lie apart."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    body = np.stack([20.0 + 0.3 * np.arange(8), np.full(8, 20.0)], axis=1)     # x 20 .. 22.1
+    five = np.stack([24.0 + 0.3 * np.arange(5), np.full(5, 20.0)], axis=1)     # x 24 .. 25.2
+    three = np.array([[16.0, 20.0], [16.3, 20.0], [16.6, 20.0]])
+    for order in ((body, five, three), (three, body, five), (five, three, body)):
+        frame = np.concatenate(order)
+        out = body_outliers(frame)          # link 1.2: three groups; reach 2.6, 3.05, both 4.6
+        np.testing.assert_array_equal(frame[out], three)
+    frame = np.concatenate([body, five, three])
+    why = window_body_problem([frame + [0.5 * t, 0.0] for t in range(4)])
+    assert why.startswith("frame 0 does not look like one body: 3 of 16 points lie apart from "
+                          "it (likely stray points")
+
+
 @hsettings(max_examples=25)
 @given(st.floats(0.6, 2.8), st.integers(12, 60), st.floats(3.0, 42.0), st.floats(3.0, 42.0),
        st.floats(0.0, 2 * np.pi), st.floats(10.0, 20.0))
