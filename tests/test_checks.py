@@ -640,6 +640,28 @@ def test_the_range_warning_is_one_line_at_the_callers_line_and_says_whether_it_w
     assert msg.endswith("; the prediction is an extrapolation") and "\n" not in msg
 
 
+def test_an_explicit_stacklevel_points_the_warning_that_many_frames_up():
+    """stacklevel=k counts as warnings.warn's from the function called (1: its own line, 2: its
+    caller ...); warn_range, the words' helper, counts from its caller."""
+    import sys
+    from tpnet_ref.checks import warn_not_one_body, warn_outside_training_range, warn_range
+    far = normalize(_window(cx=120.0))
+
+    def helper(fn, *args):               # one frame between the test and the function called
+        fn(*args, stacklevel=3)
+
+    def where(fn, *args):
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            line = sys._getframe().f_lineno + 1
+            fn(*args)
+        [w] = got
+        return (w.filename, w.lineno) == (__file__, line)
+    assert where(helper, warn_outside_training_range, far, NORM_LO, NORM_HI, "w")
+    assert where(helper, warn_not_one_body, [_with_strays(3)] * 4, "w")
+    assert where(warn_range, "w", "a problem", 1)
+
+
 # one body: the outlier rule
 def _line(n, spacing, y=0.0, x0=0.0):
     return np.stack([x0 + spacing * np.arange(n), np.full(n, y)], axis=1)
@@ -847,13 +869,30 @@ def test_frames_above_the_pairwise_limit_are_not_judged():
     assert window_body_problem([big, *frames[1:]]) is None
 
 
+def test_the_pairwise_limit_is_2048_points():
+    """A frame of 2,048 points is still judged (its strays named), one of 2,049 is not, and
+    body_outliers says so in one line."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    frames = [_with_strays(3)] * 4
+    strays = [[30.0, 20.0], [31.0, 30.0], [1.0, 1.0]]
+    at = np.concatenate([_ring(n=2045), strays])
+    assert window_body_problem([at, *frames[1:]]).startswith(
+        "frame 0 does not look like one body: 3 of 2048 points lie apart from it")
+    over = np.concatenate([_ring(n=2046), strays])
+    assert window_body_problem([over, *frames[1:]]) is None
+    with pytest.raises(ValueError, match=r"^points: 2049 points, the one-body test takes at "
+                                         r"most 2048 \(it compares every pair\)"):
+        body_outliers(over)
+
+
 # sparse frames and motion
 @pytest.mark.parametrize("counts, says", [
     ([30, 30, 30, 30], None), ([3, 3, 3, 3], None),
     ([30, 2, 30, 30], "frame 1 has 2 point(s); a body's outline needs at least 3 (fewer cannot "
                       "span an area; the model was trained on 30 per frame)"),
     ([30, 2, 1, 0], "frame 1 has 2 point(s) (3 frames have too few); a body's outline needs at "
-                    "least 3"),
+                    "least 3"),    ([30, 2, 30, 1], "frame 1 has 2 point(s) (2 frames have too few); a body's outline needs at "
+                     "least 3"),
 ])
 def test_sparse_frames_name_the_first_and_count_the_others(counts, says):
     from tpnet_ref.checks import sparse_frames_problem
