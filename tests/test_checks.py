@@ -154,6 +154,20 @@ def test_spurs_are_points_off_the_outline_with_both_neighbours_on_one_side():
     assert not body_outliers(thin, spur_factor=2.0).any()
 
 
+def test_a_spur_is_further_than_spur_factor_median_spacings_not_at_it():
+    """A point whose nearest neighbour is exactly spur_factor x the median nearest-neighbour
+    distance away is kept; a hair further, it is a spur (drop_outliers' words: "further than")."""
+    from tpnet_ref.checks import body_outliers
+    from tpnet_ref.observe import drop_outliers
+    line = np.stack([0.25 * np.arange(5), np.zeros(5)], axis=1) + 20.0   # spacing 0.25
+    at = np.concatenate([[[19.5, 20.0]], line])         # 0.5 = 2 x 0.25 before the first point
+    assert not body_outliers(at, spur_factor=2.0).any()
+    np.testing.assert_array_equal(drop_outliers(at), at)
+    beyond = np.concatenate([[[19.5 - 1e-9, 20.0]], line])
+    np.testing.assert_array_equal(body_outliers(beyond, spur_factor=2.0), [True] + [False] * 5)
+    np.testing.assert_array_equal(drop_outliers(beyond), line)
+
+
 def test_a_frame_of_mostly_scattered_points_is_left_to_the_range_check():
     """More points apart from the body than in it: not judged as "not one body" (no body of
     the scene's size; training_range_problem says what is wrong)."""
@@ -826,6 +840,19 @@ def test_a_body_must_outnumber_the_points_apart_from_it_and_have_5_points():
                                                       "12 points lie apart from it (likely a "
                                                       "second blob")
     assert window_body_problem([np.concatenate([even, [[60.0, 60.0]]])] * 4) is None
+
+
+def test_four_points_are_no_body_even_with_the_strays_beside_them():
+    """A body of 4 points and 2 strays 5 world units off (all 6 within one strip of the body's
+    size, so the scattered-points shortcut does not decide): no body of the scene's size, left
+    to the range check; with a fifth point in the body the strays are named."""
+    from tpnet_ref.checks import window_body_problem
+    strays = [[25.0, 20.0], [25.3, 20.0]]
+    four = np.concatenate([_ring(r=0.5, n=4), strays])
+    assert window_body_problem([four] * 4) is None
+    five = np.concatenate([_ring(r=0.5, n=5), strays])
+    assert window_body_problem([five] * 4).startswith("frame 0 does not look like one body: 2 of "
+                                                      "7 points lie apart from it")
 
 
 @pytest.mark.parametrize("step, says", [(3.99, False), (4.01, True)])
