@@ -354,6 +354,18 @@ def test_a_window_not_in_free_fall_is_judged_by_its_speed_alone():
     assert free_fall_rows(rest.mean(axis=1)) is None and "closer in time" in motion_problem(rest)
 
 
+def test_free_fall_is_read_to_within_1_2e_5_world_units():
+    """The second differences must match free fall to within 5 % of one simulator row's fall
+    (0.05 g dt^2 = 1.23e-5 world units): a sideways push of 1e-5 a frame is still free fall, one
+    of 2e-5 is not, whatever the spacing."""
+    from tpnet_ref.checks import free_fall_rows, motion_problem
+    for rows in (1, 4, 8):
+        assert free_fall_rows(_falling(rows, ax=1e-5).mean(axis=1)) == pytest.approx(rows, rel=1e-3)
+        assert free_fall_rows(_falling(rows, ax=2e-5).mean(axis=1)) is None
+    assert motion_problem(_falling(1, ax=2e-5)) is None          # judged by its speed: inside
+    assert "consecutive simulator rows" in motion_problem(_falling(1, ax=1e-5))
+
+
 def test_the_least_fall_read_as_free_fall_is_half_a_rows_fall():
     """A centroid falling g dt² / 2 a frame (frames 1/sqrt(2) simulator rows apart) is the least
     fall read as free fall: exactly that is read, and named by motion_problem as a fall; a hair
