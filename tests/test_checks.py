@@ -154,6 +154,20 @@ def test_spurs_are_points_off_the_outline_with_both_neighbours_on_one_side():
     assert not body_outliers(thin, spur_factor=2.0).any()
 
 
+def test_a_spur_is_further_than_spur_factor_median_spacings_not_at_it():
+    """A point whose nearest neighbour is exactly spur_factor x the median nearest-neighbour
+    distance away is kept; a hair further, it is a spur (drop_outliers' words: "further than")."""
+    from tpnet_ref.checks import body_outliers
+    from tpnet_ref.observe import drop_outliers
+    line = np.stack([0.25 * np.arange(5), np.zeros(5)], axis=1) + 20.0   # spacing 0.25
+    at = np.concatenate([[[19.5, 20.0]], line])         # 0.5 = 2 x 0.25 before the first point
+    assert not body_outliers(at, spur_factor=2.0).any()
+    np.testing.assert_array_equal(drop_outliers(at), at)
+    beyond = np.concatenate([[[19.5 - 1e-9, 20.0]], line])
+    np.testing.assert_array_equal(body_outliers(beyond, spur_factor=2.0), [True] + [False] * 5)
+    np.testing.assert_array_equal(drop_outliers(beyond), line)
+
+
 def test_a_frame_of_mostly_scattered_points_is_left_to_the_range_check():
     """More points apart from the body than in it: not judged as "not one body" (no body of
     the scene's size; training_range_problem says what is wrong)."""
@@ -340,6 +354,33 @@ def test_a_window_not_in_free_fall_is_judged_by_its_speed_alone():
     assert free_fall_rows(rest.mean(axis=1)) is None and "closer in time" in motion_problem(rest)
 
 
+def test_free_fall_is_read_to_within_1_2e_5_world_units():
+    """The second differences must match free fall to within 5 % of one simulator row's fall
+    (0.05 g dt^2 = 1.23e-5 world units): a sideways push of 1e-5 a frame is still free fall, one
+    of 2e-5 is not, whatever the spacing."""
+    from tpnet_ref.checks import free_fall_rows, motion_problem
+    for rows in (1, 4, 8):
+        assert free_fall_rows(_falling(rows, ax=1e-5).mean(axis=1)) == pytest.approx(rows, rel=1e-3)
+        assert free_fall_rows(_falling(rows, ax=2e-5).mean(axis=1)) is None
+    assert motion_problem(_falling(1, ax=2e-5)) is None          # judged by its speed: inside
+    assert "consecutive simulator rows" in motion_problem(_falling(1, ax=1e-5))
+
+
+def test_the_least_fall_read_as_free_fall_is_half_a_rows_fall():
+    """A centroid falling g dt² / 2 a frame (frames 1/sqrt(2) simulator rows apart) is the least
+    fall read as free fall: exactly that is read, and named by motion_problem as a fall; a hair
+    less is not, and the window is judged by its speed (here: at rest)."""
+    from tpnet_ref.checks import GRAVITY, SIM_DT, free_fall_rows, motion_problem
+    a = 0.5 * GRAVITY * SIM_DT ** 2
+    # thrown upwards: its second differences are exactly (0, -a) (no rounding in these sums)
+    c = np.array([[0.0, -a], [0.0, 0.0], [0.0, 0.0], [0.0, -a]])
+    assert free_fall_rows(c) == pytest.approx(np.sqrt(0.5), rel=1e-12)
+    assert "as if the frames were 0.71/45 s apart" in motion_problem(c[:, None, :])
+    less = c * (1 - 1e-12)
+    assert free_fall_rows(less) is None
+    assert "a body at rest" in motion_problem(less[:, None, :])
+
+
 def test_the_thrown_ring_of_the_demo_warns_on_consecutive_rows(net):
     pytest.importorskip("pymunk")
     from tpnet_ref.checks import FrameSpacingWarning
@@ -433,6 +474,13 @@ def test_point_sets_of_other_dimensions_and_empty_ones_when_allowed():
         as_point_set(np.zeros((1, 4, 2)), "p")
     assert as_point_set(np.zeros((0, 2)), "p", allow_empty=True).shape == (0, 2)
     assert as_point_set([[1, 2]], "p", dtype=np.float32).dtype == np.float32
+    # one point without the set's axis, or a number, is not a set of points
+    with pytest.raises(ValueError, match=r"^p: expected shape \(N, 2\), got \(2,\)$"):
+        as_point_set(np.array([20.0, 21.0]), "p")
+    with pytest.raises(ValueError, match=r"^p: expected shape \(N, 2\), got \(\)$"):
+        as_point_set(20.0, "p")
+    with pytest.raises(ValueError, match=r"^window\[0\]: expected shape \(N, 2\), got \(2,\)$"):
+        C.check_window([np.array([20.0, 21.0])] * 4, 4, 2, np.dtype(np.float32))
     from tpnet_ref.checks import as_point_sets
     with pytest.raises(ValueError, match=r"^P: contains 1 NaN"):
         as_point_sets(np.array([[[0.0, 1.0]], [[np.inf, 0.0]]]), "P")
@@ -618,6 +666,28 @@ def test_the_range_warning_is_one_line_at_the_callers_line_and_says_whether_it_w
     assert msg.endswith("; the prediction is an extrapolation") and "\n" not in msg
 
 
+def test_an_explicit_stacklevel_points_the_warning_that_many_frames_up():
+    """stacklevel=k counts as warnings.warn's from the function called (1: its own line, 2: its
+    caller ...); warn_range, the words' helper, counts from its caller."""
+    import sys
+    from tpnet_ref.checks import warn_not_one_body, warn_outside_training_range, warn_range
+    far = normalize(_window(cx=120.0))
+
+    def helper(fn, *args):               # one frame between the test and the function called
+        fn(*args, stacklevel=3)
+
+    def where(fn, *args):
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            line = sys._getframe().f_lineno + 1
+            fn(*args)
+        [w] = got
+        return (w.filename, w.lineno) == (__file__, line)
+    assert where(helper, warn_outside_training_range, far, NORM_LO, NORM_HI, "w")
+    assert where(helper, warn_not_one_body, [_with_strays(3)] * 4, "w")
+    assert where(warn_range, "w", "a problem", 1)
+
+
 # one body: the outlier rule
 def _line(n, spacing, y=0.0, x0=0.0):
     return np.stack([x0 + spacing * np.arange(n), np.full(n, y)], axis=1)
@@ -698,6 +768,23 @@ def test_the_largest_group_is_the_body():
     assert out[30:].all() and not out[:30].any()
 
 
+def test_of_two_pieces_that_fit_with_the_body_one_at_a_time_the_larger_joins():
+    """Pieces join the body largest first: of a piece of 5 and one of 3 points, each within the
+    body's reach (3.6) with it alone but not both together, the 5 join and the 3 lie apart."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    body = np.stack([20.0 + 0.3 * np.arange(8), np.full(8, 20.0)], axis=1)     # x 20 .. 22.1
+    five = np.stack([24.0 + 0.3 * np.arange(5), np.full(5, 20.0)], axis=1)     # x 24 .. 25.2
+    three = np.array([[16.0, 20.0], [16.3, 20.0], [16.6, 20.0]])
+    for order in ((body, five, three), (three, body, five), (five, three, body)):
+        frame = np.concatenate(order)
+        out = body_outliers(frame)          # link 1.2: three groups; reach 2.6, 3.05, both 4.6
+        np.testing.assert_array_equal(frame[out], three)
+    frame = np.concatenate([body, five, three])
+    why = window_body_problem([frame + [0.5 * t, 0.0] for t in range(4)])
+    assert why.startswith("frame 0 does not look like one body: 3 of 16 points lie apart from "
+                          "it (likely stray points")
+
+
 @hsettings(max_examples=25)
 @given(st.floats(0.6, 2.8), st.integers(12, 60), st.floats(3.0, 42.0), st.floats(3.0, 42.0),
        st.floats(0.0, 2 * np.pi), st.floats(10.0, 20.0))
@@ -767,6 +854,19 @@ def test_a_body_must_outnumber_the_points_apart_from_it_and_have_5_points():
     assert window_body_problem([np.concatenate([even, [[60.0, 60.0]]])] * 4) is None
 
 
+def test_four_points_are_no_body_even_with_the_strays_beside_them():
+    """A body of 4 points and 2 strays 5 world units off (all 6 within one strip of the body's
+    size, so the scattered-points shortcut does not decide): no body of the scene's size, left
+    to the range check; with a fifth point in the body the strays are named."""
+    from tpnet_ref.checks import window_body_problem
+    strays = [[25.0, 20.0], [25.3, 20.0]]
+    four = np.concatenate([_ring(r=0.5, n=4), strays])
+    assert window_body_problem([four] * 4) is None
+    five = np.concatenate([_ring(r=0.5, n=5), strays])
+    assert window_body_problem([five] * 4).startswith("frame 0 does not look like one body: 2 of "
+                                                      "7 points lie apart from it")
+
+
 @pytest.mark.parametrize("step, says", [(3.99, False), (4.01, True)])
 def test_a_frame_more_than_4_world_units_from_the_previous_one_is_named(step, says):
     from tpnet_ref.checks import window_body_problem
@@ -808,13 +908,30 @@ def test_frames_above_the_pairwise_limit_are_not_judged():
     assert window_body_problem([big, *frames[1:]]) is None
 
 
+def test_the_pairwise_limit_is_2048_points():
+    """A frame of 2,048 points is still judged (its strays named), one of 2,049 is not, and
+    body_outliers says so in one line."""
+    from tpnet_ref.checks import body_outliers, window_body_problem
+    frames = [_with_strays(3)] * 4
+    strays = [[30.0, 20.0], [31.0, 30.0], [1.0, 1.0]]
+    at = np.concatenate([_ring(n=2045), strays])
+    assert window_body_problem([at, *frames[1:]]).startswith(
+        "frame 0 does not look like one body: 3 of 2048 points lie apart from it")
+    over = np.concatenate([_ring(n=2046), strays])
+    assert window_body_problem([over, *frames[1:]]) is None
+    with pytest.raises(ValueError, match=r"^points: 2049 points, the one-body test takes at "
+                                         r"most 2048 \(it compares every pair\)"):
+        body_outliers(over)
+
+
 # sparse frames and motion
 @pytest.mark.parametrize("counts, says", [
     ([30, 30, 30, 30], None), ([3, 3, 3, 3], None),
     ([30, 2, 30, 30], "frame 1 has 2 point(s); a body's outline needs at least 3 (fewer cannot "
                       "span an area; the model was trained on 30 per frame)"),
     ([30, 2, 1, 0], "frame 1 has 2 point(s) (3 frames have too few); a body's outline needs at "
-                    "least 3"),
+                    "least 3"),    ([30, 2, 30, 1], "frame 1 has 2 point(s) (2 frames have too few); a body's outline needs at "
+                     "least 3"),
 ])
 def test_sparse_frames_name_the_first_and_count_the_others(counts, says):
     from tpnet_ref.checks import sparse_frames_problem
