@@ -261,3 +261,16 @@ def test_rollout_600_steps_finite_and_bounded(scheme, models, scene):
     assert traj.min() >= lo - 1e-3 and traj.max() <= hi + 1e-3     # the sigmoid keeps it in
     ref = models[scheme].with_engine("numpy").rollout(scene[0], 600)
     assert np.isfinite(ref).all()
+
+
+def test_a_specialised_quantized_model_keeps_its_scheme_and_agrees(models, scene):
+    """``specialize`` and ``with_engine`` keep the scheme; the specialised head (the dequantized
+    weights, float kernels) agrees with the quantized engine within float32 rounding."""
+    m = models["int8"]
+    spec = m.specialize(scene[:6])
+    assert spec.meta["quantization"] == "int8" and spec.specialization is not None
+    assert spec.head_for(1).weights == "int8"
+    got = spec.predict_batch(scene)              # 12 windows: past the numba head's 8
+    assert spec.counts["windows"] == len(scene)
+    d = np.abs(got - np.stack([m.predict(w) for w in scene])).max()
+    assert d <= 5e-5, d

@@ -54,11 +54,15 @@ def add_cli(sub: Any) -> None:
                          "codes (docs/deployment.md)",
         description="Quantize a native weights file. bf16: each BiLSTM weight rounded to "
                     "bfloat16. int8: symmetric, one float32 scale per output column "
-                    "(max |column| / 127). The per-point MLP, the global layer, the output "
+                    "(max |column| / 127), applied to each sum; BiLSTM 1's input kernels and "
+                    "the last BiLSTM's recurrent matrices in two int8 planes (16 bits: the "
+                    "matrices a prediction is most sensitive to). The per-point MLP, the global "
+                    "layer, the output "
                     "layer, biases and LayerNorm stay float32; sums and activations are float32. "
                     "The file records the scheme (quantization) and its source "
                     "(quantized_from: file name and digest), carries a content digest over the "
-                    "codes and scales, and is written with shuffle + gzip.")
+                    "codes and scales, and is written with shuffle + gzip; tpnet_ref.load(OUT.h5) "
+                    "reads it with no flag. When to use which: docs/deployment.md.")
     p.add_argument("--weights", required=True, metavar="W",
                    help="the float32 native weights file to quantize")
     p.add_argument("--to", required=True, choices=("bf16", "int8"),
