@@ -7,6 +7,7 @@ dynamic int8 (``onnxruntime.quantization.quantize_dynamic``, ``QuantType.QInt8``
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --errors   # also E_p@40/@80, 60 cases
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --sizes full --rounds 9
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --layers   # error per layer only
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --rollout  # 600-step rollouts only
 
 Per row: B = 1 latency (median over 64 windows of the scene, every peer called in turn, window
 by window: this VM's speed drifts), B = 256 throughput (one call on 256 windows, peers in turn),
@@ -157,6 +158,27 @@ def layers(size: str) -> None:
         print(f"  {size:8s} {scheme:5s} BiLSTM " + ", ".join(row))
 
 
+def rollouts(size: str, steps: int = 600) -> None:
+    """``--rollout``: each scheme's rollout of ``steps`` predictions from the first window of
+    each of the 60 test cases (one batch): finite, the points' range (the box is [0, 45]), the
+    largest distance of a point from its frame's centroid (the ring's radius is 2), and the
+    largest distance from the float32 engine's rollout at 10, 100 and ``steps`` predictions."""
+    from tpnet_ref.evaluation import TEST_CASES, simulate_cases
+    frames = simulate_cases(TEST_CASES, rows=20, workers=1)[:, :4]       # (60, 4, 30, 2)
+    ref = None
+    for scheme in SCHEMES:
+        m = tpnet_ref.load(size=size, engine="numba", weights=None if scheme == "float32" else scheme)
+        t = time.perf_counter()
+        out = m.rollout_batch(frames.astype(np.float32), steps)            # (60, steps, 30, 2)
+        dt = time.perf_counter() - t
+        ref = out if ref is None else ref
+        radius = np.linalg.norm(out - out.mean(axis=2, keepdims=True), axis=-1).max()
+        far = [np.abs(out[:, k - 1] - ref[:, k - 1]).max() for k in (10, 100, steps)]
+        print(f"  {size:8s} {scheme:8s} finite {bool(np.isfinite(out).all())}, points in "
+              f"[{out.min():.2f}, {out.max():.2f}], largest radius {radius:.2f}, from float32 "
+              f"@10/@100/@{steps} {far[0]:.3f} / {far[1]:.3f} / {far[2]:.3f} ({dt:.1f} s)")
+
+
 def _print(size: str, rows: dict) -> None:
     print(f"\n{size}")
     print(f"  {'weights':12s} {'B=1 ms':>7s} {'B=256 ms':>9s} {'win/s':>7s} {'max |d|':>8s} "
@@ -193,6 +215,8 @@ def main(argv=None) -> int:
                     help="threads of every peer (default: each one's own policy)")
     ap.add_argument("--layers", action="store_true",
                     help="only the quantization's error per BiLSTM (float64 reference, 64 windows)")
+    ap.add_argument("--rollout", action="store_true",
+                    help="only 600-step rollouts from the 60 test cases: finite, bounded")
     ap.add_argument("--errors", action="store_true",
                     help="also E_p@40 / @80 on the 60 test cases (simulates them: minutes)")
     args = ap.parse_args(argv)
@@ -200,9 +224,9 @@ def main(argv=None) -> int:
     print(_common.machine())
     print(f"load average at start: {_common.load_average()}")
     t0 = time.time()
-    if args.layers:
+    if args.layers or args.rollout:
         for size in args.sizes.split(","):
-            layers(size)
+            (layers if args.layers else rollouts)(size)
         return 0
     with tempfile.TemporaryDirectory() as d:
         for size in args.sizes.split(","):

@@ -41,6 +41,9 @@ so a row's result is the same bits whatever the other rows of its group and howe
 grouped: the result does not depend on the other windows of a batch, nor on the thread count
 (each number is computed by one thread, by the same code); the canonical point order before the
 extractor keeps permutation invariance exact. Element-wise work uses no fast-math flags.
+Weights of fewer bits (``weights="bf16"`` / ``"int8"``, :mod:`tpnet_ref.weights.quantize`) keep
+all of this: each weight is widened to float32 exactly in registers, the chain is the same, and
+int8's scale multiplies the finished sum (one rounding, the same for every row).
 Products accumulate in the model's dtype (as the BLAS does); LayerNorm statistics in float64.
 """
 from __future__ import annotations
