@@ -274,3 +274,46 @@ def test_a_specialised_quantized_model_keeps_its_scheme_and_agrees(models, scene
     assert spec.counts["windows"] == len(scene)
     d = np.abs(got - np.stack([m.predict(w) for w in scene])).max()
     assert d <= 5e-5, d
+
+
+_CHILD = """
+import hashlib, sys, warnings
+import numpy as np
+import tpnet_ref
+warnings.simplefilter("ignore")
+rng = np.random.default_rng(5)
+t = np.linspace(0, 2 * np.pi, 30, endpoint=False)
+ring = np.stack([np.cos(t), np.sin(t)], 1) * 2
+wins = np.stack([np.stack([ring + [20 + 0.3 * k + i, 25 - 0.2 * k] for k in range(4)])
+                 + rng.normal(0, 0.05, (4, 30, 2)) for i in range(12)])
+h = hashlib.sha256()
+for s in ("bf16", "int8"):
+    m = tpnet_ref.load(size="quarter", engine="numba", weights=s)
+    for w in wins:
+        h.update(m.predict(w).tobytes())
+    h.update(m.predict_batch(wins[:8]).tobytes())
+    h.update(m.rollout(wins[0], 20).tobytes())
+print(h.hexdigest())
+"""
+
+
+@pytest.mark.slow
+def test_same_bits_under_every_openblas_kernel_and_thread_count():
+    """The quantized engines' predictions, a batch and a rollout hashed in fresh processes under
+    each OpenBLAS kernel this CPU runs, with one and two BLAS / numba threads: one digest."""
+    import os
+    from determinism_probe import KERNELS, runnable_kernels
+    kernels = [k for k, why in runnable_kernels().items() if why is None] or [None]
+    digests = {}
+    for kernel in dict.fromkeys(kernels[:2] + kernels[-1:]):
+        for threads in (1, 2):
+            env = dict(os.environ, OPENBLAS_NUM_THREADS=str(threads),
+                       NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
+            if kernel is not None:
+                env["OPENBLAS_CORETYPE"] = kernel
+            r = subprocess.run([sys.executable, "-c", _CHILD], capture_output=True, text=True,
+                               env=env, timeout=600, check=False)
+            assert r.returncode == 0, r.stderr[-2000:]
+            digests[kernel, threads] = r.stdout.strip()
+    assert len(set(digests.values())) == 1, digests
+    assert set(KERNELS) >= {k for k, _ in digests if k is not None}
