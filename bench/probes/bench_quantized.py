@@ -5,6 +5,7 @@ dynamic int8 (``onnxruntime.quantization.quantize_dynamic``, ``QuantType.QInt8``
 
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py            # speed, error, file sizes
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --errors   # also E_p@40/@80, 60 cases
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --errors --plot docs/eval_error_vs_precision.png
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --sizes full --rounds 9
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --layers   # error per layer only
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --rollout  # 600-step rollouts only
@@ -205,6 +206,37 @@ def _print(size: str, rows: dict) -> None:
         print("  targets: " + "; ".join(f"{k}: {'met' if ok else 'NOT met'}" for k, ok in checks))
 
 
+def plot(rows: dict, path: str) -> None:
+    """``--plot``: the front on two axes: E_p@80 (with ``--errors``) and one prediction's
+    largest move from float32 against B = 1 latency, every size x scheme (onnxruntime's rows
+    on the second panel)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    marks = {"full": "o", "half": "s", "quarter": "^"}
+    colours = {"float32": "C0", "bf16": "C1", "int8": "C2", "ort float32": "C7", "ort int8": "C3"}
+    for size, by in rows.items():
+        for k, r in by.items():
+            kw = dict(marker=marks.get(size, "o"), color=colours.get(k, "k"), s=40)
+            if "ep80" in r:
+                axes[0].scatter(r["b1_ms"], r["ep80"], **kw)
+            if k not in ("float32", "ort float32"):
+                axes[1].scatter(r["b1_ms"], max(r["max_d"], 1e-3), **kw)
+    for ax, label in zip(axes, ("E_p@80, 60 test cases (squared)",
+                                "max move from float32 (world units)")):
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("B = 1 latency (ms)")
+        ax.set_ylabel(label)
+    handles = [plt.Line2D([], [], ls="", marker="o", color=c, label=k) for k, c in colours.items()]
+    handles += [plt.Line2D([], [], ls="", marker=m, color="k", label=k) for k, m in marks.items()]
+    axes[1].legend(handles=handles, fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    print(f"wrote {path}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="full,half,quarter",
@@ -217,6 +249,10 @@ def main(argv=None) -> int:
                     help="only the quantization's error per BiLSTM (float64 reference, 64 windows)")
     ap.add_argument("--rollout", action="store_true",
                     help="only 600-step rollouts from the 60 test cases: finite, bounded")
+    ap.add_argument("--json", default=None, metavar="FILE",
+                    help="also write every row to this JSON file")
+    ap.add_argument("--plot", default=None, metavar="PNG",
+                    help="also draw the front (E_p@80 with --errors; the move from float32)")
     ap.add_argument("--errors", action="store_true",
                     help="also E_p@40 / @80 on the 60 test cases (simulates them: minutes)")
     args = ap.parse_args(argv)
@@ -228,9 +264,17 @@ def main(argv=None) -> int:
         for size in args.sizes.split(","):
             (layers if args.layers else rollouts)(size)
         return 0
+    every = {}
     with tempfile.TemporaryDirectory() as d:
         for size in args.sizes.split(","):
-            _print(size, run_size(size, args.rounds, args.threads, args.errors, Path(d)))
+            every[size] = run_size(size, args.rounds, args.threads, args.errors, Path(d))
+            _print(size, every[size])
+    if args.plot:
+        plot(every, args.plot)
+    if args.json:
+        import json
+        Path(args.json).write_text(json.dumps({"machine": _common.machine(), "rows": every,
+                                               "load": _common.load_average()}, indent=1))
     print(f"\nload average at end: {_common.load_average()} ({time.time() - t0:.0f} s, "
           f"pid {os.getpid()})")
     return 0
