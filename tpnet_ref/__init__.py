@@ -30,7 +30,7 @@ _default_model: TPNet | None = None
 
 
 def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
-         m: int = 4, size: str = "full") -> TPNet:
+         m: int = 4, size: str = "full", weights: str | None = None) -> TPNet:
     """A :class:`TPNet` from a native weights file (:func:`tpnet_ref.model.load`).
 
     Without ``path``, the shipped model for windows of ``m`` frames at network ``size``:
@@ -42,15 +42,24 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
 
     ``engine``: "auto" (the default: the compiled Numba head where numba is installed, else the
     NumPy one; a process's first call then loads numba and its cached code, and the very first
-    one after installing compiles it: docs/deployment.md), "numpy" or "numba"."""
-    if path is None:
-        if m == 4 and size == "full":
-            return _load_file(None, dtype, engine)
+    one after installing compiles it: docs/deployment.md), "numpy" or "numba".
+
+    ``weights``: None (the file's own: float32, or the bf16 / int8 of a file written by
+    ``tpnet quantize``), "bf16" or "int8" (the BiLSTM matrices rounded to that grid at load,
+    read by the Numba engine in a half or a quarter of the bytes:
+    :func:`tpnet_ref.weights.convert.with_weights`, docs/deployment.md)."""
+    if weights is not None and weights not in ("float32", "bf16", "int8"):
+        raise ValueError(f"weights must be None, 'float32', 'bf16' or 'int8', got {weights!r}")
+    if path is None and (m != 4 or size != "full"):
         from .weights.shipped import shipped_weights_path
         path = shipped_weights_path(m, size)
-    elif m != 4 or size != "full":
+    elif path is not None and (m != 4 or size != "full"):
         raise ValueError("load: give either a path or m= / size= (a shipped model), not both")
-    return _load_file(path, dtype, engine)
+    model = _load_file(path, dtype, engine)
+    if weights is None:
+        return model
+    from .weights.convert import with_weights
+    return with_weights(model, weights)
 
 
 def _model(model: TPNet | None, dtype: _Any = None) -> TPNet:

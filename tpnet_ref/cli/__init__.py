@@ -18,7 +18,7 @@ from typing import Any
 # module path -> the sub-commands it registers (for the record; each module's add_cli is called)
 COMMAND_MODULES: tuple[str, ...] = (
     "tpnet_ref.cli.model",        # info, predict
-    "tpnet_ref.cli.weights",      # import, compress
+    "tpnet_ref.cli.weights",      # import, compress, scrub-provenance, quantize
     "tpnet_ref.cli.sim",          # sim run|show|render
     "tpnet_ref.cli.data",         # data generate
     "tpnet_ref.cli.evaluation",   # eval, demo

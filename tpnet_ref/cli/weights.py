@@ -1,7 +1,8 @@
 """``tpnet import``: convert a Keras or PyTorch checkpoint to the native weights file;
 ``tpnet compress``: rewrite a native file with shuffle + gzip (optionally rounded first);
 ``tpnet scrub-provenance``: rewrite a native file's provenance without machine paths, with a
-content digest, the parameters bit-identical."""
+content digest, the parameters bit-identical; ``tpnet quantize``: a native file whose BiLSTM
+matrices are bf16 or int8 codes (a half or a quarter of their bytes)."""
 from __future__ import annotations
 
 import argparse
@@ -45,6 +46,30 @@ def add_cli(sub: Any) -> None:
                         "holds it; default: this repository checkout); a path in none of them "
                         "from its first folder named data, runs or weights, else by file name")
     p.set_defaults(func=_cli_scrub)
+
+    p = sub.add_parser(
+        "quantize", help="write a native weights file whose BiLSTM matrices (input kernels, "
+                         "recurrent matrices: 96 %% of the paper size's weights) are bf16 or int8 "
+                         "codes; tpnet_ref.load reads it with no flag, the Numba engine reads the "
+                         "codes (docs/deployment.md)",
+        description="Quantize a native weights file. bf16: each BiLSTM weight rounded to "
+                    "bfloat16. int8: symmetric, one float32 scale per output column "
+                    "(max |column| / 127), applied to each sum; BiLSTM 1's input kernels and "
+                    "the last BiLSTM's recurrent matrices in two int8 planes (16 bits: the "
+                    "matrices a prediction is most sensitive to). The per-point MLP, the global "
+                    "layer, the output "
+                    "layer, biases and LayerNorm stay float32; sums and activations are float32. "
+                    "The file records the scheme (quantization) and its source "
+                    "(quantized_from: file name and digest), carries a content digest over the "
+                    "codes and scales, and is written with shuffle + gzip; tpnet_ref.load(OUT.h5) "
+                    "reads it with no flag. When to use which: docs/deployment.md.")
+    p.add_argument("--weights", required=True, metavar="W",
+                   help="the float32 native weights file to quantize")
+    p.add_argument("--to", required=True, choices=("bf16", "int8"),
+                   help="the scheme: bf16 (half the bytes) or int8 (a quarter)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.h5",
+                   help="native weights file to write (may not be W)")
+    p.set_defaults(func=_cli_quantize)
 
 
 def _cli_import(args: argparse.Namespace) -> int:
@@ -96,4 +121,26 @@ def _cli_scrub(args: argparse.Namespace) -> int:
         print(f"  {key}: {b} -> {a}")
     print(f"wrote {args.dst}: {rep['arrays']} arrays ({rep['values']:,} parameters) "
           f"bit-identical to {args.src} (checked), {rep['digest']}")
+    return 0
+
+
+def _cli_quantize(args: argparse.Namespace) -> int:
+    import os
+
+    import numpy as np
+
+    from ..model import load
+    from ..weights.convert import with_weights
+    from ..weights.native import extra_groups, write_replacing
+
+    if os.path.abspath(args.output) == os.path.abspath(args.weights):
+        raise ValueError("quantize: -o must name a new file, not --weights")
+    base = load(args.weights, engine="numpy")
+    model = with_weights(base, args.to)
+    meta = write_replacing(args.output, model.config, model.params, model.meta,
+                           extra_groups(args.weights), "gzip")
+    change = max(float(np.max(np.abs(model.params[k] - base.params[k]))) for k in base.params)
+    print(f"wrote {args.output}: {os.path.getsize(args.output) / 1e6:.2f} MB "
+          f"({os.path.getsize(args.weights) / 1e6:.2f} MB before), BiLSTM matrices as "
+          f"{args.to}, largest change of a weight {change:.3g}; {meta['content_sha256']}")
     return 0

@@ -80,7 +80,8 @@ def build(model: Any, engine: str, used: dict[str, np.ndarray] | None) -> list[H
         # every batch, or (specialised) the batches up to ENGINE_MAX_BATCH, the larger ones
         # going to the specialised head, which computes only the scene's units
         full.insert(0, engine_numba.NumbaHead(cfg, model.params, model.dtype, model.unit_order,
-                                              None if used is None else ENGINE_MAX_BATCH))
+                                              None if used is None else ENGINE_MAX_BATCH,
+                                              model.meta.get("quantization")))
     if used is None:
         return full
     # the specialised head after the numba one (faster on the batches it runs), its flagged

@@ -41,6 +41,9 @@ so a row's result is the same bits whatever the other rows of its group and howe
 grouped: the result does not depend on the other windows of a batch, nor on the thread count
 (each number is computed by one thread, by the same code); the canonical point order before the
 extractor keeps permutation invariance exact. Element-wise work uses no fast-math flags.
+Weights of fewer bits (``weights="bf16"`` / ``"int8"``, :mod:`tpnet_ref.weights.quantize`) keep
+all of this: each weight is widened to float32 exactly in registers, the chain is the same, and
+int8's scale multiplies the finished sum (one rounding, the same for every row).
 Products accumulate in the model's dtype (as the BLAS does); LayerNorm statistics in float64.
 """
 from __future__ import annotations
@@ -54,6 +57,7 @@ from . import compile_watch
 from .blas import in_one_thread
 from .thread_policy import two_threads
 from ..checks import overflow_error
+from ..weights.quantize import SCHEMES, codes_of
 from .numba_features import FEATURE_CHUNK, features_parallel, frame_range
 from .numba_lstm import head_parallel, head_serial, project_parallel, project_serial
 from .numba_products import CHAIN, GROUP_ROWS, pad_columns, padded_columns
@@ -154,14 +158,17 @@ class NumbaHead:
     :class:`tpnet_ref.engines.interface.Head` "numba": ``params`` in the file's order (``model.params``),
     ``unit_order`` the model's (:mod:`tpnet_ref.engines.unit_order`; None: the file's order) -- only the
     layout, and so the order of the sums, depends on it. Its calls take the second thread that
-    :data:`tpnet_ref.engines.thread_policy.adaptive` offers (``threaded``); the bits do not depend on it."""
+    :data:`tpnet_ref.engines.thread_policy.adaptive` offers (``threaded``); the bits do not depend on it.
+    ``weights`` "bf16" or "int8" (a float32 model whose BiLSTM matrices lie on that grid:
+    :mod:`tpnet_ref.weights.quantize`): the kernels read those matrices' codes, widened to
+    float32 in registers, and apply int8's scales to each sum."""
 
     name = "numba"
     threaded = True
 
     def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype,
                  unit_order: dict[str, np.ndarray] | None = None,
-                 max_batch: int | None = None) -> None:
+                 max_batch: int | None = None, weights: str | None = None) -> None:
         #: the largest batch it runs (None: any; :data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH`)
         self.max_batch = max_batch
         self.dtype = dt = np.dtype(dtype)
@@ -206,7 +213,12 @@ class NumbaHead:
             recs.append(rec)
             gks.append(gk)
             csts.append(cst)
-        self.kernels, self.recs = tuple(kernels), tuple(recs)
+        #: the weights' scheme the kernels read (:mod:`tpnet_ref.weights.quantize`; float32
+        #: models only), None: the model's dtype
+        self.weights = weights if weights in SCHEMES and dt == np.float32 else None
+        last = len(recs) - 1
+        (self.kernels, self.kscs), (self.recs, self.rscs) = (
+            _codes(ws, self.weights, dt, wide) for ws, wide in ((kernels, 0), (recs, last)))
         self.gks, self.csts = tuple(gks), tuple(csts)
         self.units = tuple(int(u) for u in config.lstm_units)
         self.gammas = tuple(np.ascontiguousarray(g, dtype=dt) for g in gammas)
@@ -253,13 +265,14 @@ class NumbaHead:
         x = np.ascontiguousarray(x, dtype=self.dtype)
         steps, bsz = (rows // batch, batch) if batch > 0 and rows % batch == 0 else (rows, 1)
         if _two_threads(parallel and _available(project_parallel, self._loaded,
-                                                (x, k, self.csts[0], out, steps, bsz))):
+                                                (x, k, self.kscs[0], self.csts[0], out, steps,
+                                                 bsz))):
             try:
-                project_parallel(x, k, self.csts[0], out, steps, bsz)
+                project_parallel(x, k, self.kscs[0], self.csts[0], out, steps, bsz)
             finally:
                 _PARALLEL.release()
         else:
-            project_serial(x, k, self.csts[0], out, steps, bsz)
+            project_serial(x, k, self.kscs[0], self.csts[0], out, steps, bsz)
         return out
 
     def run(self, xp1: np.ndarray, steps: int, batch: int,
@@ -269,7 +282,7 @@ class NumbaHead:
         [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0. ``parallel``: each
         layer's two directions on two threads if :func:`_two_threads` allows."""
         xp1 = np.ascontiguousarray(xp1, dtype=self.dtype).reshape(steps * batch, 2, -1)
-        args = (xp1, self.kernels, self.recs, self.gks, self.csts, self.units, self.gammas,
+        args = (xp1, self.kernels, self.recs, self.kscs, self.rscs, self.gks, self.csts, self.units, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
         if _two_threads(parallel and _available(head_parallel, self._loaded, args)):
@@ -278,6 +291,23 @@ class NumbaHead:
             finally:
                 _PARALLEL.release()
         return head_serial(*args)
+
+
+def _codes(mats: list[np.ndarray], scheme: str | None, dt: np.dtype,
+           wide: int) -> tuple[tuple, tuple]:
+    """The matrices ``(2, C, N)`` as the kernels read them: as they are (no scheme), or their
+    ``scheme`` codes (:func:`tpnet_ref.weights.quantize.codes_of`, exact; int8's layer ``wide``
+    in two planes, ``(2, 2C, N)``: :func:`tpnet_ref.weights.quantize.wide_names`), with each
+    one's int8 scales ``(2, N)`` (``(2, 0)``: none)."""
+    if scheme is None:
+        return tuple(mats), tuple(np.zeros((2, 0), dtype=dt) for _ in mats)
+    codes, scales = [], []
+    for li, w in enumerate(mats):
+        got = [codes_of(w[d], scheme, "NumbaHead", li == wide) for d in range(2)]
+        codes.append(np.ascontiguousarray(np.stack([c for c, _ in got])))
+        scales.append(np.stack([s for _, s in got]) if scheme == "int8"
+                      else np.zeros((2, 0), dtype=dt))
+    return tuple(codes), tuple(scales)
 
 
 __all__ = ["NumbaHead", "NumbaFeatures", "two_thread_kernels_skipped", "FEATURE_CHUNK", "CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns"]

@@ -152,7 +152,7 @@ _gates_tanh = _gates_impl(False)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
+def _recur_dir(xs, d, rec, rsc, hs, u, steps, bsz, relu, one):
     """One direction's recurrence over ``steps`` steps of ``bsz`` windows.
 
     ``xs[:, d] (T*B, N)`` this direction's input projections with bias (row ``t*B + b``, gates
@@ -160,19 +160,23 @@ def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
     what ``h[k]`` adds to the pre-activations), ``hs (T*B, 2u)`` receives ``h`` at columns
     ``d*u ..`` (Keras's re-aligned backward output: row ``t`` of the backward direction is its
     state after consuming steps ``T-1 .. t``). Windows go in groups of ``GROUP_ROWS``; each
-    step reads only the rows of ``rec`` that a non-zero ``h[k]`` of the group multiplies."""
+    step reads only the rows of ``rec`` that a non-zero ``h[k]`` of the group multiplies;
+    ``rsc (N,)``: int8 weights' scale per column, applied to the sum (empty: none)."""
     dt = hs.dtype
     h = np.zeros((bsz, u), dtype=dt)
     c = np.zeros((bsz, u), dtype=dt)
     acc = np.zeros((bsz, rec.shape[1]), dtype=dt)
     grp = groups(1, bsz, False)
-    act = np.empty((grp.shape[0], u), dtype=np.intp)
+    act = np.empty((grp.shape[0], rec.shape[0]), dtype=np.intp)
     ns = np.empty(grp.shape[0], dtype=np.intp)
+    hin = h if rec.shape[0] == u else np.zeros((bsz, rec.shape[0]), dtype=dt)
     for s in range(steps):
         t = s if d == 0 else steps - 1 - s
         if s > 0:                             # h = 0 at the first step
-            active(h[:, :], grp, act, ns)
-            product(h[:, :], rec, grp, act, ns, acc[:, :])
+            planes(h, hin)
+            active(hin[:, :], grp, act, ns)
+            product(hin[:, :], rec, grp, act, ns, acc[:, :])
+            scale_rows(acc, rsc)
         for b in range(bsz):
             row = t * bsz + b
             if relu:
@@ -182,6 +186,42 @@ def _recur_dir(xs, d, rec, hs, u, steps, bsz, relu, one):
             hb = h[b]
             for k in range(u):                # a loop, not a slice copy: no shape check to
                 hs[row, d * u + k] = hb[k]    # compile (its error message costs ~1 s to build)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def planes(x, xin):
+    """Two int8 planes' input: ``xin (R, 2C) = [x, x * 2^-8]`` (exact), for weights stored as
+    ``q_hi`` rows then ``q_lo`` rows (:func:`tpnet_ref.weights.quantize.wide_names`); nothing
+    when ``xin`` is ``x`` (one plane: the same width)."""
+    n = x.shape[1]
+    if xin.shape[1] == 2 * n:
+        for r in range(x.shape[0]):
+            for k in range(n):
+                v = x[r, k]
+                xin[r, k] = v
+                xin[r, n + k] = v * 0.00390625         # exact: 2^-8
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _widened(x, rows):
+    """``x (R, C)`` as the input of a weight matrix of ``rows`` rows: ``x`` itself, or its two
+    planes (:func:`planes`) when ``rows == 2C``."""
+    if rows == x.shape[1]:
+        return x
+    xin = np.empty((x.shape[0], rows), dtype=x.dtype)
+    planes(x, xin)
+    return xin
+
+
+@njit(cache=True, nogil=True, inline="always")
+def scale_rows(out, sc):
+    """``out[r, :] *= sc`` for every row of ``out (R, N)`` (int8 weights' scales, one per output
+    column); nothing for an empty ``sc`` (float weights)."""
+    if sc.shape[0] > 0:
+        for r in range(out.shape[0]):
+            o = out[r]
+            for q in range(sc.shape[0]):
+                o[q] *= sc[q]
 
 
 @njit(cache=True, nogil=True)
@@ -239,21 +279,25 @@ def _norm_rows(src, gamma, beta, relu, li, limit, one, eps, x, rr, rmu, bad):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one):
+def _layer_dir(d, x, kern, ksc, gk, cst, rr, rmu, xs, rec, rsc, hs, u, steps, bsz, relu, one):
     """Direction ``d`` of one BiLSTM: its input projection of ``x`` into ``xs[:, d]`` (unless
     ``x`` has no rows: BiLSTM 1's, computed by :meth:`NumbaHead.project`), then its
-    recurrence into ``hs``. ``kern``, ``gk``, ``cst``, ``rec``: both directions' (axis 0)."""
+    recurrence into ``hs``. ``kern``, ``gk``, ``cst``, ``rec``: both directions' (axis 0);
+    ``ksc``, ``rsc``: their int8 scales ``(2, N)`` (``(2, 0)``: float weights)."""
     if x.shape[0] > 0:
-        project_dir(x, kern[d], xs[:, d], steps, bsz)
+        project_dir(_widened(x, kern.shape[1]), kern[d], xs[:, d], steps, bsz)
+        scale_rows(xs[:, d], ksc[d])
         _finish_dir(xs, d, rr, rmu, gk[d], cst[d])
-    _recur_dir(xs, d, rec[d], hs, u, steps, bsz, relu, one)
+    _recur_dir(xs, d, rec[d], rsc[d], hs, u, steps, bsz, relu, one)
 
 
 def _head_impl(parallel: bool):
     """The prediction network after BiLSTM 1's input projection, compiled once one thread
     (``head_serial``) and once with each layer's two directions on two threads
-    (``head_parallel``): ``head(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w,
-    head_b, steps, bsz, relu, one, eps, limit)`` -> ``(y (B, n_out*dim), bad)``.
+    (``head_parallel``): ``head(xp1, kernels, recs, kscs, rscs, gks, csts, units, gammas, betas,
+    head_w, head_b, steps, bsz, relu, one, eps, limit)`` -> ``(y (B, n_out*dim), bad)``;
+    ``kscs[l]``, ``rscs[l]`` ``(2, N)``: the int8 scales of ``kernels[l]`` and ``recs[l]``
+    (``(2, 0)``: float or bf16 weights, nothing applied).
 
     ``xp1 (T*B, 2, N)``: row ``t*B + b``, bias included, ``N`` = ``4u`` padded to whole vectors;
     ``bad`` is ``l + 1`` when the ReLU output of layer ``l`` reached ``limit`` (or NaN), else 0
@@ -268,8 +312,8 @@ def _head_impl(parallel: bool):
     callee does, and a later process crashed once networks of two depths had been compiled).
     Here no compiled function calls a parallel one."""
 
-    def head(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w, head_b, steps, bsz,
-             relu, one, eps, limit):
+    def head(xp1, kernels, recs, kscs, rscs, gks, csts, units, gammas, betas, head_w, head_b,
+             steps, bsz, relu, one, eps, limit):
         dt = xp1.dtype
         nl = len(recs)
         rows = steps * bsz
@@ -287,7 +331,8 @@ def _head_impl(parallel: bool):
             hs = np.empty((rows, 2 * u), dtype=dt)
             kern, gk, cst = kernels[li], gks[li], csts[li]
             for d in prange(2):                             # range where not parallel
-                _layer_dir(d, x, kern, gk, cst, rr, rmu, xs, rec, hs, u, steps, bsz, relu, one)
+                _layer_dir(d, x, kern, kscs[li], gk, cst, rr, rmu, xs, rec, rscs[li], hs, u,
+                           steps, bsz, relu, one)
             if li < nl - 1:
                 x = np.empty((rows, 2 * u), dtype=dt)
                 bad = _norm_rows(hs, gammas[li], betas[li], relu, li, limit, one, eps, x, rr,
@@ -322,25 +367,26 @@ head_parallel = _head_impl(True)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _project_one(d, x, kernel, bias, out, steps, bsz):
+def _project_one(d, x, kernel, ksc, bias, out, steps, bsz):
     empty = bias[0, :0]
-    project_dir(x, kernel[d], out[:, d], steps, bsz)
+    project_dir(_widened(x, kernel.shape[1]), kernel[d], out[:, d], steps, bsz)
+    scale_rows(out[:, d], ksc[d])
     _finish_dir(out, d, empty, empty, empty, bias[d])
 
 
 @njit(cache=True, nogil=True)
-def project_serial(x, kernel, bias, out, steps, bsz):
+def project_serial(x, kernel, ksc, bias, out, steps, bsz):
     """BiLSTM 1's input projection of the ``T*B`` time-major rows ``x`` -> ``out (R, 2, N)``
-    (bias added)."""
+    (int8 scales ``ksc (2, N)`` applied unless empty, bias added)."""
     for d in range(2):
-        _project_one(d, x, kernel, bias, out, steps, bsz)
+        _project_one(d, x, kernel, ksc, bias, out, steps, bsz)
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def project_parallel(x, kernel, bias, out, steps, bsz):
+def project_parallel(x, kernel, ksc, bias, out, steps, bsz):
     """:func:`project_serial`, the directions on two threads."""
     for d in prange(2):
-        _project_one(d, x, kernel, bias, out, steps, bsz)
+        _project_one(d, x, kernel, ksc, bias, out, steps, bsz)
 
 
 __all__ = ["head_serial", "head_parallel", "project_serial", "project_parallel"]

@@ -60,6 +60,27 @@ def pad_columns(w: np.ndarray, dtype: Any) -> np.ndarray:
 
 # ------------------------------------------------------------------ the product kernel
 
+#: weights of fewer bits the float32 kernels read (:mod:`tpnet_ref.engines.numba_quant`): int8
+#: (symmetric, a float32 scale per output column applied after the sum) and bf16 (stored as
+#: its uint16 bits), each widened to float32 in registers
+_CODES = (types.int8, types.uint16)
+
+
+def _widen(builder, ptr, wdtype, welt, lanes, vty, size):
+    """One vector of ``lanes`` weights at ``ptr`` as float32 lanes ``vty``: float weights
+    loaded as they are; int8 sign-extended and converted (exact: |q| <= 127); bf16 bits
+    shifted into a float32's high half (exact)."""
+    if wdtype not in _CODES:
+        return builder.load(builder.bitcast(ptr, vty.as_pointer()), align=size)
+    raw = builder.load(builder.bitcast(ptr, ir.VectorType(welt, lanes).as_pointer()),
+                       align=wdtype.bitwidth // 8)
+    if wdtype == types.int8:
+        return builder.sitofp(raw, vty)
+    i32 = ir.VectorType(ir.IntType(32), lanes)
+    wide = builder.shl(builder.zext(raw, i32), ir.Constant(i32, [16] * lanes))
+    return builder.bitcast(wide, vty)
+
+
 def _row_kernel(rows: int, chain: int):
     """An intrinsic ``k(x, r0, rstep, w, act, j0, out)``: for the rows ``r = r0 + i * rstep``,
     ``i < rows``, ``out[r, :] = fma(x[r, k_last], w[k_last], ... fma(x[r, k_0], w[k_0], out[r]))``
@@ -72,7 +93,8 @@ def _row_kernel(rows: int, chain: int):
     def kernel(typingctx, x, r0, rstep, w, act, j0, out):
         ok = (isinstance(x, types.Array) and isinstance(w, types.Array)
               and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
-              and x.dtype == w.dtype == out.dtype and w.layout == "C"
+              and x.dtype == out.dtype and w.layout == "C"
+              and (w.dtype == x.dtype or (x.dtype == types.float32 and w.dtype in _CODES))
               and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
         if not ok:
             return None
@@ -85,6 +107,7 @@ def _row_kernel(rows: int, chain: int):
             r0i, rs, j0i = (context.cast(builder, args[i], signature.args[i], types.intp)
                             for i in (1, 2, 5))
             elt = context.get_value_type(xt.dtype)
+            welt = context.get_value_type(wt.dtype)
             size = xt.dtype.bitwidth // 8
             lanes = _VECTOR_BYTES // size
             vty = ir.VectorType(elt, lanes)
@@ -114,8 +137,8 @@ def _row_kernel(rows: int, chain: int):
             nvec = builder.udiv(ncol, ir.Constant(intp, lanes))
             with cgutils.for_range(builder, nvec) as loop:
                 off = builder.mul(loop.index, ir.Constant(intp, lanes))
-                ws = [builder.load(builder.bitcast(builder.gep(wr, [off]), vty.as_pointer()),
-                                   align=size) for wr in wrows]
+                ws = [_widen(builder, builder.gep(wr, [off]), wt.dtype, welt, lanes, vty, size)
+                      for wr in wrows]
                 for r in range(rows):
                     p = builder.bitcast(builder.gep(orows[r], [off]), vty.as_pointer())
                     acc = builder.load(p, align=size)

@@ -22,8 +22,8 @@ from .numba_lstm import head_serial, project_serial
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def rollout_steps(feats, buf, first, s0, steps, m, batch, order, kernels, recs, gks, csts,
-                  units, gammas, betas, head_w, head_b, relu, one, eps, limit, w0, b0, ws, bs,
+def rollout_steps(feats, buf, first, s0, steps, m, batch, order, kernels, recs, kscs, rscs,
+                  gks, csts, units, gammas, betas, head_w, head_b, relu, one, eps, limit, w0, b0, ws, bs,
                   gw, gb, zero, out):
     """Steps ``s0 .. steps-1`` of a rollout of ``batch`` windows of ``m`` frames.
 
@@ -38,7 +38,7 @@ def rollout_steps(feats, buf, first, s0, steps, m, batch, order, kernels, recs, 
     overflowed, or -1 for a non-finite output."""
     n_out, dim = out.shape[2], out.shape[3]
     k = feats.shape[2]
-    kern1, cst1 = kernels[0], csts[0]
+    kern1, ksc1, cst1 = kernels[0], kscs[0], csts[0]
     pts = np.empty((batch * n_out, dim), dtype=out.dtype)
     starts = np.arange(batch) * n_out
     counts = np.full(batch, n_out)
@@ -47,8 +47,8 @@ def rollout_steps(feats, buf, first, s0, steps, m, batch, order, kernels, recs, 
     proj = np.empty((batch, 2, buf.shape[2] // 2), dtype=out.dtype)
     for s in range(s0, steps):
         xp1 = np.ascontiguousarray(buf[first:first + m]).reshape(m * batch, 2, -1)
-        y, bad = head_serial(xp1, kernels, recs, gks, csts, units, gammas, betas, head_w,
-                              head_b, m, batch, relu, one, eps, limit)
+        y, bad = head_serial(xp1, kernels, recs, kscs, rscs, gks, csts, units, gammas, betas,
+                             head_w, head_b, m, batch, relu, one, eps, limit)
         if bad:
             return s, bad
         for b in range(batch):
@@ -67,7 +67,7 @@ def rollout_steps(feats, buf, first, s0, steps, m, batch, order, kernels, recs, 
             for j in range(k):
                 feats[b, m + s, j] = g[b, j]
                 x[b, j] = g[b, order[j]]
-        project_serial(x, kern1, cst1, proj, 1, batch)
+        project_serial(x, kern1, ksc1, cst1, proj, 1, batch)
         if first + m == buf.shape[0]:
             buf[:m - 1] = buf[first + 1:]
             first = -1
@@ -99,7 +99,7 @@ def _args(model, feats, buf, first, s0, steps, batch, out) -> tuple:
     order = (np.arange(feats.shape[2]) if head.feature_order is None
              else np.asarray(head.feature_order, dtype=np.intp))
     return (feats, buf, first, s0, steps, model.config.m, batch, order, head.kernels, head.recs,
-            head.gks, head.csts, head.units, head.gammas, head.betas, head.head_w, head.head_b,
+            head.kscs, head.rscs, head.gks, head.csts, head.units, head.gammas, head.betas, head.head_w, head.head_b,
             head.relu, head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw, fx.gb,
             fx.dtype.type(0), out)
 
@@ -111,7 +111,7 @@ def run_rest(model, feats, buf, first: int, s0: int, steps: int, batch: int,
     where the kernel may not be compiled now (:func:`tpnet_ref.engines.compile_watch.may_compile`)."""
     args = _args(model, feats, buf, first, s0, steps, batch, out)
     head = model.head_for(batch)
-    key = (out.dtype, len(head.recs), len(model.engine_features.ws))
+    key = (out.dtype, head.recs[0].dtype, len(head.recs), len(model.engine_features.ws))
     if not may_compile(rollout_steps, key, _MEMO, args):
         return False
     s, bad = rollout_steps(*args)

@@ -1,5 +1,7 @@
 """Any supported checkpoint -> :class:`~tpnet_ref.model.TPNet`, told apart by content: a native
-file, a Keras HDF5 / ``.keras`` file or a torch state dict (``tpnet import SRC DST``)."""
+file, a Keras HDF5 / ``.keras`` file or a torch state dict (``tpnet import SRC DST``); a model's
+weights of fewer bits (:func:`with_weights`: ``tpnet_ref.load(..., weights=...)``,
+``tpnet quantize``)."""
 from __future__ import annotations
 
 import os
@@ -11,6 +13,7 @@ from ..model import TPNet
 from . import hdf5
 from .keras import import_keras_h5
 from .native import is_native, read_native
+from . import quantize as Q
 from .torch import import_torch
 
 
@@ -55,4 +58,32 @@ def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any
     return model
 
 
-__all__ = ["import_checkpoint"]
+def with_weights(model: TPNet, weights: str | None) -> TPNet:
+    """``model`` with its BiLSTM matrices on the grid of ``weights`` ("bf16" or "int8":
+    :mod:`tpnet_ref.weights.quantize`; the Numba engine then reads their codes), or as it is
+    (None, or the scheme it already has). The scheme and the source (``quantized_from``: the
+    file and its digest) go to ``meta``; ``model.save`` writes the codes. A model already
+    quantized otherwise, or "float32" asked of a quantized model, is a one-line ``ValueError``
+    (quantize the float32 file)."""
+    have = model.meta.get(Q.ATTR)
+    if weights is None or weights == have or (weights == "float32" and have is None):
+        return model
+    if have is not None:
+        raise ValueError(f"weights={weights!r}: this model's weights are already {have} "
+                         f"({model.meta.get('path', 'in memory')}); quantize the float32 file")
+    Q.check_scheme(weights, "weights")
+    names, wide = set(Q.quantized_names(model.config)), set(Q.wide_names(model.config))
+    params = {n: (Q.round_to(p, weights, n in wide) if n in names else p)
+              for n, p in model.params.items()}
+    src = model.meta.get("path", "a model in memory")
+    digest = model.meta.get("content_sha256")
+    meta = {**model.meta, Q.ATTR: weights,
+            Q.FROM_ATTR: f"{Path(src).name} ({digest})" if digest else str(src)}
+    used = None if model.specialization is None else model.specialization.used
+    out = TPNet(model.config, params, model.dtype, meta, model.engine,
+                unit_order=model.unit_order, used=used, sort_points=model.sort_points)
+    out.threads = model.threads
+    return out
+
+
+__all__ = ["import_checkpoint", "with_weights"]

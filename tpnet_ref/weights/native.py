@@ -38,6 +38,13 @@ order and other groups kept) in another storage.
 untrusted input: it is read through the guards of :mod:`tpnet_ref.weights.hdf5` (no links, sizes
 checked before reading, no NaN/Inf, nothing unpickled).
 
+Weights of fewer bits. A file whose root attribute ``quantization`` is "bf16" or "int8"
+(``tpnet quantize``, or ``save`` of a model loaded with ``weights=``) stores the BiLSTM matrices
+as their codes: ``/params/<name>`` int8 or uint16 (bf16 bits), and for int8 ``/scales/<name>``
+the float32 scale of each output column; ``quantized_from`` names the source file and its digest
+(:mod:`tpnet_ref.weights.quantize`). The digest covers the codes and the scales as stored;
+:func:`read_native` checks the scheme and every scale and returns the exact float32 weights.
+
 The shipped models and where they are looked up: :mod:`tpnet_ref.weights.shipped`.
 """
 from __future__ import annotations
@@ -54,6 +61,7 @@ import numpy as np
 
 from ..config import TPNetConfig, param_shapes
 from . import hdf5
+from . import quantize as Q
 from .shipped import RESTORE_COMMAND, UNTRACKED
 
 FORMAT = "tpnet_ref-weights"
@@ -250,7 +258,10 @@ def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str,
     stored = {name: np.asarray(params[name], dtype=dt) for name in shapes}
     rounding = None
     if mantissa_bits is not None:
+        if (meta or {}).get(Q.ATTR) is not None:
+            raise ValueError("mantissa_bits: a quantized model's file stores its codes as they are")
         stored, rounding = _rounded(stored, int(mantissa_bits))
+    groups = _encoded(config, stored, meta or {}, groups or {})
     info = {k: v for k, v in (meta or {}).items()
             if k not in _FILE_ATTRS and k not in _STORAGE_ATTRS and k != "path"}
     info.setdefault("producer", "tpnet_ref")
@@ -288,6 +299,52 @@ def write_native(path: str | os.PathLike, config: TPNetConfig, params: dict[str,
         digest = content_digest(f, str(path), stored)
         f.attrs[DIGEST_ATTR] = digest
     return digest
+
+
+def _encoded(config: TPNetConfig, stored: dict[str, np.ndarray], meta: dict[str, Any],
+             groups: dict[str, Any]) -> dict[str, Any]:
+    """For a quantized model (``meta["quantization"]``), its BiLSTM matrices in ``stored``
+    replaced by their codes (exact: :func:`tpnet_ref.weights.quantize.codes_of`) and the int8
+    scales added to ``groups`` as ``/scales``; ``groups`` as they are otherwise."""
+    scheme = meta.get(Q.ATTR)
+    groups = {k: v for k, v in groups.items() if k != Q.SCALES}
+    if scheme is None:
+        return groups
+    Q.check_scheme(scheme, "meta")
+    scales, wide = {}, Q.wide_names(config)
+    for name in Q.quantized_names(config):
+        stored[name], sc = Q.codes_of(stored[name], scheme, f"parameter {name!r}", name in wide)
+        if sc is not None:
+            scales[name] = sc
+    return {**groups, Q.SCALES: ({}, scales)} if scales else groups
+
+
+def _decoded(f: Any, where: str, cfg: TPNetConfig, group: Any,
+             shapes: dict[str, tuple[int, ...]]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """``(stored, params)``: the ``/params`` arrays as stored and as the model computes with
+    them (a quantized file's codes decoded and checked with their scales; the same arrays
+    otherwise)."""
+    scheme = hdf5.py_value(hdf5.attr(f, Q.ATTR, where, None))
+    names = set() if scheme is None else set(Q.quantized_names(cfg))
+    if scheme is not None:
+        Q.check_scheme(scheme, where)
+    stored = {name: hdf5.read_array(group, name, shape, where) for name, shape in shapes.items()
+              if name not in names}
+    params = dict(stored)
+    sg = hdf5.safe_group(f, Q.SCALES, where) if scheme == "int8" and Q.SCALES in f else None
+    for name in sorted(names):
+        ds = hdf5.safe_dataset(group, name, where)
+        if ds.size > hdf5.MAX_TENSOR:
+            raise ValueError(f"{where}: {name!r} declares {ds.size:,} values; refused")
+        stored[name] = codes = np.asarray(hdf5.read(ds, f"{where}: {name!r}"))
+        scale = None
+        if scheme == "int8":
+            if sg is None or name not in sg:
+                raise ValueError(f"{where}: int8 file without the scales of {name!r}")
+            scale = np.asarray(hdf5.read(hdf5.safe_dataset(sg, name, where), f"{where}: scales"))
+        params[name] = Q.check_codes(codes, scale, scheme, shapes[name], f"{where}: {name!r}",
+                                     name in Q.wide_names(cfg))
+    return stored, {name: params[name] for name in shapes}            # the file's order
 
 
 # ------------------------------------------------------------------------------- read
@@ -348,8 +405,8 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
         extra = sorted(set(group.keys()) - set(shapes))
         if extra:
             raise ValueError(f"{where}: unexpected parameter(s) {extra} for this config")
-        params = {name: hdf5.read_array(group, name, shape, where) for name, shape in shapes.items()}
-        digest = _verify(f, where, params)
+        stored, params = _decoded(f, where, cfg, group, shapes)
+        digest = _verify(f, where, stored)
         meta = {k: hdf5.py_value(v) for k, v in hdf5.attrs(f, where).items()
                 if k not in _FILE_ATTRS}
     meta["path"] = where
@@ -367,7 +424,7 @@ def extra_groups(path: str | os.PathLike) -> dict[str, tuple[dict[str, Any], dic
     where, out = str(path), {}
     with hdf5.open_h5(path) as f:
         for name in f:
-            if name not in ("config", "params"):
+            if name not in ("config", "params", Q.SCALES):    # scales: rewritten from meta
                 g = hdf5.safe_group(f, name, where)
                 out[name] = (hdf5.attrs(g, where), hdf5.group_vectors(
                     g, name, where, "1-D integer dataset (convert_storage copies only those)"))
@@ -395,7 +452,7 @@ def write_replacing(dst: str | os.PathLike, cfg: TPNetConfig, params: dict[str, 
     be the file the values were read from); returns the new file's ``meta``."""
     import tempfile
 
-    compute = next(iter(params.values())).dtype              # what the file computes in
+    compute = params["head.w"].dtype                         # what the file computes in
     dst = Path(dst)
     fd, tmp = tempfile.mkstemp(suffix=".h5", dir=dst.parent)
     os.close(fd)
@@ -465,6 +522,9 @@ def describe(path: str | os.PathLike) -> str:
     n = sum(int(a.size) for a in params.values())
     tr = {True: "trained", False: "identity"}
     stored = "/".join(dtypes) + (" (shuffle + gzip)" if meta.get("storage") == "gzip" else "")
+    if meta.get(Q.ATTR):
+        stored += (f"; BiLSTM matrices as {meta[Q.ATTR]} codes, quantized from "
+                   f"{meta.get(Q.FROM_ATTR, '?')}")
     out = [f"{meta['path']}: native tpnet_ref weights, {n:,} parameters stored as {stored}",
            f"  network      m={cfg.m} frames in, N={cfg.n_out} points out, lstm {cfg.lstm_units} "
            f"({cfg.lstm_activation}), global features {cfg.global_features}, "

@@ -1,0 +1,284 @@
+"""Weights of fewer bits, measured in one run: every shipped size (full, half, quarter) x the
+Numba engine's float32, bf16 and int8 weights, beside onnxruntime float32 and onnxruntime's own
+dynamic int8 (``onnxruntime.quantization.quantize_dynamic``, ``QuantType.QInt8``, of the graph
+``tpnet export onnx`` builds).
+
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py            # speed, error, file sizes
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --errors   # also E_p@40/@80, 60 cases
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --errors --plot docs/eval_error_vs_precision.png
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --sizes full --rounds 9
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --layers   # error per layer only
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --rollout  # 600-step rollouts only
+
+Per row: B = 1 latency (median over 64 windows of the scene, every peer called in turn, window
+by window: this VM's speed drifts), B = 256 throughput (one call on 256 windows, peers in turn),
+one prediction's largest and median move from this engine's float32 prediction over the 256
+windows (world units; the ring's radius is 2), and the file a deployment ships (native file
+for the engine, ONNX for onnxruntime). The windows are simulated held-out test cases
+(``_common.scene_windows``), only timed and compared, never used to choose anything.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import _common
+import tpnet_ref
+
+SCHEMES = ("float32", "bf16", "int8")
+#: the targets (full size): int8 B = 1 <= 0.5 x float32 and <= 0.7 x onnxruntime int8, B = 256
+#: throughput >= onnxruntime int8's, within 0.05 world units; bf16 B = 1 <= 0.75 x float32,
+#: within 0.01; the int8 file <= 8 MB
+TARGETS = {"int8 / float32 B=1": 0.5, "int8 / ort int8 B=1": 0.7, "bf16 / float32 B=1": 0.75}
+
+
+def _ort_sessions(model, threads, tmp: Path) -> dict:
+    """onnxruntime float32 on the export's graph (model coordinates, N = 30) and its dynamic
+    int8 quantization; {label: (run, file bytes)}, or {} without onnxruntime."""
+    try:
+        import onnxruntime as ort
+        from onnxruntime.quantization import QuantType, quantize_dynamic
+    except ImportError:
+        print("onnxruntime not installed: its rows are skipped")
+        return {}
+    from tpnet_ref.conformance.onnx_peer import build_onnx
+    f32 = tmp / "f32.onnx"
+    i8 = tmp / "int8.onnx"
+    f32.write_bytes(build_onnx(model, 30).SerializeToString())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        quantize_dynamic(str(f32), str(i8), weight_type=QuantType.QInt8)
+    opts = ort.SessionOptions()
+    if threads:
+        opts.intra_op_num_threads = threads
+    out = {}
+    for label, path in (("ort float32", f32), ("ort int8", i8)):
+        sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        out[label] = ((lambda x, s=sess: s.run(None, {"window": x})[0]), path.stat().st_size)
+    return out
+
+
+def _engines(size: str, tmp: Path) -> dict:
+    """The Numba engine on ``size`` in each scheme: {label: (model, file bytes)} (the float32
+    file is the shipped one; the others written by ``tpnet quantize``'s code, gzip)."""
+    from tpnet_ref.weights.native import extra_groups, write_replacing
+    from tpnet_ref.weights.shipped import shipped_weights_path
+    src = shipped_weights_path(4, size)
+    out = {"float32": (tpnet_ref.load(src, engine="numba"), src.stat().st_size)}
+    for s in SCHEMES[1:]:
+        q = tpnet_ref.load(src, engine="numba", weights=s)
+        path = tmp / f"{size}-{s}.h5"
+        write_replacing(path, q.config, q.params, q.meta, extra_groups(src), "gzip")
+        out[s] = (tpnet_ref.load(path, engine="numba"), path.stat().st_size)
+    return out
+
+
+def _errors(models: dict) -> dict:
+    """Mean E_p at 40 and 80 frames on the 60 test cases (headline reading, points as given)."""
+    from tpnet_ref.evaluation import HEADLINE, TEST_CASES, ModelSpec, evaluate, simulate_cases
+    frames = simulate_cases(TEST_CASES, workers=1)
+    specs = [ModelSpec(k, m) for k, m in models.items()]
+    curves = evaluate(frames, specs, orderings=("given",), horizon=80)
+    got = {}
+    for c in curves:
+        if c.name in models:
+            e = c.err[f"Ep_{HEADLINE}"]
+            got[c.name] = (float(e[:, 39].mean()), float(e[:, 79].mean()))
+    return got
+
+
+def run_size(size: str, rounds: int, threads, errors: bool, tmp: Path) -> dict:
+    eng = _engines(size, tmp)
+    base = eng["float32"][0]
+    x1, x256 = _common.scene_windows(base)
+    wins = list(x256[::4])
+    calls1, calls256, sizes, preds = {}, {}, {}, {}
+    for k, (m, nbytes) in eng.items():
+        m.threads = threads
+        calls1[k] = lambda x, m=m: m.predict(x, normalized=True)
+        calls256[k] = lambda x, m=m: m.predict_batch(x, normalized=True)
+        sizes[k] = nbytes
+        preds[k] = m.predict_batch(x256, normalized=True)
+    for k, (fn, nbytes) in _ort_sessions(base, threads, tmp).items():
+        calls1[k] = lambda x, fn=fn: fn(x[None])
+        calls256[k] = fn
+        sizes[k] = nbytes
+        preds[k] = fn(x256)
+    for f in calls1.values():                        # warm: compile, caches
+        f(wins[0])
+    for f in calls256.values():
+        f(x256)
+    t1 = _common.alternate(calls1, wins, rounds)
+    t256 = _common.alternate(calls256, [x256], rounds)
+    scale = base.config.norm_hi - base.config.norm_lo
+    rows = {}
+    for k in calls1:
+        per = np.abs(preds[k] - preds["float32"]).max(axis=(1, 2)) * scale
+        rows[k] = {"b1_ms": t1[k] * 1e3, "b256_ms": t256[k] * 1e3,
+                   "b256_wps": 256 / t256[k], "max_d": float(per.max()),
+                   "median_d": float(np.median(per)), "file_mb": sizes[k] / 1e6}
+    if errors:
+        for k, (ep40, ep80) in _errors({k: m for k, (m, _) in eng.items()}).items():
+            rows[k].update(ep40=ep40, ep80=ep80)
+    return rows
+
+
+def layers(size: str) -> None:
+    """``--layers``: the largest move of one prediction (world units, 256 windows of the scene)
+    from the float32 model's when one BiLSTM's matrices alone are on a scheme's grid, or all
+    of them: the float64 reference on those weights against the float64 reference on the
+    float32 weights (docs/tolerances.md, "Weights of fewer bits")."""
+    from tpnet_ref.engines import reference
+    from tpnet_ref.weights import quantize as Q
+    base = tpnet_ref.load(size=size, engine="numpy")
+    cfg = base.config
+    _, x256 = _common.scene_windows(base)
+    wins = x256[::4]                                     # 64 windows: the reference is slow
+    p64 = {k: np.asarray(v, dtype=np.float64) for k, v in base.params.items()}
+
+    def run(p):
+        return np.stack([reference.forward(cfg, p, list(w), normalized=True) for w in wins])
+
+    want = run(p64)
+    scale = cfg.norm_hi - cfg.norm_lo
+    wide = set(Q.wide_names(cfg))
+    for scheme in SCHEMES[1:]:
+        row = []
+        for layer in list(range(1, len(cfg.lstm_units) + 1)) + ["all"]:
+            p = dict(p64)
+            for n in Q.quantized_names(cfg):
+                if layer == "all" or n.startswith(f"lstm{layer}."):
+                    p[n] = Q.round_to(base.params[n], scheme, n in wide).astype(np.float64)
+            row.append(f"{layer}: {np.abs(run(p) - want).max() * scale:.4f}")
+        print(f"  {size:8s} {scheme:5s} BiLSTM " + ", ".join(row))
+
+
+def rollouts(size: str, steps: int = 600) -> None:
+    """``--rollout``: each scheme's rollout of ``steps`` predictions from the first window of
+    each of the 60 test cases (one batch): finite, the points' range (the box is [0, 45]), the
+    largest distance of a point from its frame's centroid (the ring's radius is 2), and the
+    largest distance from the float32 engine's rollout at 10, 100 and ``steps`` predictions."""
+    from tpnet_ref.evaluation import TEST_CASES, simulate_cases
+    frames = simulate_cases(TEST_CASES, rows=20, workers=1)[:, :4]       # (60, 4, 30, 2)
+    ref = None
+    for scheme in SCHEMES:
+        m = tpnet_ref.load(size=size, engine="numba", weights=None if scheme == "float32" else scheme)
+        t = time.perf_counter()
+        out = m.rollout_batch(frames.astype(np.float32), steps)            # (60, steps, 30, 2)
+        dt = time.perf_counter() - t
+        ref = out if ref is None else ref
+        radius = np.linalg.norm(out - out.mean(axis=2, keepdims=True), axis=-1).max()
+        far = [np.abs(out[:, k - 1] - ref[:, k - 1]).max() for k in (10, 100, steps)]
+        print(f"  {size:8s} {scheme:8s} finite {bool(np.isfinite(out).all())}, points in "
+              f"[{out.min():.2f}, {out.max():.2f}], largest radius {radius:.2f}, from float32 "
+              f"@10/@100/@{steps} {far[0]:.3f} / {far[1]:.3f} / {far[2]:.3f} ({dt:.1f} s)")
+
+
+def _print(size: str, rows: dict) -> None:
+    print(f"\n{size}")
+    print(f"  {'weights':12s} {'B=1 ms':>7s} {'B=256 ms':>9s} {'win/s':>7s} {'max |d|':>8s} "
+          f"{'median':>7s} {'file MB':>8s}" + ("  E_p@40  E_p@80" if "ep40" in rows["float32"] else ""))
+    for k, r in rows.items():
+        err = f"  {r['ep40']:6.4f}  {r['ep80']:6.4f}" if "ep40" in r else ""
+        print(f"  {k:12s} {r['b1_ms']:7.3f} {r['b256_ms']:9.1f} {r['b256_wps']:7.0f} "
+              f"{r['max_d']:8.4f} {r['median_d']:7.4f} {r['file_mb']:8.2f}{err}")
+    f, b, i = rows["float32"], rows["bf16"], rows["int8"]
+    ratios = {"int8 / float32 B=1": i["b1_ms"] / f["b1_ms"],
+              "bf16 / float32 B=1": b["b1_ms"] / f["b1_ms"]}
+    if "ort int8" in rows:
+        o = rows["ort int8"]
+        ratios["int8 / ort int8 B=1"] = i["b1_ms"] / o["b1_ms"]
+        ratios["int8 / ort int8 B=256 throughput"] = i["b256_wps"] / o["b256_wps"]
+    print("  " + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
+    if size == "full":
+        checks = [(k, ratios[k] <= v) for k, v in TARGETS.items() if k in ratios]
+        if "int8 / ort int8 B=256 throughput" in ratios:
+            checks.append(("int8 B=256 throughput >= ort int8",
+                           ratios["int8 / ort int8 B=256 throughput"] >= 1))
+        checks += [("int8 within 0.05", i["max_d"] <= 0.05), ("bf16 within 0.01", b["max_d"] <= 0.01),
+                   ("int8 file <= 8 MB", i["file_mb"] <= 8.0)]
+        print("  targets: " + "; ".join(f"{k}: {'met' if ok else 'NOT met'}" for k, ok in checks))
+
+
+def plot(rows: dict, path: str) -> None:
+    """``--plot``: the front on two axes: E_p@80 (with ``--errors``) and one prediction's
+    largest move from float32 against B = 1 latency, every size x scheme (onnxruntime's rows
+    on the second panel)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    marks = {"full": "o", "half": "s", "quarter": "^"}
+    colours = {"float32": "C0", "bf16": "C1", "int8": "C2", "ort float32": "C7", "ort int8": "C3"}
+    for size, by in rows.items():
+        for k, r in by.items():
+            kw = dict(marker=marks.get(size, "o"), color=colours.get(k, "k"), s=40)
+            if "ep80" in r:
+                axes[0].scatter(r["b1_ms"], r["ep80"], **kw)
+            if k not in ("float32", "ort float32"):
+                axes[1].scatter(r["b1_ms"], max(r["max_d"], 1e-3), **kw)
+    for ax, label in zip(axes, ("E_p@80, 60 test cases (squared)",
+                                "max move from float32 (world units)")):
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("B = 1 latency (ms)")
+        ax.set_ylabel(label)
+    handles = [plt.Line2D([], [], ls="", marker="o", color=c, label=k) for k, c in colours.items()]
+    handles += [plt.Line2D([], [], ls="", marker=m, color="k", label=k) for k, m in marks.items()]
+    axes[1].legend(handles=handles, fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    print(f"wrote {path}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", default="full,half,quarter",
+                    help="comma-separated shipped sizes (default: full,half,quarter)")
+    ap.add_argument("--rounds", type=int, default=5,
+                    help="rounds over the 64 B = 1 windows and of the B = 256 call (default: 5)")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="threads of every peer (default: each one's own policy)")
+    ap.add_argument("--layers", action="store_true",
+                    help="only the quantization's error per BiLSTM (float64 reference, 64 windows)")
+    ap.add_argument("--rollout", action="store_true",
+                    help="only 600-step rollouts from the 60 test cases: finite, bounded")
+    ap.add_argument("--json", default=None, metavar="FILE",
+                    help="also write every row to this JSON file")
+    ap.add_argument("--plot", default=None, metavar="PNG",
+                    help="also draw the front (E_p@80 with --errors; the move from float32)")
+    ap.add_argument("--errors", action="store_true",
+                    help="also E_p@40 / @80 on the 60 test cases (simulates them: minutes)")
+    args = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    print(_common.machine())
+    print(f"load average at start: {_common.load_average()}")
+    t0 = time.time()
+    if args.layers or args.rollout:
+        for size in args.sizes.split(","):
+            (layers if args.layers else rollouts)(size)
+        return 0
+    every = {}
+    with tempfile.TemporaryDirectory() as d:
+        for size in args.sizes.split(","):
+            every[size] = run_size(size, args.rounds, args.threads, args.errors, Path(d))
+            _print(size, every[size])
+    if args.plot:
+        plot(every, args.plot)
+    if args.json:
+        import json
+        Path(args.json).write_text(json.dumps({"machine": _common.machine(), "rows": every,
+                                               "load": _common.load_average()}, indent=1))
+    print(f"\nload average at end: {_common.load_average()} ({time.time() - t0:.0f} s, "
+          f"pid {os.getpid()})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
