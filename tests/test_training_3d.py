@@ -77,3 +77,19 @@ def test_a_2d_network_refuses_a_3d_file_in_one_line(file3d, tmp_path):
         L.train(file3d, tmp_path / "run2d", r, max_steps=1, device="cpu", threads=1,
                 progress=False)
     assert "\n" not in str(err.value)
+
+
+def test_score_and_baselines_read_a_3d_file_as_3d(file3d, tmp_path, capsys):
+    """``tpnet train score`` / ``baselines`` take the file's dimension: a 3-D snapshot is scored
+    on the 3-D validation trajectories beside copy last."""
+    from tpnet_ref.config import TPNetConfig
+    from tpnet_ref.model import init_random
+    w = tmp_path / "tiny3d.h5"
+    init_random(TPNetConfig(m=4, dim=3, n_out=42, mlp1=(8, 8), mlp2=(8, 16, 16),
+                            global_features=8, lstm_units=(8, 8, 8)), seed=2).save(str(w))
+    assert main(["train", "score", str(file3d), str(w), "--horizon", "10",
+                 "--val-fraction", "0.2"]) == 0
+    out = capsys.readouterr().out
+    assert "copy last" in out and "tiny3d.h5" in out and "Ep@10" in out
+    assert main(["train", "baselines", str(file3d), "--val-fraction", "0.2"]) == 0
+    assert "copy_last" in capsys.readouterr().out

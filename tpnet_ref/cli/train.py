@@ -398,7 +398,7 @@ def _cli_export(args: argparse.Namespace) -> int:
                 raise ValueError(f"--monitor {args.monitor} scores rollouts: give --data GRID.h5")
             from ..training.recipe import Recipe, WindowData
             d = Recipe()                 # the validation split of the runs and of train score
-            data = WindowData(args.data, d.val_fraction, d.split_seed)
+            data = WindowData(args.data, d.val_fraction, d.split_seed, dim=None)
         elif args.data:
             raise ValueError("--data is for a rollout --monitor (ep80); val_loss is in the log")
         path, rec = best_snapshot(args.checkpoint, key=key, data=data)
@@ -458,7 +458,7 @@ def _cli_score(args: argparse.Namespace) -> int:
     from ..training.score import score_rollouts, spacing_report
 
     data = WindowData(args.data, args.val_fraction, args.split_seed,
-                      allow_other_scene=args.allow_other_scene)
+                      allow_other_scene=args.allow_other_scene, dim=None)   # 2-D or 3-D: the file's
     print(f"{data.describe()}\nvalidation trajectories from frame 0, {args.horizon} recursive "
           f"predictions, {args.reading} reading, mean over {len(data.val_traj)} trajectories:")
     at = tuple(h for h in (1, 10, 40, 80) if h <= args.horizon)
@@ -484,7 +484,7 @@ def _cli_baselines(args: argparse.Namespace) -> int:
     from ..training.score import baselines
 
     data = WindowData(args.data, args.val_fraction, args.split_seed,
-                      allow_other_scene=args.allow_other_scene)
+                      allow_other_scene=args.allow_other_scene, dim=None)   # 2-D or 3-D: the file's
     print(data.describe())
     for name, ev in baselines(data).items():
         print(f"  {name:15s} " + " ".join(f"{k} {v:.4f}" for k, v in ev.items()))

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..config import TPNetConfig
-from ..sim.dataset import N_TARGETS, check_scene
+from ..sim.dataset import N_TARGETS, check_scene, file_dim
 from ..sim.protocol import FRAME_EVERY
 
 #: the published recursive loss: 8 predictions (the dataset's targets per window)
@@ -176,7 +176,7 @@ class WindowData:
     trajectory, the same for every ``horizon``. A file made with another scene convention than
     the simulator's default is refused unless ``allow_other_scene``
     (:func:`tpnet_ref.sim.dataset.check_scene`), and a file of another dimension than ``dim`` (2, or 3
-    for the 3-D scene's) always.
+    for the 3-D scene's; None: the file's own) always.
 
     ``windows="released"`` trains on the released preprocessing's windows
     (``/train/windows_released``: starts at any simulator row, frames ``FRAME_EVERY`` rows
@@ -187,14 +187,16 @@ class WindowData:
 
     def __init__(self, path: str | os.PathLike, val_fraction: float, seed: int,
                  limit_windows: int | None = None, allow_other_scene: bool = False,
-                 horizon: int = N_STEPS_MAX, windows: str = "model", dim: int = 2) -> None:
+                 horizon: int = N_STEPS_MAX, windows: str = "model", dim: int | None = 2) -> None:
         import h5py
 
         if not Path(path).is_file():
             raise FileNotFoundError(f"dataset not found: {path}")
         with h5py.File(path, "r") as h:
             # a file made with another scene convention trains another physics
+            dim = file_dim(h) if dim is None else dim
             check_scene(h, str(path), allow_other_scene=allow_other_scene, dim=dim)
+            self.dim = int(dim)
             self.m = int(h.attrs["m"])
             self.n_targets = int(h.attrs["n_targets"])
             g = h["train"]
