@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from ..extras import require
+from .params import check_fields, check_number, check_positive
 
 # Box2D 2.3 constants (b2Settings.h) that shape the original data
 B2_LINEAR_SLOP = 0.005
@@ -141,27 +142,11 @@ _NONNEG_FIELDS = ("damping_ratio", "particle_friction", "wall_friction", "partic
                   "wall_restitution", "wall_skin", "contact_slop", "restitution_threshold")
 
 
-def _check_number(value: Any, name: str) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
-                                                                      np.floating)):
-        raise TypeError(f"{name}: expected a real number, got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{name}: must be finite, got {v}")
-    return v
-
-
 def validate_params(p: SceneParams) -> None:
     """Raise ``ValueError``/``TypeError`` naming the first parameter the simulator cannot handle."""
     if not isinstance(p, SceneParams):
         raise TypeError(f"params: expected a SceneParams, got {type(p).__name__}")
-    for name in _INT_FIELDS:
-        v = getattr(p, name)
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
-            raise TypeError(f"{name}: expected an integer, got {type(v).__name__}")
-    for name in _BOOL_FIELDS:
-        if not isinstance(getattr(p, name), (bool, np.bool_)):
-            raise TypeError(f"{name}: expected a bool, got {type(getattr(p, name)).__name__}")
+    check_fields(p, _INT_FIELDS, _BOOL_FIELDS)
     if not isinstance(p.impulse_point, str) or p.impulse_point not in IMPULSE_POINTS:
         raise ValueError(f"impulse_point: must be one of {', '.join(IMPULSE_POINTS)}, got "
                          f"{p.impulse_point!r}")
@@ -173,9 +158,7 @@ def validate_params(p: SceneParams) -> None:
         raise ValueError(f"spring_reach: must be in 1..{p.n_particles // 2}, got {p.spring_reach}")
     if p.iterations < 1:
         raise ValueError(f"iterations: must be >= 1, got {p.iterations}")
-    for name in _POS_FIELDS:
-        if _check_number(getattr(p, name), name) <= 0:
-            raise ValueError(f"{name}: must be > 0, got {getattr(p, name)}")
+    check_positive(p, _POS_FIELDS)
     mass = p.mass
     if not (math.isfinite(mass) and mass > 0 and math.isfinite(1.0 / mass)
             and 0 < p.inertia < math.inf and math.isfinite(1.0 / p.inertia)):
@@ -183,22 +166,22 @@ def validate_params(p: SceneParams) -> None:
                          f"particle mass {mass:g} (inertia {p.inertia:g}) that float64 cannot "
                          "invert")
     for name in _NONNEG_FIELDS:
-        if _check_number(getattr(p, name), name) < 0:
+        if check_number(getattr(p, name), name) < 0:
             raise ValueError(f"{name}: must be >= 0, got {getattr(p, name)}")
     for name in ("particle_restitution", "wall_restitution"):
         if getattr(p, name) > 1:
             raise ValueError(f"{name}: must be <= 1 (energy would grow), got {getattr(p, name)}")
-    if not 0 < _check_number(p.contact_bias, "contact_bias") <= 1:
+    if not 0 < check_number(p.contact_bias, "contact_bias") <= 1:
         raise ValueError(f"contact_bias: must be in (0, 1], got {p.contact_bias}")
     for name in ("max_translation", "max_rotation"):
         v = getattr(p, name)
-        if v is not None and _check_number(v, name) <= 0:
+        if v is not None and check_number(v, name) <= 0:
             raise ValueError(f"{name}: must be > 0 or None, got {v}")
     g = p.gravity
     if not isinstance(g, (tuple, list, np.ndarray)) or len(g) != 2:
         raise ValueError(f"gravity: expected a pair (gx, gy), got {g!r}")
     for k, gi in enumerate(g):
-        if abs(_check_number(gi, f"gravity[{k}]")) * p.dt ** 2 > 1e6:
+        if abs(check_number(gi, f"gravity[{k}]")) * p.dt ** 2 > 1e6:
             raise ValueError(f"gravity[{k}]: {gi} moves a particle more than 1e6 per step")
     if not 1e-12 <= p.mass <= 1e12:
         raise ValueError(f"density: gives a particle mass of {p.mass:g}; it must be within "
@@ -391,10 +374,10 @@ def build_scene(x: float, y: float, force: float = 0.0, angle_deg: float = 0.0,
 
     p = params or SceneParams()
     validate_params(p)
-    x = _check_number(x, "x")
-    y = _check_number(y, "y")
-    force = _check_number(force, "force")
-    angle_deg = _check_number(angle_deg, "angle_deg")
+    x = check_number(x, "x")
+    y = check_number(y, "y")
+    force = check_number(force, "force")
+    angle_deg = check_number(angle_deg, "angle_deg")
     if force < 0:
         raise ValueError(f"force: must be >= 0 (use angle_deg for the direction), got {force}")
     extent = max(abs(x), abs(y), p.box_size if p.walls else 0.0) + p.ring_radius

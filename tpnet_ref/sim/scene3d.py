@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..extras import require
+from .params import check_fields, check_number, check_positive
 
 #: the springs' implementations (the same forces): a 1-D flex's edges or spatial tendons
 SPRING_KINDS = ("flex", "tendon")
@@ -113,27 +114,11 @@ _POS_FIELDS = ("ball_radius", "particle_radius", "particle_mass", "frequency", "
                "wall_thickness", "max_spring_phase", "max_travel")
 
 
-def _check_number(value: Any, name: str) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
-                                                                      np.floating)):
-        raise TypeError(f"{name}: expected a real number, got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{name}: must be finite, got {v}")
-    return v
-
-
 def validate_params3d(p: SceneParams3D) -> None:
     """Raise ``ValueError``/``TypeError`` naming the first parameter the scene cannot handle."""
     if not isinstance(p, SceneParams3D):
         raise TypeError(f"params: expected a SceneParams3D, got {type(p).__name__}")
-    for name in _INT_FIELDS:
-        v = getattr(p, name)
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
-            raise TypeError(f"{name}: expected an integer, got {type(v).__name__}")
-    for name in _BOOL_FIELDS:
-        if not isinstance(getattr(p, name), (bool, np.bool_)):
-            raise TypeError(f"{name}: expected a bool, got {type(getattr(p, name)).__name__}")
+    check_fields(p, _INT_FIELDS, _BOOL_FIELDS)
     if not isinstance(p.springs, str) or p.springs not in SPRING_KINDS:
         raise ValueError(f"springs: must be one of {', '.join(SPRING_KINDS)}, got {p.springs!r}")
     if not 0 <= p.subdivisions <= 3:
@@ -144,24 +129,22 @@ def validate_params3d(p: SceneParams3D) -> None:
                          f"{p.min_substeps}")
     if p.max_substeps > 1_000_000:
         raise ValueError(f"max_substeps: must be <= 1000000, got {p.max_substeps}")
-    for name in _POS_FIELDS:
-        if _check_number(getattr(p, name), name) <= 0:
-            raise ValueError(f"{name}: must be > 0, got {getattr(p, name)}")
+    check_positive(p, _POS_FIELDS)
     if not 1e-12 <= p.particle_mass <= 1e12:
         raise ValueError(f"particle_mass: must be within 1e-12..1e12, got {p.particle_mass:g}")
-    if not 0 <= _check_number(p.damping_ratio, "damping_ratio") <= 1:
+    if not 0 <= check_number(p.damping_ratio, "damping_ratio") <= 1:
         raise ValueError(f"damping_ratio: must be in [0, 1], got {p.damping_ratio}")
-    if _check_number(p.friction, "friction") < 0:
+    if check_number(p.friction, "friction") < 0:
         raise ValueError(f"friction: must be >= 0, got {p.friction}")
-    if not 0 < _check_number(p.contact_dampratio, "contact_dampratio") <= 10:
+    if not 0 < check_number(p.contact_dampratio, "contact_dampratio") <= 10:
         raise ValueError(f"contact_dampratio: must be in (0, 10], got {p.contact_dampratio}")
-    if not 0 < _check_number(p.spring_angle_deg, "spring_angle_deg") <= 180:
+    if not 0 < check_number(p.spring_angle_deg, "spring_angle_deg") <= 180:
         raise ValueError(f"spring_angle_deg: must be in (0, 180], got {p.spring_angle_deg}")
     g = p.gravity
     if not isinstance(g, (tuple, list, np.ndarray)) or len(g) != 3:
         raise ValueError(f"gravity: expected a triple (gx, gy, gz), got {g!r}")
     for k, gi in enumerate(g):
-        if abs(_check_number(gi, f"gravity[{k}]")) * p.dt ** 2 > 1e6:
+        if abs(check_number(gi, f"gravity[{k}]")) * p.dt ** 2 > 1e6:
             raise ValueError(f"gravity[{k}]: {gi} moves a particle more than 1e6 per step")
     if p.walls and p.box_size <= 2 * p.wall_thickness + 2 * (p.ball_radius + p.particle_radius):
         raise ValueError(f"box_size: {p.box_size} leaves no room for the ball "
@@ -308,7 +291,7 @@ def substeps_for(force: float, params: SceneParams3D | None = None) -> int:
     the box. The default scene gives 6 for every force up to 1.6, 51 at force 16. A count above
     ``max_substeps`` is a one-line ``ValueError`` naming the parameter that asks for it."""
     p = params or SceneParams3D()
-    force = _check_number(force, "force")
+    force = check_number(force, "force")
     spring = math.ceil(omega_max(p) * (1.0 + p.damping_ratio) * p.dt / p.max_spring_phase)
     g = math.sqrt(sum(float(gi) ** 2 for gi in p.gravity))
     span = math.sqrt(3.0) * ((p.free_hi - p.free_lo) if p.walls else p.box_size)
@@ -340,10 +323,10 @@ def check_throw(force: Any, azimuth_deg: Any, elevation_deg: Any, x: Any, y: Any
     the first the scene cannot take: finite numbers, ``force >= 0``, elevation in [-90, 90], the
     whole ball inside the box (the centre in [3.15, 41.85] on every axis by default)."""
     p = params
-    force = _check_number(force, "force")
-    azimuth_deg = _check_number(azimuth_deg, "azimuth_deg")
-    elevation_deg = _check_number(elevation_deg, "elevation_deg")
-    x, y, z = (_check_number(v, n) for v, n in ((x, "x"), (y, "y"), (z, "z")))
+    force = check_number(force, "force")
+    azimuth_deg = check_number(azimuth_deg, "azimuth_deg")
+    elevation_deg = check_number(elevation_deg, "elevation_deg")
+    x, y, z = (check_number(v, n) for v, n in ((x, "x"), (y, "y"), (z, "z")))
     if force < 0:
         raise ValueError(f"force: must be >= 0 (azimuth and elevation give the direction), "
                          f"got {force}")
