@@ -1079,3 +1079,13 @@ def test_scattered_frames_are_decided_without_the_pairwise_test(monkeypatch):
 
     monkeypatch.setattr(C, "body_outliers", pairwise)
     assert C.window_body_problem(window) is None
+
+
+@pytest.mark.parametrize("ndim", [3, 5, 6])
+def test_a_batch_array_of_another_rank_is_named_in_one_line(ndim):
+    """``predict_batch`` takes ``(B, m, N, dim)``: an array of rank 3, 5 or 6 is refused with the
+    shape it expects and the one it got (not a failure to unpack the shape)."""
+    shape = {3: (4, 30, 2), 5: (1, 1, 4, 30, 2), 6: (1, 1, 1, 4, 30, 2)}[ndim]
+    with pytest.raises(ValueError, match=r"windows: expected shape \(B, m, N, 2\)") as err:
+        tpnet_ref.predict_batch(np.full(shape, 20.0))
+    assert str(shape) in str(err.value) and "\n" not in str(err.value)
