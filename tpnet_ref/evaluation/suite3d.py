@@ -11,6 +11,9 @@ against its E_p at 40 and 80 predictions. Writes ``results3d.md``, ``eval3d_curv
 """
 from __future__ import annotations
 
+import datetime as _dt
+import os
+import platform
 import sys
 import time
 from pathlib import Path
@@ -107,9 +110,14 @@ def _plot_front(rows: list[dict[str, Any]], curves: list[Curve], path: Path) -> 
         if cl is not None and h <= cl.err[f"Ep_{HEADLINE}"].shape[1]:
             ax.axhline(cl.at(h), ls="--", lw=0.8, color="0.5" if h == 40 else "0.2",
                        label=f"copy last, E_p @{h}")
+    from matplotlib.ticker import FormatStrFormatter, NullFormatter
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("B = 1 latency (µs, this machine)")
+    for axis in (ax.xaxis, ax.yaxis):               # plain numbers; minor labels on y only
+        axis.set_major_formatter(FormatStrFormatter("%g"))
+        axis.set_minor_formatter(FormatStrFormatter("%g") if axis is ax.yaxis
+                                 else NullFormatter())
+    ax.set_xlabel("B = 1 latency (µs, the machine in results3d.md)")
     ax.set_ylabel("E_p (squared, normalised)")
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -157,9 +165,14 @@ def run_eval3d(weights: list[str], *, data: str | None = None, cases: int | None
     write_curves_csv(curves, out_dir / "eval3d_curves.csv")
     write_cases_csv(curves, out_dir / "eval3d_cases.csv")
     png = _plot_front(rows, curves, out_dir / "front3d.png") if plots and rows else None
+    from ..engines.blas import describe
+    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    busy = f", load average {os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else ""
     text = [f"# TP-Net in 3-D: {len(params)} held-out throws", "",
-            f"Made by `{command}` in {time.perf_counter() - t0:.0f} s; cases: {source}. "
-            "Squared reading, normalised coordinates (docs/spec.md §3), input as simulated.", "",
+            f"Made by `{command}` ({now}, {time.perf_counter() - t0:.0f} s; python "
+            f"{platform.python_version()}, numpy {np.__version__}, {os.cpu_count()} CPU cores, "
+            f"{platform.machine()}{busy}; BLAS {describe()}); cases: {source}. Squared reading, "
+            "normalised coordinates (docs/spec.md §3), input as simulated.", "",
             CELL_TEXT, "", results_tables(curves, with_paper=False), "",
             "## Shuffled input", "", results_tables(curves, ordering="shuffle", with_paper=False),
             "", "## Error against run time", "", _front_md(rows, curves), ""]
