@@ -15,39 +15,7 @@ from scipy.spatial.distance import cdist
 from tpnet_ref.metrics import chamfer_loss, position_error, shape_error
 from tpnet_ref.checks import NonFiniteResultError
 
-METHODS = ["auto", "brute", "grid", "kdtree"]
-VARIANTS = ["paper", "squared", "released"]
-
-
-def ref_sums(P, Q):
-    """Squared nearest distances both ways, brute force in NumPy (float64)."""
-    P = np.asarray(P, np.float64)
-    Q = np.asarray(Q, np.float64)
-    d = ((P[:, None, :] - Q[None, :, :]) ** 2).sum(-1)
-    return d.min(axis=1), d.min(axis=0)
-
-
-def ref_error(P, Q, variant, centre=False):
-    P = np.asarray(P, np.float64)
-    Q = np.asarray(Q, np.float64)
-    if centre:
-        P, Q = P - P.mean(0), Q - Q.mean(0)
-    a, b = ref_sums(P, Q)
-    if variant == "paper":
-        return (a.sum() + b.sum()) / len(P)
-    if variant == "squared":
-        return a.sum() + b.sum()
-    return np.sqrt(a).sum() + np.sqrt(b).sum()
-
-
-def kd_error(P, Q, variant):
-    a = cKDTree(Q).query(P)[0]
-    b = cKDTree(P).query(Q)[0]
-    if variant == "paper":
-        return ((a ** 2).sum() + (b ** 2).sum()) / len(P)
-    if variant == "squared":
-        return (a ** 2).sum() + (b ** 2).sum()
-    return a.sum() + b.sum()
+from metrics_helpers import METHODS, VARIANTS, kd_error, ref_error, ref_sums  # noqa: E402,F401
 
 
 def cdist_reading(P, Q, variant):
