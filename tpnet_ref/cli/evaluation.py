@@ -125,7 +125,7 @@ def _animate(args: Any) -> int:
     if dim == 3:
         r = animate3d(args.output, case=args.case or DEMO_CASE3D, model=model, **kw)
     else:
-        r = animate(args.output, args.weights, case=args.case or DEMO_CASE, **kw)
+        r = animate(args.output, case=args.case or DEMO_CASE, model=model, **kw)
     size = Path(r["path"]).stat().st_size
     errs = ", ".join(f"@{h} {e:.3g}" for h, e in r["Ep_squared"].items())
     print(f"wrote {r['path']} ({r['gif_frames']} frames, {size / 1e6:.2f} MB); "

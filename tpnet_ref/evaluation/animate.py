@@ -8,8 +8,9 @@ writer (matplotlib depends on Pillow), no ffmpeg.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -25,30 +26,62 @@ from .run import errors
 STEPS_PER_S = 45.0
 
 
-def animate(path: str | os.PathLike = "docs/rollout.gif", weights: str | None = None, *,
-            case: Sequence[float] = DEMO_CASE, last_frame: int | None = None, every: int = 2,
-            fps: int = 12, dpi: int = 64, seed: int = 0) -> dict[str, object]:
-    """Write a GIF of ``case``: the m input frames, then model frames m .. ``last_frame``
-    (default: the last simulated one), every ``every``-th, at ``fps`` GIF frames per second; ``dpi`` sets the size
-    (64: 416 x 250 pixels). Returns the path, the GIF frame count, the model's m and the squared
-    position error of the prediction at 40 and 80 predictions (normalised, docs/glossary.md)."""
+def check_gif_settings(every: int, fps: int, dpi: int) -> None:
+    """One-line error unless ``every``, ``fps`` >= 1 and ``dpi`` >= 10."""
     if every < 1 or fps < 1 or dpi < 10:
         raise ValueError(f"animate: every, fps >= 1 and dpi >= 10, got {every}, {fps}, {dpi}")
-    plt = pyplot()
-    from matplotlib.animation import FuncAnimation, PillowWriter
 
-    model = load(weights, dtype="float32")
-    m = model.config.m
-    frames = simulate(*case, SIM_ROWS)[::FRAME_EVERY]                    # (F, N, 2) world units
-    F = frames.shape[0]
+
+def rollout_case(model: Any, frames: np.ndarray, last_frame: int | None,
+                 seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The model's rollout of a simulated case ``frames (F, N, dim)`` (world units): its first m
+    frames shuffled (``seed``) in, predictions of frames m .. ``last_frame`` (default: the last)
+    out. Returns ``(window, pred, err, last)``: the shuffled input, the predictions and their
+    squared position error per prediction (normalised)."""
+    m, F = model.config.m, frames.shape[0]
     last = F - 1 if last_frame is None else int(last_frame)
     if not m <= last < F:
         raise ValueError(f"animate: last_frame must lie in [{m}, {F - 1}], got {last_frame}")
-    H = last - m + 1
-    inputs, targets = split_protocol(frames[None], m, H)
+    inputs, targets = split_protocol(frames[None], m, last - m + 1)
     window = order_points(inputs, "shuffle", seed)[0]                    # shuffled input frames
-    pred = model.rollout(window, H)                                      # frames m .. last
+    pred = model.rollout(window, last - m + 1)                           # frames m .. last
     err = errors(normalize(targets), normalize(pred[None].astype(np.float64)))["Ep_squared"][0]
+    return window, pred, err, last
+
+
+def write_gif(fig: Any, draw: Callable[[int], Any], m: int, last: int, every: int,
+              path: str | os.PathLike, fps: int, dpi: int, err: np.ndarray) -> dict[str, object]:
+    """Draw every input frame, then every ``every``-th model frame up to ``last`` (always
+    included), into the GIF ``path`` (matplotlib's Pillow writer); close ``fig``. Returns what
+    :func:`animate` returns."""
+    from matplotlib.animation import FuncAnimation, PillowWriter
+    shown = list(range(m)) + list(range(m, last + 1, every))
+    if shown[-1] != last:
+        shown.append(last)
+    anim = FuncAnimation(fig, draw, frames=shown, blit=False)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    anim.save(out, writer=PillowWriter(fps=fps), dpi=dpi)
+    pyplot().close(fig)
+    return {"path": out, "gif_frames": len(shown), "m": m,
+            "Ep_squared": {h: float(err[h - 1]) for h in (40, 80) if h <= last - m + 1}}
+
+
+def animate(path: str | os.PathLike = "docs/rollout.gif", weights: str | None = None, *,
+            case: Sequence[float] = DEMO_CASE, last_frame: int | None = None, every: int = 2,
+            fps: int = 12, dpi: int = 64, seed: int = 0,
+            model: Any = None) -> dict[str, object]:
+    """Write a GIF of ``case``: the m input frames, then model frames m .. ``last_frame``
+    (default: the last simulated one), every ``every``-th, at ``fps`` GIF frames per second; ``dpi`` sets the size
+    (64: 416 x 250 pixels). ``model``: an already loaded :class:`~tpnet_ref.model.TPNet`
+    instead of ``weights``. Returns the path, the GIF frame count, the model's m and the squared
+    position error of the prediction at 40 and 80 predictions (normalised, docs/glossary.md)."""
+    check_gif_settings(every, fps, dpi)
+    plt = pyplot()
+    model = load(weights, dtype="float32") if model is None else model
+    m = model.config.m
+    frames = simulate(*case, SIM_ROWS)[::FRAME_EVERY]                    # (F, N, 2) world units
+    window, pred, err, last = rollout_case(model, frames, last_frame, seed)
 
     fig, (ax_t, ax_p) = plt.subplots(1, 2, figsize=(6.5, 3.9))
     for ax, title in ((ax_t, "simulator"), (ax_p, f"TP-Net, from {m} shuffled frames")):
@@ -72,9 +105,6 @@ def animate(path: str | os.PathLike = "docs/rollout.gif", weights: str | None = 
                frameon=False, handletextpad=0.3, columnspacing=1.2, markerscale=1.6)
     counter = fig.text(0.5, 0.94, "", ha="center", fontsize=10, family="monospace")
     fig.subplots_adjust(left=0.02, right=0.98, top=0.86, bottom=0.1, wspace=0.06)
-    shown = list(range(m)) + list(range(m, last + 1, every))            # every input frame
-    if shown[-1] != last:
-        shown.append(last)
 
     def closed(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = np.vstack([p, p[:1]])
@@ -99,13 +129,7 @@ def animate(path: str | os.PathLike = "docs/rollout.gif", weights: str | None = 
         counter.set_text(f"frame {j:3d}   t = {j * FRAME_EVERY / STEPS_PER_S:4.1f} s   {what}")
         return ring_t, ghost, dots_p, inp_p, counter, path_t, path_p
 
-    anim = FuncAnimation(fig, draw, frames=shown, blit=False)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    anim.save(out, writer=PillowWriter(fps=fps), dpi=dpi)
-    plt.close(fig)
-    return {"path": out, "gif_frames": len(shown), "m": m,
-            "Ep_squared": {h: float(err[h - 1]) for h in (40, 80) if h <= H}}
+    return write_gif(fig, draw, m, last, every, path, fps, dpi, err)
 
 
-__all__ = ["animate"]
+__all__ = ["animate", "rollout_case", "write_gif", "check_gif_settings", "STEPS_PER_S"]

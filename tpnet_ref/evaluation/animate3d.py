@@ -11,23 +11,20 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
-from ..config import normalize
 from ..model import load
 from ..sim.cases3d import TEST_CASES3D
-from ..sim.protocol import FRAME_EVERY, SIM_ROWS, order_points, split_protocol
+from ..sim.protocol import FRAME_EVERY, SIM_ROWS
+from .animate import STEPS_PER_S, check_gif_settings, rollout_case, write_gif
 from .plots import BOX, draw_walls, pyplot
-from .run import errors
 
 #: the 3-D demo throw: the first held-out 3-D case (force, azimuth, elevation, x, y, z)
 DEMO_CASE3D: tuple[float, ...] = tuple(TEST_CASES3D[0])
 #: the three views: (title, horizontal axis, vertical axis) as coordinate indices
 VIEWS = (("from above (x, y)", 0, 1), ("from the front (x, z)", 0, 2),
          ("from the side (y, z)", 1, 2))
-STEPS_PER_S = 45.0
 
 
 def simulate_case3d(case: Sequence[float], rows: int = SIM_ROWS) -> np.ndarray:
@@ -50,25 +47,14 @@ def animate3d(path: str | os.PathLike = "docs/rollout3d.gif", weights: str | Non
     ``dpi`` sets the size. ``model``: an already loaded 3-D :class:`~tpnet_ref.model.TPNet`
     instead of ``weights``. Returns the path, the GIF frame count, the model's m and the squared
     position error at 40 and 80 predictions (normalised)."""
-    if every < 1 or fps < 1 or dpi < 10:
-        raise ValueError(f"animate: every, fps >= 1 and dpi >= 10, got {every}, {fps}, {dpi}")
+    check_gif_settings(every, fps, dpi)
     net = load(weights, dtype="float32") if model is None else model
     if net.config.dim != 3:
         raise ValueError(f"animate3d: needs a 3-D model, got dim = {net.config.dim}")
     plt = pyplot()
-    from matplotlib.animation import FuncAnimation, PillowWriter
-
     m = net.config.m
     frames = simulate_case3d(case)                                      # (F, N, 3)
-    F = frames.shape[0]
-    last = F - 1 if last_frame is None else int(last_frame)
-    if not m <= last < F:
-        raise ValueError(f"animate: last_frame must lie in [{m}, {F - 1}], got {last_frame}")
-    H = last - m + 1
-    inputs, targets = split_protocol(frames[None], m, H)
-    window = order_points(inputs, "shuffle", seed)[0]
-    pred = net.rollout(window, H)
-    err = errors(normalize(targets), normalize(pred[None].astype(np.float64)))["Ep_squared"][0]
+    window, pred, err, last = rollout_case(net, frames, last_frame, seed)
 
     fig, axes = plt.subplots(1, 3, figsize=(9.0, 3.6))
     artists = []
@@ -92,9 +78,6 @@ def animate3d(path: str | os.PathLike = "docs/rollout3d.gif", weights: str | Non
                markerscale=1.6)
     counter = fig.text(0.5, 0.93, "", ha="center", fontsize=9, family="monospace")
     fig.subplots_adjust(left=0.02, right=0.98, top=0.84, bottom=0.1, wspace=0.06)
-    shown = list(range(m)) + list(range(m, last + 1, every))
-    if shown[-1] != last:
-        shown.append(last)
 
     def draw(j: int) -> tuple[object, ...]:
         for a, b, path_t, path_p, truth, dots, inp in artists:
@@ -112,13 +95,7 @@ def animate3d(path: str | os.PathLike = "docs/rollout3d.gif", weights: str | Non
         counter.set_text(f"frame {j:3d}   t = {j * FRAME_EVERY / STEPS_PER_S:4.1f} s   {what}")
         return (counter,)
 
-    anim = FuncAnimation(fig, draw, frames=shown, blit=False)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    anim.save(out, writer=PillowWriter(fps=fps), dpi=dpi)
-    plt.close(fig)
-    return {"path": out, "gif_frames": len(shown), "m": m,
-            "Ep_squared": {h: float(err[h - 1]) for h in (40, 80) if h <= H}}
+    return write_gif(fig, draw, m, last, every, path, fps, dpi, err)
 
 
 __all__ = ["animate3d", "simulate_case3d", "DEMO_CASE3D", "VIEWS"]
