@@ -38,3 +38,23 @@ def kd_error(P, Q, variant):
     if variant == "squared":
         return (a ** 2).sum() + (b ** 2).sum()
     return a.sum() + b.sum()
+
+
+def assert_gradient_is_central_difference(gP, gQ, P, Q, variant, reduction, eps=1e-6):
+    """``chamfer_loss``'s gradients ``gP``, ``gQ`` at ``(P, Q)`` equal central differences of
+    the summed loss, coordinate by coordinate (rtol 1e-5, atol 1e-7)."""
+    from tpnet_ref.metrics import chamfer_loss
+
+    def f(P, Q):
+        return float(np.sum(chamfer_loss(P, Q, variant, reduction=reduction)))
+
+    for X, G, first in ((P, gP, True), (Q, gQ, False)):
+        num = np.zeros_like(X)
+        for idx in np.ndindex(X.shape):
+            Xp, Xm = X.copy(), X.copy()
+            Xp[idx] += eps
+            Xm[idx] -= eps
+            fp = f(Xp, Q) if first else f(P, Xp)
+            fm = f(Xm, Q) if first else f(P, Xm)
+            num[idx] = (fp - fm) / (2 * eps)
+        np.testing.assert_allclose(G, num, rtol=1e-5, atol=1e-7)

@@ -14,7 +14,8 @@ from tpnet_ref.metrics import DIMS, chamfer_loss, position_error, shape_error
 spatial = pytest.importorskip("scipy.spatial")
 cKDTree = spatial.cKDTree
 
-from metrics_helpers import METHODS, VARIANTS, kd_error, ref_error, ref_sums  # noqa: E402,F401
+from metrics_helpers import (METHODS, VARIANTS, assert_gradient_is_central_difference,  # noqa: E402,F401
+                             kd_error, ref_error, ref_sums)
 
 
 def test_dims_are_two_and_three():
@@ -222,21 +223,7 @@ def test_loss_gradient_matches_finite_differences(variant, reduction, method):
     loss, gP, gQ = chamfer_loss(P, Q, variant, reduction=reduction, return_grad=True,
                                 method=method)
     assert gP.shape == P.shape and gQ.shape == Q.shape
-
-    def f(P, Q):
-        return float(np.sum(chamfer_loss(P, Q, variant, reduction=reduction)))
-
-    eps = 1e-6
-    for X, G, first in ((P, gP, True), (Q, gQ, False)):
-        num = np.zeros_like(X)
-        for idx in np.ndindex(X.shape):
-            Xp, Xm = X.copy(), X.copy()
-            Xp[idx] += eps
-            Xm[idx] -= eps
-            fp = f(Xp, Q) if first else f(P, Xp)
-            fm = f(Xm, Q) if first else f(P, Xm)
-            num[idx] = (fp - fm) / (2 * eps)
-        np.testing.assert_allclose(G, num, rtol=1e-5, atol=1e-7)
+    assert_gradient_is_central_difference(gP, gQ, P, Q, variant, reduction)
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
