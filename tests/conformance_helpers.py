@@ -4,9 +4,13 @@ tests/test_conformance.py (2-D) and tests/test_conformance3d.py (3-D)."""
 from __future__ import annotations
 
 import dataclasses
+import io
+import json
+from contextlib import redirect_stderr, redirect_stdout
 
 import pytest
 
+from tpnet_ref.cli import main
 from tpnet_ref.model import TPNet
 
 
@@ -96,3 +100,35 @@ SEEDED = {  # bug -> (the layer it must be named at, where it must start)
     # c_{-1} = 0: the doubled forget bias first matters at the second step of the forward pass
     "forget_bias_twice": ("lstm1.fwd", {"time_step": 1, "direction": "forward"}),
 }
+
+
+def run_cli(*argv) -> tuple[int, str, str]:
+    """``tpnet ARGV...`` in this process: ``(exit code, stdout, stderr)``."""
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        rc = main([str(a) for a in argv])
+    return rc, out.getvalue(), err.getvalue()
+
+
+def crosscheck_seeded_bug(model: TPNet, bug: str, vectors_dir, tmp_path) -> dict:
+    """The seeded port ``bug`` of ``model`` traced on every case of ``vectors_dir`` and checked by
+    ``tpnet crosscheck --json``: it must fail, name :data:`SEEDED`'s layer and place as the first
+    divergence, and the same first layer in every case. Returns the JSON report (the port's
+    trace is ``tmp_path / "port.npz"``)."""
+    from tpnet_ref.conformance.traces import torch_trace
+    from tpnet_ref.conformance.vectors import read_conformance_vectors, save_trace
+
+    net = seeded_port(model, bug)
+    v = read_conformance_vectors(vectors_dir)
+    save_trace(tmp_path / "port.npz", {c: torch_trace(net, v.window(c)) for c in v.cases})
+    rc, out, err = run_cli("crosscheck", "--vectors", vectors_dir, "--trace",
+                           tmp_path / "port.npz", "--json")
+    assert rc == 1, out + err
+    rep = json.loads(out)
+    layer, where = SEEDED[bug]
+    fd = rep["first_divergence"]
+    assert fd["layer"] == layer, fd
+    assert where.items() <= fd["where"].items(), fd
+    for case, c in rep["cases"].items():          # every case names the same first layer
+        assert c["first_divergence"]["layer"] == layer, (case, c)
+    return rep

@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 import json
 import zipfile
-from contextlib import redirect_stderr, redirect_stdout
+from contextlib import redirect_stdout
 from pathlib import Path
 
 import numpy as np
@@ -22,17 +22,10 @@ from tpnet_ref.conformance.tolerances import measure_tolerances, trace
 from tpnet_ref.conformance.vectors import (Vectors, read_conformance_vectors, save_trace,
                                            write_conformance_vectors)
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
-from conformance_helpers import SEEDED, seeded_port
+from conformance_helpers import SEEDED, crosscheck_seeded_bug, run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 QUARTER = ROOT / "weights" / "tpnet-m4-quarter.h5"
-
-
-def run_cli(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -216,22 +209,9 @@ def test_honest_paths_on_hypothesis_windows(quarter):
 @pytest.mark.parametrize("bug", list(SEEDED))
 def test_seeded_bug_named_at_its_first_layer(bug, vectors_dir, quarter, tmp_path):
     pytest.importorskip("torch")
-    from tpnet_ref.conformance.traces import torch_trace
-
-    net = seeded_port(quarter, bug)
-    v = read_conformance_vectors(vectors_dir)
-    save_trace(tmp_path / "port.npz", {c: torch_trace(net, v.window(c)) for c in v.cases})
-    rc, out, err = run_cli("crosscheck", "--vectors", vectors_dir, "--trace",
-                           tmp_path / "port.npz", "--json")
-    assert rc == 1, out + err
-    rep = json.loads(out)
-    layer, where = SEEDED[bug]
-    fd = rep["first_divergence"]
-    assert fd["layer"] == layer, fd
-    assert where.items() <= fd["where"].items(), fd
-    assert fd["max_abs"] > 0
-    for case, c in rep["cases"].items():          # every case names the same first layer
-        assert c["first_divergence"]["layer"] == layer, (case, c)
+    rep = crosscheck_seeded_bug(quarter, bug, vectors_dir, tmp_path)
+    assert rep["first_divergence"]["max_abs"] > 0
+    layer = SEEDED[bug][0]
     # the report names it too, with the layers after it
     rc, out, _ = run_cli("crosscheck", "--vectors", vectors_dir, "--trace", tmp_path / "port.npz")
     assert rc == 1 and f"DIVERGES at {layer}:" in out and "then:" in out

@@ -11,21 +11,18 @@ readable forward pass, :func:`tpnet_ref.engines.reference.forward`, which is wri
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conformance_helpers import SEEDED, seeded_port
+from conformance_helpers import SEEDED, crosscheck_seeded_bug, run_cli
 from property_helpers import QUARTER
-from tpnet_ref.cli import main
 from tpnet_ref.conformance.compare import compare_case, locate
 from tpnet_ref.conformance.layer_names import layer_names
 from tpnet_ref.conformance.tolerances import measure_tolerances, trace
-from tpnet_ref.conformance.vectors import Vectors, read_conformance_vectors, save_trace
+from tpnet_ref.conformance.vectors import Vectors, read_conformance_vectors
 from tpnet_ref.engines import reference
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
@@ -33,13 +30,6 @@ CONFIG3D = dataclasses.replace(QUARTER, dim=3, n_out=42)
 #: the float32 tolerance of the export against the float64 reference, world units (the box is 45
 #: wide; float32 rounds 45 to 4e-6, and the measured gaps of tpnet vectors stay below 1e-4)
 ONNX_TOL = 2e-4
-
-
-def run_cli(*argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -235,21 +225,7 @@ def test_honest_paths_on_3d_hypothesis_windows(model3d):
 @pytest.mark.parametrize("bug", list(SEEDED))
 def test_seeded_bug_named_at_its_first_layer_in_3d(bug, vectors3d, model3d, tmp_path):
     pytest.importorskip("torch")
-    from tpnet_ref.conformance.traces import torch_trace
-
-    net = seeded_port(model3d, bug)
-    v = read_conformance_vectors(vectors3d)
-    save_trace(tmp_path / "port.npz", {c: torch_trace(net, v.window(c)) for c in v.cases})
-    rc, out, err = run_cli("crosscheck", "--vectors", vectors3d, "--trace",
-                           tmp_path / "port.npz", "--json")
-    assert rc == 1, out + err
-    rep = json.loads(out)
-    layer, where = SEEDED[bug]
-    fd = rep["first_divergence"]
-    assert fd["layer"] == layer, fd
-    assert where.items() <= fd["where"].items(), fd
-    for case, c in rep["cases"].items():          # every case names the same first layer
-        assert c["first_divergence"]["layer"] == layer, (case, c)
+    crosscheck_seeded_bug(model3d, bug, vectors3d, tmp_path)
 
 
 def test_an_error_in_z_is_located_at_its_coordinate():
