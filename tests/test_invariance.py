@@ -47,10 +47,11 @@ def network(impl: Implementations, name: str, dtype: str):
     return impl.engine(name, dtype, sort=False)
 
 
-def network_property(fn, dtype: str, examples: int = 30) -> float:
-    """The network's own invariance: per-frame permutations within the rounding bound."""
+def network_property(fn, dtype: str, examples: int = 30, seed: int | None = None) -> float:
+    """The network's own invariance: per-frame permutations within the rounding bound
+    (``seed``: hypothesis's, for a test that pins where the shrinking ends)."""
     return testing.permutation_invariant(fn, testing.windows(m=MS), tol=TOLERANCE[dtype],
-                                         max_examples=examples)
+                                         max_examples=examples, seed=seed)
 
 
 def pipeline(impl: Implementations, dtype: str):
@@ -150,12 +151,17 @@ def test_every_mutant_is_caught(impl, monkeypatch):
     assert all("\n" not in report for report in caught.values())
 
 
+#: hypothesis's seed for the shrinking tests: about one random draw in 25 ends its shrinking at a
+#: larger window of tiny coordinates whose change barely exceeds the tolerance
+SHRINK_SEED = 1
+
+
 def test_first_point_mutant_fails_the_permutation_property(impl, monkeypatch):
     """The issue's mutant, with the sort off: a permutation failure (not only a disagreement
     with the reference), shrunk to one frame of two points and reported in one line."""
     monkeypatch.setattr(L, "segment_max", first_point(L.segment_max))
-    with pytest.raises(PropertyFailure) as exc:
-        network_property(network(impl, "numpy", "float32"), "float32")
+    with pytest.raises(PropertyFailure) as exc:      # a fixed draw (SHRINK_SEED)
+        network_property(network(impl, "numpy", "float32"), "float32", seed=SHRINK_SEED)
     report = str(exc.value)
     assert "\n" not in report
     assert report.startswith("permutation_invariant: numpy_engine_unsorted_float32 changed by ")

@@ -115,9 +115,9 @@ def network(impl: Implementations, name: str, dtype: str):
     return impl.engine(name, dtype, sort=False)
 
 
-def network_property(fn, dtype: str, examples: int = 20) -> float:
+def network_property(fn, dtype: str, examples: int = 20, seed: int | None = None) -> float:
     return testing.permutation_invariant(fn, testing.windows(m=MS, dim=3), tol=TOLERANCE[dtype],
-                                         max_examples=examples)
+                                         max_examples=examples, seed=seed)
 
 
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
@@ -133,13 +133,19 @@ def _starts(counts):
     return np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.intp)
 
 
+#: hypothesis's seed for the shrinking test: about one random draw in 9 ends its shrinking at a
+#: larger window of tiny coordinates whose change barely exceeds the tolerance
+SHRINK_SEED = 1
+
+
 def test_first_point_mutant_fails_the_permutation_property_in_3d(impl, monkeypatch):
     """The first point's row instead of the max (tests/test_invariance.py's mutant), on the
     NumPy engine with the sort off: a one-line permutation failure, shrunk to one frame of two
     3-D points, each listed with its three coordinates."""
     monkeypatch.setattr(L, "segment_max", lambda x, counts: x[_starts(counts)].copy())
     with pytest.raises(PropertyFailure) as exc:
-        network_property(network(impl, "numpy", "float32"), "float32", examples=30)
+        network_property(network(impl, "numpy", "float32"), "float32", examples=30,
+                         seed=SHRINK_SEED)       # a fixed draw, as in tests/test_invariance.py
     report = str(exc.value)
     assert "\n" not in report
     assert report.startswith("permutation_invariant: numpy_engine_unsorted_float32 changed by ")
