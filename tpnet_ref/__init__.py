@@ -46,7 +46,7 @@ def load(path: _Any = None, dtype: _Any = "float32", engine: str = "auto", *,
 
     ``weights``: None (the file's own: float32, or the bf16 / int8 of a file written by
     ``tpnet quantize``), "bf16" or "int8" (the BiLSTM matrices rounded to that grid at load,
-    read by the Numba engine in a half or a quarter of the bytes:
+    read by the Numba engine in about two thirds or a quarter of the bytes:
     :func:`tpnet_ref.weights.convert.with_weights`, docs/deployment.md)."""
     if weights is not None and weights not in ("float32", "bf16", "int8"):
         raise ValueError(f"weights must be None, 'float32', 'bf16' or 'int8', got {weights!r}")

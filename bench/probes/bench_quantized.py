@@ -147,8 +147,8 @@ def layers(size: str) -> None:
 
     want = run(p64)
     scale = cfg.norm_hi - cfg.norm_lo
-    wide = set(Q.wide_names(cfg))
     for scheme in SCHEMES[1:]:
+        wide = set(Q.wide_names(cfg, scheme))
         row = []
         for layer in list(range(1, len(cfg.lstm_units) + 1)) + ["all"]:
             p = dict(p64)

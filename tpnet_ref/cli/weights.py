@@ -2,7 +2,7 @@
 ``tpnet compress``: rewrite a native file with shuffle + gzip (optionally rounded first);
 ``tpnet scrub-provenance``: rewrite a native file's provenance without machine paths, with a
 content digest, the parameters bit-identical; ``tpnet quantize``: a native file whose BiLSTM
-matrices are bf16 or int8 codes (a half or a quarter of their bytes)."""
+matrices are bf16 or int8 codes (about two thirds or a quarter of their bytes)."""
 from __future__ import annotations
 
 import argparse
@@ -53,7 +53,9 @@ def add_cli(sub: Any) -> None:
                          "codes; tpnet_ref.load reads it with no flag, the Numba engine reads the "
                          "codes (docs/deployment.md)",
         description="Quantize a native weights file. bf16: each BiLSTM weight rounded to "
-                    "bfloat16. int8: symmetric, one float32 scale per output column "
+                    "bfloat16; BiLSTM 1's input kernels and the last BiLSTM's input kernels and "
+                    "recurrent matrices in two bf16 planes (w = hi + lo / 256, about 16 bits). "
+                    "int8: symmetric, one float32 scale per output column "
                     "(max |column| / 127), applied to each sum; BiLSTM 1's input kernels and "
                     "the last BiLSTM's recurrent matrices in two int8 planes (16 bits: the "
                     "matrices a prediction is most sensitive to). The per-point MLP, the global "
@@ -66,7 +68,8 @@ def add_cli(sub: Any) -> None:
     p.add_argument("--weights", required=True, metavar="W",
                    help="the float32 native weights file to quantize")
     p.add_argument("--to", required=True, choices=("bf16", "int8"),
-                   help="the scheme: bf16 (half the bytes) or int8 (a quarter)")
+                   help="the scheme: bf16 (about two thirds of the bytes at the paper size) or "
+                        "int8 (a quarter)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.h5",
                    help="native weights file to write (may not be W)")
     p.set_defaults(func=_cli_quantize)

@@ -57,7 +57,7 @@ from . import compile_watch
 from .blas import in_one_thread
 from .thread_policy import two_threads
 from ..checks import overflow_error
-from ..weights.quantize import SCHEMES, codes_of
+from ..weights.quantize import SCHEMES, codes_of, wide_names
 from .numba_features import FEATURE_CHUNK, features_parallel, frame_range
 from .numba_lstm import head_parallel, head_serial, project_parallel, project_serial
 from .numba_products import CHAIN, GROUP_ROWS, pad_columns, padded_columns
@@ -216,9 +216,11 @@ class NumbaHead:
         #: the weights' scheme the kernels read (:mod:`tpnet_ref.weights.quantize`; float32
         #: models only), None: the model's dtype
         self.weights = weights if weights in SCHEMES and dt == np.float32 else None
-        last = len(recs) - 1
+        wide = set(wide_names(config, self.weights)) if self.weights else set()
         (self.kernels, self.kscs), (self.recs, self.rscs) = (
-            _codes(ws, self.weights, dt, wide) for ws, wide in ((kernels, 0), (recs, last)))
+            _codes(ws, self.weights, dt, [f"lstm{i}.fwd.{t}" in wide for i in
+                                          range(1, len(ws) + 1)])
+            for ws, t in ((kernels, "kernel"), (recs, "recurrent")))
         self.gks, self.csts = tuple(gks), tuple(csts)
         self.units = tuple(int(u) for u in config.lstm_units)
         self.gammas = tuple(np.ascontiguousarray(g, dtype=dt) for g in gammas)
@@ -294,17 +296,23 @@ class NumbaHead:
 
 
 def _codes(mats: list[np.ndarray], scheme: str | None, dt: np.dtype,
-           wide: int) -> tuple[tuple, tuple]:
+           wide: list[bool]) -> tuple[tuple, tuple]:
     """The matrices ``(2, C, N)`` as the kernels read them: as they are (no scheme), or their
-    ``scheme`` codes (:func:`tpnet_ref.weights.quantize.codes_of`, exact; int8's layer ``wide``
-    in two planes, ``(2, 2C, N)``: :func:`tpnet_ref.weights.quantize.wide_names`), with each
-    one's int8 scales ``(2, N)`` (``(2, 0)``: none)."""
+    ``scheme`` codes (:func:`tpnet_ref.weights.quantize.codes_of`, exact; layer ``li`` in two
+    planes, ``(2, 2C, N)``, where ``wide[li]``: :func:`tpnet_ref.weights.quantize.wide_names`;
+    int8's high plane's rows then the low one's, bf16's weight pairs (hi, lo) interleaved, row
+    ``k``'s in rows ``2k`` and ``2k + 1``), with each one's int8 scales ``(2, N)`` (``(2, 0)``:
+    none)."""
     if scheme is None:
         return tuple(mats), tuple(np.zeros((2, 0), dtype=dt) for _ in mats)
     codes, scales = [], []
     for li, w in enumerate(mats):
-        got = [codes_of(w[d], scheme, "NumbaHead", li == wide) for d in range(2)]
-        codes.append(np.ascontiguousarray(np.stack([c for c, _ in got])))
+        got = [codes_of(w[d], scheme, "NumbaHead", wide[li]) for d in range(2)]
+        c = np.ascontiguousarray(np.stack([c for c, _ in got]))
+        if wide[li] and scheme == "bf16":    # row k's pairs (hi, lo) interleaved, 2N a row
+            half = c.shape[1] // 2
+            c = np.stack([c[:, :half], c[:, half:]], axis=-1).reshape(c.shape)
+        codes.append(c)
         scales.append(np.stack([s for _, s in got]) if scheme == "int8"
                       else np.zeros((2, 0), dtype=dt))
     return tuple(codes), tuple(scales)

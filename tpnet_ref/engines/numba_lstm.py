@@ -15,6 +15,8 @@ i, f, c, o have u columns each, padded with zeros to N, whole 64-byte vectors)::
     kern, kernel  both directions' input kernels (2, C, N)
     rec           both directions' recurrent matrices (2, u, N), row k what h[k] adds to the
                   pre-activations (in _recur_dir: one direction's)
+                  (weights in two planes: 2C or 2u rows, tpnet_ref.weights.quantize.wide_names;
+                  int8's multiply [x, x * 2^-8] (planes), bf16's x, widened in the kernel)
     gk, cst       (2, N): gamma_{l-1} @ K_l and beta_{l-1} @ K_l + bias_l (the fold), or unused
                   and bias_l (no fold); bias: BiLSTM 1's (2, N)
     rr, rmu       per row, 1 / sqrt(var + eps) and rr * mean of the previous layer's output
@@ -169,7 +171,7 @@ def _recur_dir(xs, d, rec, rsc, hs, u, steps, bsz, relu, one):
     grp = groups(1, bsz, False)
     act = np.empty((grp.shape[0], rec.shape[0]), dtype=np.intp)
     ns = np.empty(grp.shape[0], dtype=np.intp)
-    hin = h if rec.shape[0] == u else np.zeros((bsz, rec.shape[0]), dtype=dt)
+    hin = h if rec.shape[0] == u or not _int8(rec) else np.zeros((bsz, rec.shape[0]), dtype=dt)
     for s in range(steps):
         t = s if d == 0 else steps - 1 - s
         if s > 0:                             # h = 0 at the first step
@@ -188,11 +190,22 @@ def _recur_dir(xs, d, rec, rsc, hs, u, steps, bsz, relu, one):
                 hs[row, d * u + k] = hb[k]    # compile (its error message costs ~1 s to build)
 
 
+def _int8(w):
+    """Whether the weights ``w`` are int8 codes (known when compiled)."""
+
+
+@overload(_int8)
+def _int8_overload(w):
+    flag = isinstance(w, types.Array) and w.dtype == types.int8
+    return lambda w: flag
+
+
 @njit(cache=True, nogil=True, inline="always")
 def planes(x, xin):
     """Two int8 planes' input: ``xin (R, 2C) = [x, x * 2^-8]`` (exact), for weights stored as
     ``q_hi`` rows then ``q_lo`` rows (:func:`tpnet_ref.weights.quantize.wide_names`); nothing
-    when ``xin`` is ``x`` (one plane: the same width)."""
+    when ``xin`` is ``x`` (one plane, or bf16's two planes, which the kernel widens into one
+    weight: the same width)."""
     n = x.shape[1]
     if xin.shape[1] == 2 * n:
         for r in range(x.shape[0]):
@@ -203,10 +216,11 @@ def planes(x, xin):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _widened(x, rows):
-    """``x (R, C)`` as the input of a weight matrix of ``rows`` rows: ``x`` itself, or its two
-    planes (:func:`planes`) when ``rows == 2C``."""
-    if rows == x.shape[1]:
+def _widened(x, w):
+    """``x (R, C)`` as the input of weight matrices ``w (2, rows, N)``: ``x`` itself, or its
+    two planes (:func:`planes`) when ``w`` is int8 and ``rows == 2C``."""
+    rows = w.shape[1]
+    if rows == x.shape[1] or not _int8(w):
         return x
     xin = np.empty((x.shape[0], rows), dtype=x.dtype)
     planes(x, xin)
@@ -285,7 +299,7 @@ def _layer_dir(d, x, kern, ksc, gk, cst, rr, rmu, xs, rec, rsc, hs, u, steps, bs
     recurrence into ``hs``. ``kern``, ``gk``, ``cst``, ``rec``: both directions' (axis 0);
     ``ksc``, ``rsc``: their int8 scales ``(2, N)`` (``(2, 0)``: float weights)."""
     if x.shape[0] > 0:
-        project_dir(_widened(x, kern.shape[1]), kern[d], xs[:, d], steps, bsz)
+        project_dir(_widened(x, kern), kern[d], xs[:, d], steps, bsz)
         scale_rows(xs[:, d], ksc[d])
         _finish_dir(xs, d, rr, rmu, gk[d], cst[d])
     _recur_dir(xs, d, rec[d], rsc[d], hs, u, steps, bsz, relu, one)
@@ -369,7 +383,7 @@ head_parallel = _head_impl(True)
 @njit(cache=True, nogil=True, inline="always")
 def _project_one(d, x, kernel, ksc, bias, out, steps, bsz):
     empty = bias[0, :0]
-    project_dir(_widened(x, kernel.shape[1]), kernel[d], out[:, d], steps, bsz)
+    project_dir(_widened(x, kernel), kernel[d], out[:, d], steps, bsz)
     scale_rows(out[:, d], ksc[d])
     _finish_dir(out, d, empty, empty, empty, bias[d])
 

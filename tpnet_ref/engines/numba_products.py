@@ -10,7 +10,8 @@ Argument names (every kernel below; rows are time-major where there are steps, r
 
     x             the input rows (R, C), the left operand
     w, kern       a weight matrix (C, N), C-contiguous, N whole 64-byte vectors (kern: one
-                  direction's input kernel)
+                  direction's input kernel); bf16 in two planes: (2C, N) against an x of C
+                  columns, weight row k's N pairs (hi, lo) interleaved in rows 2k and 2k+1
     out           the result rows (R, N)
     grp           row groups (G, 3): first row, stride between its rows, number of rows
     r0, rs, g     one group's first row, stride and number of rows (rstep: rs)
@@ -81,13 +82,28 @@ def _widen(builder, ptr, wdtype, welt, lanes, vty, size):
     return builder.bitcast(wide, vty)
 
 
+def _widen_planes(builder, ptr, lanes, vty, fma):
+    """One vector of bf16 weights in two planes, ``lanes`` pairs (hi, lo) of uint16 at ``ptr``
+    (one 32-bit load each: hi the low half, lo the high half), as float32 lanes
+    ``fma(lo, 2^-8, hi)``: one rounding of a sum that float32 holds exactly
+    (:mod:`tpnet_ref.weights.quantize` makes and checks the planes so), the weights in
+    ``model.params`` bit for bit."""
+    i32 = ir.VectorType(ir.IntType(32), lanes)
+    bits = builder.load(builder.bitcast(ptr, i32.as_pointer()), align=4)
+    hi = builder.bitcast(builder.shl(bits, ir.Constant(i32, [16] * lanes)), vty)
+    lo = builder.bitcast(builder.and_(bits, ir.Constant(i32, [-65536] * lanes)), vty)
+    return builder.call(fma, [lo, ir.Constant(vty, [2.0 ** -8] * lanes), hi])
+
+
 def _row_kernel(rows: int, chain: int):
     """An intrinsic ``k(x, r0, rstep, w, act, j0, out)``: for the rows ``r = r0 + i * rstep``,
     ``i < rows``, ``out[r, :] = fma(x[r, k_last], w[k_last], ... fma(x[r, k_0], w[k_0], out[r]))``
     over the ``chain`` weight rows ``k = act[j0 .. j0 + chain - 1]`` in that order, every column
     of ``w (C, N)`` (C-contiguous, ``N`` whole 64-byte vectors), ``out`` 2-D with contiguous
     rows. The ``chain`` weight rows are streamed side by side, each sequentially, one vector
-    of each per step; each accumulator is loaded and stored once per call."""
+    of each per step; each accumulator is loaded and stored once per call. bf16 weights of
+    twice ``x``'s columns are two planes, each weight a pair (hi, lo) widened into one float32
+    (:func:`_widen_planes`; decided once per call, outside the loop)."""
 
     @intrinsic
     def kernel(typingctx, x, r0, rstep, w, act, j0, out):
@@ -130,21 +146,38 @@ def _row_kernel(rows: int, chain: int):
             orows = [row_ptr(oa, r) for r in rowi]
             ks = [builder.load(builder.gep(aa.data, [builder.add(j0i, ir.Constant(intp, q))]))
                   for q in range(chain)]
-            wrows = [builder.gep(wa.data, [builder.mul(k, ncol)]) for k in ks]
             avs = [[builder.shuffle_vector(builder.insert_element(
                 undef, builder.load(builder.gep(xr, [k])), i32_0), undef, splat) for k in ks]
                 for xr in xrows]
             nvec = builder.udiv(ncol, ir.Constant(intp, lanes))
-            with cgutils.for_range(builder, nvec) as loop:
-                off = builder.mul(loop.index, ir.Constant(intp, lanes))
-                ws = [_widen(builder, builder.gep(wr, [off]), wt.dtype, welt, lanes, vty, size)
-                      for wr in wrows]
-                for r in range(rows):
-                    p = builder.bitcast(builder.gep(orows[r], [off]), vty.as_pointer())
-                    acc = builder.load(p, align=size)
-                    for q in range(chain):
-                        acc = builder.call(fma, [avs[r][q], ws[q], acc])
-                    builder.store(acc, p, align=size)
+
+            def stream(planes):               # the loop; planes: bf16 pairs, 2N per row
+                two = ir.Constant(intp, 2 if planes else 1)
+                wrows = [builder.gep(wa.data, [builder.mul(builder.mul(k, ncol), two)])
+                         for k in ks]
+                with cgutils.for_range(builder, nvec) as loop:
+                    off = builder.mul(loop.index, ir.Constant(intp, lanes))
+                    ws = [_widen_planes(builder, builder.gep(wr, [builder.mul(off, two)]), lanes,
+                                        vty, fma) if planes else
+                          _widen(builder, builder.gep(wr, [off]), wt.dtype, welt, lanes, vty,
+                                 size) for wr in wrows]
+                    for r in range(rows):
+                        p = builder.bitcast(builder.gep(orows[r], [off]), vty.as_pointer())
+                        acc = builder.load(p, align=size)
+                        for q in range(chain):
+                            acc = builder.call(fma, [avs[r][q], ws[q], acc])
+                        builder.store(acc, p, align=size)
+
+            if wt.dtype != types.uint16:
+                stream(False)
+                return context.get_dummy_value()
+            two = builder.icmp_unsigned("==", builder.extract_value(wa.shape, 0), builder.mul(
+                builder.extract_value(xa.shape, 1), ir.Constant(intp, 2)))
+            with builder.if_else(two) as (then, other):
+                with then:
+                    stream(True)
+                with other:
+                    stream(False)
             return context.get_dummy_value()
 
         return sig, codegen

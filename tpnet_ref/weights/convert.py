@@ -72,7 +72,7 @@ def with_weights(model: TPNet, weights: str | None) -> TPNet:
         raise ValueError(f"weights={weights!r}: this model's weights are already {have} "
                          f"({model.meta.get('path', 'in memory')}); quantize the float32 file")
     Q.check_scheme(weights, "weights")
-    names, wide = set(Q.quantized_names(model.config)), set(Q.wide_names(model.config))
+    names, wide = set(Q.quantized_names(model.config)), set(Q.wide_names(model.config, weights))
     params = {n: (Q.round_to(p, weights, n in wide) if n in names else p)
               for n, p in model.params.items()}
     src = model.meta.get("path", "a model in memory")

@@ -311,7 +311,7 @@ def _encoded(config: TPNetConfig, stored: dict[str, np.ndarray], meta: dict[str,
     if scheme is None:
         return groups
     Q.check_scheme(scheme, "meta")
-    scales, wide = {}, Q.wide_names(config)
+    scales, wide = {}, Q.wide_names(config, scheme)
     for name in Q.quantized_names(config):
         stored[name], sc = Q.codes_of(stored[name], scheme, f"parameter {name!r}", name in wide)
         if sc is not None:
@@ -343,7 +343,7 @@ def _decoded(f: Any, where: str, cfg: TPNetConfig, group: Any,
                 raise ValueError(f"{where}: int8 file without the scales of {name!r}")
             scale = np.asarray(hdf5.read(hdf5.safe_dataset(sg, name, where), f"{where}: scales"))
         params[name] = Q.check_codes(codes, scale, scheme, shapes[name], f"{where}: {name!r}",
-                                     name in Q.wide_names(cfg))
+                                     name in Q.wide_names(cfg, scheme))
     return stored, {name: params[name] for name in shapes}            # the file's order
 
 
