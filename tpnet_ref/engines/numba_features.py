@@ -45,26 +45,33 @@ def _max_into(dst, src, n):
         dst[j] = v if (v > p) | (v != v) else p
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _scratch(ws, c0, dt):
+    """The work arrays of :func:`_pool_points` (two activation blocks, the active columns of
+    each row group and their counts), made once per call of a kernel below, not per frame."""
+    cmax = c0
+    for li in range(len(ws)):
+        cmax = max(cmax, ws[li].shape[1])
+    a = np.empty((FEATURE_CHUNK, cmax), dtype=dt)
+    b = np.empty((FEATURE_CHUNK, cmax), dtype=dt)
+    act = np.empty(((FEATURE_CHUNK + GROUP_ROWS - 1) // GROUP_ROWS, cmax), dtype=np.intp)
+    ns = np.empty(act.shape[0], dtype=np.intp)
+    return a, b, act, ns
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
+def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool, a, b, act, ns):
     """The max over the points ``pts[p0:p1]`` of the per-point MLP's last products (before its
     bias and ReLU) into ``pool (1, C)`` (NaN kept: once NaN, NaN stays). The first layer
     ``w0 (dim, C0)`` directly; every later one (``ws``, ``bs``) by :func:`product`, reading
     only the weight rows of each group of points' non-zero inputs, ReLU after each but the
     last. Points go through in chunks of :data:`FEATURE_CHUNK`; each point's numbers do not
-    depend on the others, and a max does not depend on the order, so neither does ``pool``."""
-    dt = pts.dtype
+    depend on the others, and a max does not depend on the order, so neither does ``pool``.
+    ``a, b, act, ns``: :func:`_scratch`'s work arrays."""
     nl = len(ws)
     c0 = w0.shape[1]
     dim = w0.shape[0]
-    cmax = c0
-    for li in range(nl):
-        cmax = max(cmax, ws[li].shape[1])
     chunk = FEATURE_CHUNK
-    a = np.empty((chunk, cmax), dtype=dt)
-    b = np.empty((chunk, cmax), dtype=dt)
-    act = np.empty(((chunk + GROUP_ROWS - 1) // GROUP_ROWS, cmax), dtype=np.intp)
-    ns = np.empty(act.shape[0], dtype=np.intp)
     cl = ws[nl - 1].shape[1]
     for q0 in range(p0, p1, chunk):
         r = min(chunk, p1 - q0)
@@ -100,17 +107,14 @@ def _pool_points(pts, p0, p1, w0, b0, ws, bs, zero, pool):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _finish_frame(pool, bl, gw, gb, zero, out, f):
+def _finish_frame(pool, bl, gw, gb, zero, out, f, one_row, act, ns, g):
     """``out[f] = relu(relu(pool + bl) @ gw + gb)``: the MLP's last bias and ReLU after the max
-    (as :func:`tpnet_ref.engines.layers.mlp_max`: the same numbers), then the global layer."""
+    (as :func:`tpnet_ref.engines.layers.mlp_max`: the same numbers), then the global layer.
+    ``one_row, act, ns, g``: :func:`_global_scratch`'s work arrays."""
     cl = pool.shape[1]
     for j in range(cl):
         v = pool[0, j] + bl[j]
         pool[0, j] = zero if v < zero else v
-    one_row = groups(1, 1, False)
-    act = np.empty((1, cl), dtype=np.intp)
-    ns = np.empty(1, dtype=np.intp)
-    g = np.empty((1, gw.shape[1]), dtype=pool.dtype)
     active(pool[:, :], one_row, act, ns)
     product(pool[:, :], gw, one_row, act, ns, g[:, :])
     for j in range(gw.shape[1]):
@@ -118,15 +122,26 @@ def _finish_frame(pool, bl, gw, gb, zero, out, f):
         out[f, j] = zero if v < zero else v
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _global_scratch(cl, gw, dt):
+    """The work arrays of :func:`_finish_frame`, made once per call of a kernel below."""
+    return (groups(1, 1, False), np.empty((1, cl), dtype=np.intp), np.empty(1, dtype=np.intp),
+            np.empty((1, gw.shape[1]), dtype=dt))
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def frame_range(pts, starts, counts, f0, f1, w0, b0, ws, bs, gw, gb, zero, out):
     """The global feature of frames ``f0 .. f1-1`` into ``out[f]``: frame ``f`` is the points
     ``pts[starts[f] : starts[f] + counts[f]]`` (model coordinates, canonical order)."""
     nl = len(ws)
-    pool = np.empty((1, ws[nl - 1].shape[1]), dtype=pts.dtype)
+    cl = ws[nl - 1].shape[1]
+    pool = np.empty((1, cl), dtype=pts.dtype)
+    a, b, act, ns = _scratch(ws, w0.shape[1], pts.dtype)
+    one_row, gact, gns, g = _global_scratch(cl, gw, pts.dtype)
     for f in range(f0, f1):
-        _pool_points(pts, starts[f], starts[f] + counts[f], w0, b0, ws, bs, zero, pool)
-        _finish_frame(pool, bs[nl - 1], gw, gb, zero, out, f)
+        _pool_points(pts, starts[f], starts[f] + counts[f], w0, b0, ws, bs, zero, pool,
+                     a, b, act, ns)
+        _finish_frame(pool, bs[nl - 1], gw, gb, zero, out, f, one_row, gact, gns, g)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -144,14 +159,18 @@ def features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
     nl = len(ws)
     n = counts[0]
     mid = starts[0] + (n + 1) // 2
-    pools = np.empty((2, 1, ws[nl - 1].shape[1]), dtype=pts.dtype)
+    cl = ws[nl - 1].shape[1]
+    pools = np.empty((2, 1, cl), dtype=pts.dtype)
     for h in prange(2):
+        a, b, act, ns = _scratch(ws, w0.shape[1], pts.dtype)
         if h == 0:
-            _pool_points(pts, starts[0], mid, w0, b0, ws, bs, zero, pools[0])
+            _pool_points(pts, starts[0], mid, w0, b0, ws, bs, zero, pools[0], a, b, act, ns)
         else:
-            _pool_points(pts, mid, starts[0] + n, w0, b0, ws, bs, zero, pools[1])
+            _pool_points(pts, mid, starts[0] + n, w0, b0, ws, bs, zero, pools[1], a, b, act,
+                         ns)
     _max_into(pools[0, 0], pools[1, 0], pools.shape[2])
-    _finish_frame(pools[0], bs[nl - 1], gw, gb, zero, out, 0)
+    one_row, gact, gns, g = _global_scratch(cl, gw, pts.dtype)
+    _finish_frame(pools[0], bs[nl - 1], gw, gb, zero, out, 0, one_row, gact, gns, g)
 
 
 __all__ = ["FEATURE_CHUNK", "frame_range", "features_parallel"]
