@@ -215,8 +215,11 @@ def main(argv: list[str] | None = None) -> int:
                          "these rollouts decides nothing)")
     ap.add_argument("--fit", default=None, metavar="LABEL[:FIRST_STEP]",
                     help="fit a power law in windows seen to this run's snapshots (from "
-                         "FIRST_STEP on) and say where it meets the paper's E_p@40 0.071 and "
-                         "E_p@80 0.164")
+                         "FIRST_STEP on) and say where it meets the --targets")
+    ap.add_argument("--targets", nargs="*", default=["Ep@40=0.071", "Ep@80=0.164"],
+                    metavar="FIGURE=VALUE",
+                    help="the figures the fit projects to (default: the paper's E_p@40 0.071 "
+                         "and E_p@80 0.164; a figure may repeat with another value)")
     ap.add_argument("--rates", nargs="*", default=[], metavar="NAME=WINDOWS_PER_S",
                     help="training rates the fit's windows are turned into hours at")
     args = ap.parse_args(argv)
@@ -252,8 +255,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.fit:
         label, _, first = args.fit.partition(":")
         rates = {n: float(v) for n, v in (r.split("=", 1) for r in args.rates)}
-        print(fit(rows, label, args.reading, {"Ep@40": 0.071, "Ep@80": 0.164}, rates,
-                  int(first or 0)))
+        for spec in args.targets:
+            key, _, value = spec.partition("=")
+            if key not in ("Ep@40", "Ep@80", "Es@80") or not value:
+                ap.error(f"--targets {spec!r}: expected Ep@40=, Ep@80= or Es@80=VALUE")
+            print(fit(rows, label, args.reading, {key: float(value)}, rates, int(first or 0)))
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
