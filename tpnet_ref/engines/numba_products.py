@@ -23,6 +23,7 @@ Argument names (every kernel below; rows are time-major where there are steps, r
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -99,6 +100,42 @@ def _widen_planes(builder, ptr, lanes, vty, fma):
     return builder.call(fma, [lo, ir.Constant(vty, [2.0 ** -8] * lanes), hi])
 
 
+def _columns(builder, k, first, count):
+    """``count`` vectors of columns from vector ``first`` in one :func:`_row_kernel` call
+    (``k``: the call's values): the weights widened, each row's accumulators loaded, the chains
+    interleaved (independent sums, so the multiply-adds overlap), the sums stored."""
+    offs = [builder.mul(builder.add(first, ir.Constant(k.intp, u)), ir.Constant(k.intp, k.lanes))
+            for u in range(count)]
+    ws = [[_widen_planes(builder, builder.gep(wr, [builder.mul(off, k.two)]), k.lanes, k.vty,
+                         k.fma) if k.planes else
+           _widen(builder, builder.gep(wr, [off]), k.wdtype, k.welt, k.lanes, k.vty, k.size)
+           for wr in k.wrows] for off in offs]
+    ptrs = [[builder.bitcast(builder.gep(k.orows[r], [off]), k.vty.as_pointer()) for off in offs]
+            for r in range(k.rows)]
+    accs = [[builder.load(p, align=k.size) for p in pr] for pr in ptrs]
+    for q in range(k.chain):
+        for r in range(k.rows):
+            for u in range(count):
+                accs[r][u] = builder.call(k.fma, [k.avs[r][q], ws[u][q], accs[r][u]])
+    for r in range(k.rows):
+        for u in range(count):
+            builder.store(accs[r][u], ptrs[r][u], align=k.size)
+
+
+def _stream(builder, k, nvec):
+    """The loop of a :func:`_row_kernel` call over its ``nvec`` vectors of columns: one row, a
+    vector at a time (its weight loads dominate; pairs measured no faster); more rows,
+    :data:`UNROLL` vectors a step (:func:`_columns`), then an odd last one."""
+    unroll = UNROLL if k.rows > 1 else 1
+    nstep = builder.udiv(nvec, ir.Constant(k.intp, unroll))
+    with cgutils.for_range(builder, nstep) as loop:
+        _columns(builder, k, builder.mul(loop.index, ir.Constant(k.intp, unroll)), unroll)
+    if unroll > 1:
+        done = builder.mul(nstep, ir.Constant(k.intp, unroll))
+        with cgutils.for_range(builder, builder.sub(nvec, done)) as loop:
+            _columns(builder, k, builder.add(done, loop.index), 1)
+
+
 def _row_kernel(rows: int, chain: int):
     """An intrinsic ``k(x, r0, rstep, w, act, j0, out)``: for the rows ``r = r0 + i * rstep``,
     ``i < rows``, ``out[r, :] = fma(x[r, k_last], w[k_last], ... fma(x[r, k_0], w[k_0], out[r]))``
@@ -160,35 +197,10 @@ def _row_kernel(rows: int, chain: int):
                 two = ir.Constant(intp, 2 if planes else 1)
                 wrows = [builder.gep(wa.data, [builder.mul(builder.mul(k, ncol), two)])
                          for k in ks]
-
-                def columns(first, count):    # vectors first .. first+count-1, interleaved
-                    offs = [builder.mul(builder.add(first, ir.Constant(intp, u)),
-                                        ir.Constant(intp, lanes)) for u in range(count)]
-                    ws = [[_widen_planes(builder, builder.gep(wr, [builder.mul(off, two)]),
-                                         lanes, vty, fma) if planes else
-                           _widen(builder, builder.gep(wr, [off]), wt.dtype, welt, lanes, vty,
-                                  size) for wr in wrows] for off in offs]
-                    ptrs = [[builder.bitcast(builder.gep(orows[r], [off]), vty.as_pointer())
-                             for off in offs] for r in range(rows)]
-                    accs = [[builder.load(p, align=size) for p in pr] for pr in ptrs]
-                    for q in range(chain):
-                        for r in range(rows):
-                            for u in range(count):
-                                accs[r][u] = builder.call(fma, [avs[r][q], ws[u][q], accs[r][u]])
-                    for r in range(rows):
-                        for u in range(count):
-                            builder.store(accs[r][u], ptrs[r][u], align=size)
-
-                # one row: a vector at a time (its weight loads dominate; pairs measured no
-                # faster); more rows: UNROLL vectors a step, then an odd last one
-                unroll = UNROLL if rows > 1 else 1
-                nstep = builder.udiv(nvec, ir.Constant(intp, unroll))
-                with cgutils.for_range(builder, nstep) as loop:
-                    columns(builder.mul(loop.index, ir.Constant(intp, unroll)), unroll)
-                if unroll > 1:
-                    done = builder.mul(nstep, ir.Constant(intp, unroll))
-                    with cgutils.for_range(builder, builder.sub(nvec, done)) as loop:
-                        columns(builder.add(done, loop.index), 1)
+                _stream(builder, SimpleNamespace(
+                    rows=rows, chain=chain, planes=planes, two=two, wrows=wrows, orows=orows,
+                    avs=avs, wdtype=wt.dtype, welt=welt, lanes=lanes, vty=vty, size=size,
+                    fma=fma, intp=intp), nvec)
 
             if wt.dtype != types.uint16:
                 stream(False)
