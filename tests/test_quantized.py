@@ -205,8 +205,14 @@ def _tamper(path, edit):
     (lambda f: f.__delitem__("scales/lstm3.bwd.recurrent"), "without the scales"),
 ])
 def test_a_corrupted_scale_or_a_wrong_scheme_is_one_line(edit, message, tmp_path):
+    _assert_tampered_file_refused("int8", edit, message, tmp_path)
+
+
+def _assert_tampered_file_refused(scheme, edit, message, tmp_path):
+    """The quarter quantized to ``scheme``, ``edit``-ed: its load fails in one line that names
+    the file and matches ``message``."""
     out = tmp_path / "q.h5"
-    assert _quantize(shipped_weights_path(4, "quarter"), "int8", out).returncode == 0
+    assert _quantize(shipped_weights_path(4, "quarter"), scheme, out).returncode == 0
     _tamper(out, edit)
     with pytest.raises(ValueError, match=message) as exc:
         tpnet_ref.load(out, engine="numpy")
@@ -237,12 +243,7 @@ def _one_plane(f):
 def test_corrupted_bf16_codes_or_a_missing_plane_is_one_line(edit, message, tmp_path):
     """A bf16 file's two planes must be the ones ``encode`` makes (the sum exact in float32) and
     of twice the rows; NaN or infinite codes are refused as in one plane."""
-    out = tmp_path / "q.h5"
-    assert _quantize(shipped_weights_path(4, "quarter"), "bf16", out).returncode == 0
-    _tamper(out, edit)
-    with pytest.raises(ValueError, match=message) as exc:
-        tpnet_ref.load(out, engine="numpy")
-    assert "\n" not in str(exc.value) and str(out) in str(exc.value)
+    _assert_tampered_file_refused("bf16", edit, message, tmp_path)
 
 
 def test_a_changed_scale_without_a_new_digest_is_refused(tmp_path):
