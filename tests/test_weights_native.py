@@ -38,6 +38,23 @@ def test_write_read_round_trip_is_bit_exact_and_keeps_provenance(tmp_path, dtype
     assert native.is_native(p)
 
 
+def test_read_config_reads_the_config_alone_with_read_natives_checks(tmp_path):
+    p = tmp_path / "w.h5"
+    native.write_native(p, TINY, _params(TINY), "float32", {"source": "unit"})
+    assert native.read_config(p) == native.read_native(p)[0] == TINY
+    with h5py.File(p, "r+") as f:
+        f.attrs["format_version"] = 99
+    for reader in (native.read_config, native.read_native):
+        with pytest.raises(ValueError, match="unsupported format_version 99") as exc:
+            reader(p)
+        assert "\n" not in str(exc.value)
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.zeros(3)
+    with pytest.raises(ValueError, match="not a tpnet_ref weights file"):
+        native.read_config(other)
+
+
 def test_write_casts_to_the_requested_dtype_and_refuses_misfits(tmp_path):
     params = _params(TINY)
     native.write_native(tmp_path / "a.h5", TINY, params, "float32")

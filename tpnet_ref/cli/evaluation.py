@@ -155,8 +155,8 @@ def _eval(args: Any) -> int:
 
 def _eval_dim(args: Any) -> int:
     """The scene ``tpnet eval`` runs: ``--dim``, else the weights' dimension (all the same)."""
-    from ..model import load
-    dims = {load(w).config.dim for w in args.weights if Path(w).is_file()}  # a missing one: named below
+    from ..weights.native import read_config
+    dims = {read_config(w).dim for w in args.weights if Path(w).is_file()}  # a missing one: named below
     if len(dims) > 1:
         raise ValueError("--weights: 2-D and 3-D models together; evaluate each dimension on "
                          "its own")

@@ -354,6 +354,39 @@ def is_native(path: str | os.PathLike) -> bool:
         return hdf5.py_value(hdf5.attr(f, "format", str(path), "")) == FORMAT
 
 
+def _header(f: Any, where: str) -> TPNetConfig:
+    """An open native file's format, version and storage checked, and its config."""
+    fmt = hdf5.py_value(hdf5.attr(f, "format", where, ""))
+    if fmt != FORMAT:
+        raise ValueError(f"{where}: not a tpnet_ref weights file (format attribute {fmt!r}); "
+                         "convert framework checkpoints with `tpnet import SRC DST`")
+    version = hdf5.py_value(hdf5.attr(f, "format_version", where, -1))
+    if version != FORMAT_VERSION:
+        raise ValueError(f"{where}: unsupported format_version {version!r} "
+                         f"(this reader knows {FORMAT_VERSION})")
+    if "config" not in f or "params" not in f:
+        raise ValueError(f"{where}: missing group 'config' or 'params'")
+    storage = hdf5.py_value(hdf5.attr(f, "storage", where, None))
+    if storage is not None and storage not in STORAGES:       # a newer writer's encoding
+        raise ValueError(f"{where}: unknown storage {storage!r} (this reader knows "
+                         f"{', '.join(STORAGES)})")
+    cfg_group = hdf5.safe_group(f, "config", where)
+    try:
+        return TPNetConfig.from_dict({k: hdf5.py_value(v)
+                                      for k, v in hdf5.attrs(cfg_group, where).items()})
+    except (TypeError, OverflowError) as exc:
+        raise ValueError(f"{where}: bad config ({exc})") from None
+
+
+@hdf5.damaged_file_is_value_error
+def read_config(path: str | os.PathLike) -> TPNetConfig:
+    """A native weights file's config alone, checked as :func:`read_native` checks it (its
+    parameters and digest are not read: ``tpnet eval`` learns a file's dim from it)."""
+    where = str(path)
+    with hdf5.open_h5(path) as f:
+        return _header(f, where)
+
+
 @hdf5.damaged_file_is_value_error
 def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndarray], dict[str, Any]]:
     """Read a native weights file -> ``(config, {name: array in the stored dtype}, meta)``
@@ -376,27 +409,8 @@ def read_native(path: str | os.PathLike) -> tuple[TPNetConfig, dict[str, np.ndar
                                     "the repository restores it)") from None
         raise
     with h as f:
-        fmt = hdf5.py_value(hdf5.attr(f, "format", where, ""))
-        if fmt != FORMAT:
-            raise ValueError(f"{where}: not a tpnet_ref weights file (format attribute {fmt!r}); "
-                             "convert framework checkpoints with `tpnet import SRC DST`")
-        version = hdf5.py_value(hdf5.attr(f, "format_version", where, -1))
-        if version != FORMAT_VERSION:
-            raise ValueError(f"{where}: unsupported format_version {version!r} "
-                             f"(this reader knows {FORMAT_VERSION})")
-        if "config" not in f or "params" not in f:
-            raise ValueError(f"{where}: missing group 'config' or 'params'")
-        storage = hdf5.py_value(hdf5.attr(f, "storage", where, None))
-        if storage is not None and storage not in STORAGES:       # a newer writer's encoding
-            raise ValueError(f"{where}: unknown storage {storage!r} (this reader knows "
-                             f"{', '.join(STORAGES)})")
-        cfg_group = hdf5.safe_group(f, "config", where)
+        cfg = _header(f, where)
         group = hdf5.safe_group(f, "params", where)
-        try:
-            cfg = TPNetConfig.from_dict({k: hdf5.py_value(v)
-                                         for k, v in hdf5.attrs(cfg_group, where).items()})
-        except (TypeError, OverflowError) as exc:
-            raise ValueError(f"{where}: bad config ({exc})") from None
         shapes = param_shapes(cfg)
         total = sum(int(np.prod(s)) for s in shapes.values())
         if total > hdf5.MAX_PARAMS:
@@ -572,6 +586,6 @@ def describe(path: str | os.PathLike) -> str:
     return "\n".join(out)
 
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "STORAGES", "write_native", "read_native", "is_native",
-           "convert_storage", "write_replacing", "extra_groups", "content_digest", "seal", "DIGEST_ATTR",
-           "UnverifiedFileWarning", "describe"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "STORAGES", "write_native", "read_native", "read_config",
+           "is_native", "convert_storage", "write_replacing", "extra_groups", "content_digest",
+           "seal", "DIGEST_ATTR", "UnverifiedFileWarning", "describe"]
