@@ -570,3 +570,36 @@ def test_numbas_cache_serves_networks_of_any_depth_in_later_processes(tmp_path):
         w = np.random.default_rng(1).uniform(5, 30, (3, cfg.m, 7, 2))
         want = init_random(cfg, seed=0).with_engine("numba").predict_batch(w)
         assert np.frombuffer(bytes.fromhex(hexed), dtype=want.dtype).tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("vectors", [1, 2, 3, 5, 8])
+def test_product_kernel_columns_do_not_depend_on_the_others_or_the_grouping(dtype, vectors):
+    """``numba_products.product``: each output column is its own chain of multiply-adds over
+    the non-zero inputs in order, however many vectors of columns a row has (odd counts take the
+    kernel's last single vector after its pairs) and however the rows are grouped (1-4 rows
+    per group): a matrix's first columns give the same bits alone and inside a wider matrix, a
+    row the same bits in every grouping, and the sums are the products' to rounding."""
+    lanes = 64 // np.dtype(dtype).itemsize
+    n, c, rows = vectors * lanes, 37, 11
+    rng = np.random.default_rng(vectors)
+    x = rng.standard_normal((rows, c)).astype(dtype)
+    x[rng.random(x.shape) < 0.4] = 0                              # ReLU-like zeros to skip
+    w = rng.standard_normal((c, n + lanes)).astype(dtype)         # one vector more
+
+    def run(weights, group_rows):
+        grp = np.array([[r, 1, min(group_rows, rows - r)] for r in range(0, rows, group_rows)],
+                       dtype=np.intp)
+        act = np.empty((len(grp), c), dtype=np.intp)
+        ns = np.empty(len(grp), dtype=np.intp)
+        NP.active(x, grp, act, ns)
+        out = np.empty((rows, weights.shape[1]), dtype=dtype)
+        NP.product(x, np.ascontiguousarray(weights), grp, act, ns, out)
+        return out
+
+    alone = run(w[:, :n], 4)
+    np.testing.assert_array_equal(run(w, 4)[:, :n], alone)
+    for g in (1, 2, 3):
+        np.testing.assert_array_equal(run(w[:, :n], g), alone)
+    tol = 1e-4 if dtype == "float32" else 1e-12
+    np.testing.assert_allclose(alone, x.astype(np.float64) @ w[:, :n], rtol=0, atol=tol)
