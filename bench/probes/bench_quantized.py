@@ -9,6 +9,7 @@ dynamic int8 (``onnxruntime.quantization.quantize_dynamic``, ``QuantType.QInt8``
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --sizes full --rounds 9
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --layers   # error per layer only
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --rollout  # 600-step rollouts only
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --wide-choice data/grid-m4.h5
 
 Per row: B = 1 latency (median over 64 windows of the scene, every peer called in turn, window
 by window: this VM's speed drifts), B = 256 throughput (one call on 256 windows, peers in turn),
@@ -241,6 +242,36 @@ def plot(rows: dict, path: str) -> None:
     print(f"wrote {path}")
 
 
+def wide_choice(data: str, size: str = "full") -> None:
+    """``--wide-choice DATA``: bf16's largest and median move from float32 over 256 windows of
+    DATA's *validation* trajectories (the training grid; the choice of which matrices get two
+    bf16 planes rests on these, never on the test cases), with no matrix in two planes, with
+    int8's four (:func:`tpnet_ref.weights.quantize.wide_names`) and with bf16's own set."""
+    from tpnet_ref.training.recipe import WindowData
+    from tpnet_ref.weights import quantize as Q
+    from tpnet_ref.weights.shipped import shipped_weights_path
+    d = WindowData(data, 0.05, 0)
+    rows = d.val_win[np.random.default_rng(0).choice(len(d.val_win), 256, replace=False)]
+    x, _ = d.gather(rows)
+    path = shipped_weights_path(4, size)
+    f32 = tpnet_ref.load(path, engine="numpy")
+    ref = f32.predict_batch(x, normalized=True)
+    scale = f32.config.norm_hi - f32.config.norm_lo
+    own = Q.wide_names
+    for label, names in (("one plane everywhere", lambda c, s="int8": []),
+                         ("int8's four in two planes", lambda c, s="int8": own(c, "int8")),
+                         ("bf16's set in two planes", own)):
+        Q.wide_names = names
+        try:
+            y = tpnet_ref.load(path, engine="numpy", weights="bf16").predict_batch(
+                x, normalized=True)
+        finally:
+            Q.wide_names = own
+        per = np.abs(y - ref).max(axis=(1, 2)) * scale
+        print(f"{size} bf16, {label:26s} largest move {per.max():.4f}, median "
+              f"{np.median(per):.4f} (world units, 256 validation windows)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="full,half,quarter",
@@ -253,6 +284,9 @@ def main(argv=None) -> int:
                     help="only the quantization's error per BiLSTM (float64 reference, 64 windows)")
     ap.add_argument("--rollout", action="store_true",
                     help="only 600-step rollouts from the 60 test cases: finite, bounded")
+    ap.add_argument("--wide-choice", default=None, metavar="DATA",
+                    help="only bf16's move from float32 on DATA's validation windows with each "
+                         "choice of two-plane matrices (the choice's evidence)")
     ap.add_argument("--json", default=None, metavar="FILE",
                     help="also write every row to this JSON file")
     ap.add_argument("--plot", default=None, metavar="PNG",
@@ -264,6 +298,10 @@ def main(argv=None) -> int:
     print(_common.machine())
     print(f"load average at start: {_common.load_average()}")
     t0 = time.time()
+    if args.wide_choice:
+        for size in args.sizes.split(","):
+            wide_choice(args.wide_choice, size)
+        return 0
     if args.layers or args.rollout:
         for size in args.sizes.split(","):
             (layers if args.layers else rollouts)(size)

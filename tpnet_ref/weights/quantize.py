@@ -71,8 +71,9 @@ def quantized_names(config: Any) -> list[str]:
 def wide_names(config: Any, scheme: str = "int8") -> list[str]:
     """The matrices ``scheme`` stores in two planes (see the module): BiLSTM 1's input kernels
     and the last BiLSTM's recurrent matrices, and for bf16 also the last BiLSTM's input kernels
-    (chosen on windows of test cases 8-23, not the benchmark's 0-7: with the int8 four, the
-    largest move there 0.0102; with these six, 0.0045)."""
+    (chosen on 256 windows of the training grid's validation trajectories, `python
+    bench/probes/bench_quantized.py --wide-choice data/grid-m4.h5 --sizes full`: with int8's
+    four, the largest move 0.0117; with these six, 0.0051)."""
     last = len(config.lstm_units)
     kinds = ("kernel", "recurrent") if check_scheme(scheme) == "bf16" else ("recurrent",)
     return list(dict.fromkeys([f"lstm1.{d}.kernel" for d in ("fwd", "bwd")] + [
