@@ -603,3 +603,32 @@ def test_product_kernel_columns_do_not_depend_on_the_others_or_the_grouping(dtyp
         np.testing.assert_array_equal(run(w[:, :n], g), alone)
     tol = 1e-4 if dtype == "float32" else 1e-12
     np.testing.assert_allclose(alone, x.astype(np.float64) @ w[:, :n], rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("vectors", [1, 2, 3, 4, 5, 7, 8])
+def test_tiled_product_gives_product_s_bits_in_every_tile(dtype, vectors):
+    """``numba_products.tiled_product`` (the feature extractor's tiles, sums held in registers):
+    every row and column the bits of ``product`` (one chain over the non-zero inputs in order),
+    dense tiles (one to three vectors) and sparse ones (four or more, each 4-row tile reading
+    only its non-zero inputs) alike, for any number of rows (the last tile's rows past them are
+    computed and ignored), whatever the neighbouring rows hold (NaN and inf included)."""
+    lanes = 64 // np.dtype(dtype).itemsize
+    n, c = vectors * lanes, 37
+    rng = np.random.default_rng(100 + vectors)
+    w = rng.standard_normal((c, n)).astype(dtype)
+    for rows in (1, 3, 4, 7, 8, 13):
+        x = np.zeros((-(-rows // NP.TILE_ROWS) * NP.TILE_ROWS, c), dtype=dtype)
+        x[:rows] = rng.standard_normal((rows, c))
+        x[:rows][rng.random((rows, c)) < 0.5] = 0                   # ReLU-like zeros
+        want = np.empty((rows, n), dtype=dtype)
+        grp = np.array([[r, 1, 1] for r in range(rows)], dtype=np.intp)
+        act, ns = np.empty((rows, c), dtype=np.intp), np.empty(rows, dtype=np.intp)
+        NP.active(x[:rows], grp, act, ns)
+        NP.product(x[:rows], w, grp, act, ns, want)
+        for fill in (0.0, np.nan, np.inf):
+            xt = x.copy()
+            xt[rows:] = fill                                             # rows past the last
+            out = np.full((xt.shape[0], n), 7.0, dtype=dtype)
+            NP.tiled_product(xt, w, rows, np.empty(c, dtype=np.intp), out)
+            np.testing.assert_array_equal(out[:rows].view(np.uint8), want.view(np.uint8))

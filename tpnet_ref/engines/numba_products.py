@@ -325,5 +325,161 @@ def project_dir(x, kern, out, steps, bsz):
     product(x[:, :], kern, grp, act, ns, out)
 
 
-__all__ = ["CHAIN", "GROUP_ROWS", "padded_columns", "pad_columns", "groups", "active", "product",
+# ------------------------------------------------------------------ the tile kernel
+
+#: the feature extractor's tiles (:func:`tiled_product`): rows of points x vectors of columns
+#: whose sums stay in registers over the whole chain (8 x 1 and 8 x 2 for layers of one or two
+#: vectors, 4 x 4 and a remainder of 1-3 vectors beside them for wider ones)
+TILE_ROWS = 8
+#: layers of at least this many vectors of columns read only the weight rows of each 4-row
+#: tile's non-zero inputs (narrower ones every row: there, finding them costs what it saves)
+TILE_SPARSE_FROM = 4
+
+
+def _tile_kernel(rows: int, vecs: int):
+    """An intrinsic ``t(x, r0, w, c0, out, act, n)``: for the rows ``r0 .. r0 + rows - 1`` and
+    the vectors of columns ``c0 .. c0 + vecs - 1``, ``out[r] = fma(x[r, k_last], w[k_last],
+    ... fma(x[r, k_0], w[k_0], +0))`` over ``k = act[0 .. n-1]`` in that order; the
+    ``rows * vecs`` sums are held in registers for the whole chain (phi nodes), the weights
+    and ``x`` read once per step, every sum stored once. The same chain as
+    :func:`_row_kernel`'s, so the same bits for the same ``k`` (and a ``k`` whose input is 0
+    adds ``fma(0, w, s) = s`` exactly)."""
+
+    @intrinsic
+    def kernel(typingctx, x, r0, w, c0, out, act, n):
+        ok = (isinstance(x, types.Array) and isinstance(w, types.Array)
+              and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
+              and x.dtype == out.dtype == w.dtype and w.layout == "C"
+              and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
+        if not ok:
+            return None
+        sig = types.void(x, r0, w, c0, out, act, n)
+
+        def codegen(context, builder, signature, args):
+            xa, wa, oa, aa = (context.make_array(signature.args[i])(context, builder, args[i])
+                              for i in (0, 2, 4, 5))
+            r0i, c0i, nk = (context.cast(builder, args[i], signature.args[i], types.intp)
+                            for i in (1, 3, 6))
+            elt = context.get_value_type(signature.args[0].dtype)
+            size = signature.args[0].dtype.bitwidth // 8
+            lanes = _VECTOR_BYTES // size
+            vty = ir.VectorType(elt, lanes)
+            intp = context.get_value_type(types.intp)
+            fma = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(vty, [vty] * 3), f"llvm.fma.v{lanes}f{size * 8}")
+            undef = ir.Constant(vty, ir.Undefined)
+            splat = ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes)
+            zero = ir.Constant(vty, [0.0] * lanes)
+            coff = builder.mul(c0i, ir.Constant(intp, lanes))
+            ncol = builder.extract_value(wa.shape, 1)
+
+            def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
+                stride = builder.extract_value(arr.strides, 0)
+                p = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()),
+                                [builder.mul(row, stride)])
+                return builder.bitcast(p, elt.as_pointer())
+
+            rowi = [builder.add(r0i, ir.Constant(intp, r)) for r in range(rows)]
+            xrows = [row_ptr(xa, r) for r in rowi]
+            orows = [builder.gep(row_ptr(oa, r), [coff]) for r in rowi]
+            wbase = builder.gep(wa.data, [coff])
+            pre = builder.basic_block
+            loop = builder.append_basic_block("tile.loop")
+            after = builder.append_basic_block("tile.after")
+            builder.cbranch(builder.icmp_signed(">", nk, ir.Constant(intp, 0)), loop, after)
+            builder.position_at_end(loop)
+            j = builder.phi(intp)
+            sums = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
+            k = builder.load(builder.gep(aa.data, [j]))
+            wrow = builder.gep(wbase, [builder.mul(k, ncol)])
+            wv = [builder.load(builder.bitcast(builder.gep(wrow, [ir.Constant(intp, v * lanes)]),
+                                               vty.as_pointer()), align=size) for v in range(vecs)]
+            new = []
+            for r in range(rows):
+                xv = builder.shuffle_vector(builder.insert_element(
+                    undef, builder.load(builder.gep(xrows[r], [k])), ir.Constant(ir.IntType(32), 0)),
+                    undef, splat)
+                new.append([builder.call(fma, [xv, wv[v], sums[r][v]]) for v in range(vecs)])
+            jn = builder.add(j, ir.Constant(intp, 1))
+            end = builder.basic_block
+            j.add_incoming(ir.Constant(intp, 0), pre)
+            j.add_incoming(jn, end)
+            for r in range(rows):
+                for v in range(vecs):
+                    sums[r][v].add_incoming(zero, pre)
+                    sums[r][v].add_incoming(new[r][v], end)
+            builder.cbranch(builder.icmp_signed("<", jn, nk), loop, after)
+            builder.position_at_end(after)
+            final = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
+            for r in range(rows):
+                for v in range(vecs):
+                    final[r][v].add_incoming(zero, pre)
+                    final[r][v].add_incoming(new[r][v], end)
+            for r in range(rows):
+                for v in range(vecs):
+                    builder.store(final[r][v], builder.bitcast(
+                        builder.gep(orows[r], [ir.Constant(intp, v * lanes)]), vty.as_pointer()),
+                        align=size)
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return kernel
+
+
+_T81, _T82, _T41, _T42, _T43, _T44 = (_tile_kernel(r, v) for r, v in
+                                       ((8, 1), (8, 2), (4, 1), (4, 2), (4, 3), (4, 4)))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tile_row(x, r0, w, nvec, out, act, n):
+    """:func:`_tile_kernel`'s 4-row tiles across all ``nvec`` vectors of columns."""
+    c = 0
+    while c + 4 <= nvec:
+        _T44(x, r0, w, c, out, act, n)
+        c += 4
+    rem = nvec - c
+    if rem == 3:
+        _T43(x, r0, w, c, out, act, n)
+    elif rem == 2:
+        _T42(x, r0, w, c, out, act, n)
+    elif rem == 1:
+        _T41(x, r0, w, c, out, act, n)
+
+
+@njit(cache=True, nogil=True)
+def tiled_product(x, w, rows, act, out):
+    """``out[r] = x[r] @ w`` for the rows ``r < rows`` rounded up to :data:`TILE_ROWS` (``x``
+    and ``out`` must have them; rows past ``rows`` are computed from whatever they hold and
+    mean nothing), ``w (C, N)`` C-contiguous, N whole 64-byte vectors; ``act``: work array of
+    ``C`` indices. Every sum is one chain of fused multiply-adds from +0 over the inputs in
+    increasing order (layers of :data:`TILE_SPARSE_FROM` vectors or more: only each 4-row
+    tile's non-zero inputs), the chain :func:`product` computes: the same bits."""
+    c = x.shape[1]
+    nvec = w.shape[1] * w.itemsize // _VECTOR_BYTES
+    top = -(-rows // TILE_ROWS) * TILE_ROWS
+    if nvec < TILE_SPARSE_FROM:
+        for k in range(c):
+            act[k] = k
+    if nvec == 1 or nvec == 2:
+        for r0 in range(0, top, 8):
+            if nvec == 1:
+                _T81(x, r0, w, 0, out, act, c)
+            else:
+                _T82(x, r0, w, 0, out, act, c)
+        return
+    for r0 in range(0, top, 4):
+        n = c
+        if nvec >= TILE_SPARSE_FROM:
+            n = 0
+            for k in range(c):
+                for i in range(4):
+                    if x[r0 + i, k] != 0:
+                        act[n] = k
+                        n += 1
+                        break
+        _tile_row(x, r0, w, nvec, out, act, n)
+
+
+__all__ = ["CHAIN", "GROUP_ROWS", "TILE_ROWS", "TILE_SPARSE_FROM", "tiled_product", "padded_columns", "pad_columns", "groups", "active", "product",
            "project_dir"]
