@@ -38,7 +38,8 @@ SMALL_PRODUCT = 1_000_000
 BLOCK_COLUMNS = 64
 
 _LOCK = threading.Lock()
-_STATE: dict[str, Any] = {"controllers": None, "modules": 0, "depth": 0, "saved": []}
+_STATE: dict[str, Any] = {"controllers": None, "modules": 0, "depth": 0, "saved": [],
+                          "calls": {}}
 
 
 def cpu_count() -> int:
@@ -66,6 +67,27 @@ def _controllers() -> list[Any]:
     return _STATE["controllers"]
 
 
+def _calls(ctl: Any) -> tuple[Any, Any]:
+    """``(get, set)`` of a controller's thread count, found once per controller: the library's
+    own C functions where threadpoolctl's OpenBLAS controller names them (a ctypes call each,
+    ~0.2 us, where threadpoolctl's methods look the symbol up on every call, ~1 us), else
+    :meth:`get_num_threads` and :func:`_set_threads`."""
+    got = _STATE["calls"].get(id(ctl))
+    if got is None or got[0] is not ctl:
+        get = lambda: ctl.get_num_threads()  # noqa: E731
+        put = lambda n: _set_threads(ctl, n)  # noqa: E731
+        try:
+            omp = getattr(ctl, "threading_layer", None) == "openmp"
+            g = ctl._get_symbol("omp_get_max_threads" if omp else "openblas_get_num_threads")
+            p = ctl._get_symbol("omp_set_num_threads" if omp else "openblas_set_num_threads")
+            if g is not None and p is not None and hasattr(ctl, "_real_set_num_threads"):
+                get, put = g, p
+        except Exception:   # another threadpoolctl: its public methods
+            pass
+        got = _STATE["calls"][id(ctl)] = (ctl, get, put)
+    return got[1], got[2]
+
+
 def _set_threads(ctl: Any, n: int) -> None:
     """Set a BLAS library's thread count from whichever thread calls. threadpoolctl (3.x)
     lets only the first Python thread that set OpenBLAS's count (while it lives) change it and
@@ -80,12 +102,13 @@ def _set_threads(ctl: Any, n: int) -> None:
 def one_thread() -> Iterator[None]:
     """A one-thread BLAS inside the block (process-wide; the previous thread counts come back
     when the last of any nested or concurrent blocks ends)."""
-    ctls = _controllers()
+    calls = [_calls(c) for c in _controllers()]
     with _LOCK:
         if _STATE["depth"] == 0:
-            _STATE["saved"] = [c.get_num_threads() for c in ctls]
-            for c in ctls:
-                _set_threads(c, 1)
+            _STATE["saved"] = [get() for get, _ in calls]
+            for (_, put), n in zip(calls, _STATE["saved"]):
+                if n != 1:
+                    put(1)
         _STATE["depth"] += 1
     try:
         yield
@@ -93,8 +116,9 @@ def one_thread() -> Iterator[None]:
         with _LOCK:
             _STATE["depth"] -= 1
             if _STATE["depth"] == 0:
-                for c, n in zip(ctls, _STATE["saved"]):
-                    _set_threads(c, n)
+                for (_, put), n in zip(calls, _STATE["saved"]):
+                    if n != 1:
+                        put(n)
 
 
 def in_one_thread() -> bool:
