@@ -114,8 +114,8 @@ def test_permutation_invariance_is_bit_identical_under_the_engine(released_nb64,
 
 def test_large_batches_take_the_engine_head_and_numpys_features_and_agree(released64,
                                                                            released_nb64):
-    """Every batch runs on the engine's head (a split one's chunks too); batches of more than
-    ENGINE_MAX_BATCH windows take the NumPy feature extractor."""
+    """Every batch runs on the engine's head and its feature extractor (a split one's chunks
+    too), and agrees with the NumPy engine."""
     rng = np.random.default_rng(8)
     wins = _windows(rng, M.ENGINE_MAX_BATCH + 1)
     for b in (1, len(wins), M.SPLIT_MIN_BATCH + 3):
@@ -528,7 +528,8 @@ def test_the_engine_takes_its_feature_extractor_for_the_batches_its_head_runs(sh
     pts, counts = _canonical(nb, w)
     assert np.array_equal(nb.frame_features(pts, counts, 1), nb.engine_features(pts, counts))
     assert np.array_equal(nb.frame_features(pts, counts, M.ENGINE_MAX_BATCH + 1),
-                          nb.features(pts, counts))
+                          nb.engine_features(pts, counts))
+    assert nb.engine_features.serves(10_000)
 
 
 _CACHED_RUN = """
@@ -632,3 +633,32 @@ def test_tiled_product_gives_product_s_bits_in_every_tile(dtype, vectors):
             out = np.full((xt.shape[0], n), 7.0, dtype=dtype)
             NP.tiled_product(xt, w, rows, np.empty(c, dtype=np.intp), out)
             np.testing.assert_array_equal(out[:rows].view(np.uint8), want.view(np.uint8))
+
+
+@pytest.mark.parametrize("codes", ["float32", "float64", "int8", "bf16", "bf16 planes"])
+def test_product_rows_gives_product_s_bits_for_every_row_count(codes):
+    """``numba_products.product_rows`` (the prediction network's tiles for batches): whole 4-row
+    tiles and the rows left over give, row by row, the bits of ``product`` on the same weights,
+    float or codes (int8, bf16 in one plane or two), for 1 to 9 rows."""
+    dtype = "float64" if codes == "float64" else "float32"
+    lanes = 64 // np.dtype(dtype).itemsize
+    rng = np.random.default_rng(len(codes))
+    c, n = 29, 5 * lanes
+    if codes == "int8":
+        w = rng.integers(-127, 128, size=(c, n)).astype(np.int8)
+    elif codes.startswith("bf16"):
+        w = (rng.standard_normal((2 * c if "planes" in codes else c, n)).astype(np.float32)
+             .view(np.uint32) >> 16).astype(np.uint16)
+    else:
+        w = rng.standard_normal((c, n)).astype(dtype)
+    for rows in range(1, 10):
+        x = rng.standard_normal((rows, c)).astype(dtype)
+        x[rng.random(x.shape) < 0.5] = 0
+        grp = np.array([[r, 1, 1] for r in range(rows)], dtype=np.intp)
+        act, ns = np.empty((rows, c), dtype=np.intp), np.empty(rows, dtype=np.intp)
+        NP.active(x, grp, act, ns)
+        want = np.empty((rows, n), dtype=dtype)
+        NP.product(x, w, grp, act, ns, want)
+        got = np.full((rows, n), 7.0, dtype=dtype)
+        NP.product_rows(x, w, np.empty(c, dtype=np.intp), got)
+        np.testing.assert_array_equal(got.view(np.uint8), want.view(np.uint8))

@@ -72,12 +72,12 @@ def test_a_network_without_a_unit_order_and_short_rollouts(released_random64, ca
 def test_only_the_numba_engines_own_batches_are_fused(released_random64, calls, monkeypatch):
     model = released_random64.astype("float32").with_engine("numba")
     monkeypatch.setenv("TPNET_THREADS", "1")
-    model.rollout_batch(_windows(9), 10)                   # NumPy's feature extractor at 9
     model.with_engine("numpy").rollout(_windows(1)[0], 10)
     model.with_point_sort(False).rollout(_windows(1)[0], 10)
     assert calls == []
     model.rollout_batch(_windows(8), 10)
-    assert calls == [ER.STEPS_FIRST]
+    model.rollout_batch(_windows(9), 10)                   # its extractor serves every batch
+    assert calls == [ER.STEPS_FIRST, ER.STEPS_FIRST]
 
 
 def test_an_overflow_in_the_compiled_steps_is_the_step_by_step_error(released_random64,

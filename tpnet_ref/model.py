@@ -186,11 +186,11 @@ class TPNet:
                        batch: int | None = None) -> np.ndarray:
         """Global feature of every frame: ``points (P, dim)`` frame after frame, each in
         canonical order, ``counts (F,)`` -> ``(F, global_features)``. ``batch``: the windows
-        they belong to; a batch the numba head runs (up to ``ENGINE_MAX_BATCH`` windows) takes
-        the compiled extractor (its frames on two threads when the call's thread plan offers
-        a second one; the same bits either way), anything else the NumPy one."""
+        they belong to; a batch the compiled extractor serves (the Numba engine's: every
+        batch) takes it (its frames on two threads when the call's thread plan offers a second
+        one; the same bits either way), anything else the NumPy one."""
         if (self.engine_features is not None and batch is not None
-                and batch <= ENGINE_MAX_BATCH):
+                and self.engine_features.serves(batch)):
             return self.engine_features(points, counts, two_threads())
         return self.features(points, counts)
 
@@ -225,7 +225,7 @@ class TPNet:
             return one_thread()
         # the Numba engine's own kernels alone (its feature extractor, its head): no BLAS product
         blas_free = (head.name == "numba" and self.engine_features is not None
-                     and batch <= ENGINE_MAX_BATCH)
+                     and self.engine_features.serves(batch))
         return adaptive((id(self), what, batch, points), held, blas_free)
 
     def preferred_threads(self, what: str = "predict", batch: int = 1, points: int = 0) -> int | None:

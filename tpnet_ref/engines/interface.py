@@ -35,9 +35,10 @@ from .numpy_engine import NumpyHead
 #: :mod:`tpnet_ref.engines.numba_engine`; extra ``metrics``), "auto" (numba when installed)
 ENGINES = ("numpy", "numba", "auto")
 #: the numba head runs batches of every size (faster than the NumPy head at 1 to 64 windows, and
-#: free of the GIL, so a split batch's chunks run side by side); its compiled feature extractor
-#: takes batches of up to this many windows, larger ones NumPy's (BLAS products of many rows,
-#: faster there: docs/performance.md)
+#: free of the GIL, so a split batch's chunks run side by side), and its compiled feature
+#: extractor too (1.6-2.4x NumPy's BLAS products at 16 and 64 windows: docs/performance.md); a
+#: specialised model's numba head runs batches of up to this many windows, the larger ones go
+#: to the specialised head
 ENGINE_MAX_BATCH = 8
 
 
@@ -100,7 +101,7 @@ def build_features(model: Any, engine: str) -> Any:
     if not engine_numba.NumbaFeatures.supports(model.config):
         return None
     features = engine_numba.NumbaFeatures(model.config, model.params, model.dtype)
-    features.max_batch = ENGINE_MAX_BATCH       # the batches it serves (TPNet.frame_features)
+    features.max_batch = None                   # it serves every batch (TPNet.frame_features)
     return features
 
 

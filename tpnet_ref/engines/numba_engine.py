@@ -1,7 +1,7 @@
 """The Numba engine (``load()``'s default where numba is installed): TP-Net's prediction
 network (BiLSTMs, LayerNorms, head) as one compiled function, :class:`NumbaHead`, for every
-batch, and its feature extractor as another, :class:`NumbaFeatures`, for batches of up to
-:data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH` windows. ``TPNet(..., engine="numba")`` or
+batch, and its feature extractor as another, :class:`NumbaFeatures`, for every batch too.
+``TPNet(..., engine="numba")`` or
 ``model.with_engine("numba")``; needs numba (the ``metrics`` extra). The NumPy path
 (:func:`tpnet_ref.engines.layers.bilstm_steps`, :func:`tpnet_ref.engines.layers.project_layer_norm`,
 :class:`tpnet_ref.engines.numpy_engine.NumpyFeatures`, specified by :mod:`tpnet_ref.engines.reference`) is the
@@ -94,6 +94,13 @@ class NumbaFeatures:
         self.gw, self.gb = ws[-1], bs[-1]
         self.k = int(config.global_features)
         self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
+
+    #: the largest batch it serves (None: any; set by :func:`tpnet_ref.engines.interface.build_features`)
+    max_batch: int | None = None
+
+    def serves(self, batch: int) -> bool:
+        """Whether it computes the features of batches of ``batch`` windows."""
+        return self.max_batch is None or batch <= self.max_batch
 
     @staticmethod
     def supports(config: Any) -> bool:

@@ -48,7 +48,8 @@ from llvmlite import ir  # noqa: E402
 from numba import njit, prange, types  # noqa: E402
 from numba.extending import intrinsic, overload  # noqa: E402
 
-from .numba_products import GROUP_ROWS, active, groups, product, project_dir  # noqa: E402
+from .numba_products import (GROUP_ROWS, TILE_BATCH, active, groups, product,  # noqa: E402
+                              product_rows, project_dir)
 
 @intrinsic
 def _pow2_of(typingctx, k):
@@ -162,7 +163,8 @@ def _recur_dir(xs, d, rec, rsc, hs, u, steps, bsz, relu, one):
     what ``h[k]`` adds to the pre-activations), ``hs (T*B, 2u)`` receives ``h`` at columns
     ``d*u ..`` (Keras's re-aligned backward output: row ``t`` of the backward direction is its
     state after consuming steps ``T-1 .. t``). Windows go in groups of ``GROUP_ROWS``; each
-    step reads only the rows of ``rec`` that a non-zero ``h[k]`` of the group multiplies;
+    step reads only the rows of ``rec`` that a non-zero ``h[k]`` of the group multiplies
+    (batches of ``TILE_BATCH`` windows or more: :func:`product_rows`' 4-row tiles);
     ``rsc (N,)``: int8 weights' scale per column, applied to the sum (empty: none)."""
     dt = hs.dtype
     h = np.zeros((bsz, u), dtype=dt)
@@ -174,7 +176,11 @@ def _recur_dir(xs, d, rec, rsc, hs, u, steps, bsz, relu, one):
     hin = h if rec.shape[0] == u or not _int8(rec) else np.zeros((bsz, rec.shape[0]), dtype=dt)
     for s in range(steps):
         t = s if d == 0 else steps - 1 - s
-        if s > 0:                             # h = 0 at the first step
+        if s > 0 and bsz >= TILE_BATCH:       # h = 0 at the first step
+            planes(h, hin)
+            product_rows(hin[:, :], rec, act[0], acc[:, :])
+            scale_rows(acc, rsc)
+        elif s > 0:
             planes(h, hin)
             active(hin[:, :], grp, act, ns)
             product(hin[:, :], rec, grp, act, ns, acc[:, :])

@@ -317,7 +317,11 @@ def product(x, w, grp, act, ns, out):
 @njit(cache=True, nogil=True)
 def project_dir(x, kern, out, steps, bsz):
     """One direction's product ``out = x @ kern`` (no bias) for the ``T*B`` time-major rows of
-    ``x``, each window's steps in groups reading only the kernel rows of their non-zero inputs."""
+    ``x``, each window's steps in groups reading only the kernel rows of their non-zero inputs
+    (batches of :data:`TILE_BATCH` windows or more: :func:`product_rows`' tiles)."""
+    if bsz >= TILE_BATCH:
+        product_rows(x[:, :], kern, np.empty(x.shape[1], dtype=np.intp), out)
+        return
     grp = groups(steps, bsz, True)
     act = np.empty((grp.shape[0], x.shape[1]), dtype=np.intp)
     ns = np.empty(grp.shape[0], dtype=np.intp)
@@ -343,17 +347,20 @@ def _tile_kernel(rows: int, vecs: int):
     ``rows * vecs`` sums are held in registers for the whole chain (phi nodes), the weights
     and ``x`` read once per step, every sum stored once. The same chain as
     :func:`_row_kernel`'s, so the same bits for the same ``k`` (and a ``k`` whose input is 0
-    adds ``fma(0, w, s) = s`` exactly)."""
+    adds ``fma(0, w, s) = s`` exactly); weights of fewer bits widened as there (:func:`_widen`,
+    bf16's two planes by :func:`_widen_planes`, decided once per call, outside the loop)."""
 
     @intrinsic
     def kernel(typingctx, x, r0, w, c0, out, act, n):
         ok = (isinstance(x, types.Array) and isinstance(w, types.Array)
               and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
-              and x.dtype == out.dtype == w.dtype and w.layout == "C"
+              and x.dtype == out.dtype and w.layout == "C"
+              and (w.dtype == x.dtype or (x.dtype == types.float32 and w.dtype in _CODES))
               and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
         if not ok:
             return None
         sig = types.void(x, r0, w, c0, out, act, n)
+        wdtype = w.dtype
 
         def codegen(context, builder, signature, args):
             xa, wa, oa, aa = (context.make_array(signature.args[i])(context, builder, args[i])
@@ -372,6 +379,7 @@ def _tile_kernel(rows: int, vecs: int):
             zero = ir.Constant(vty, [0.0] * lanes)
             coff = builder.mul(c0i, ir.Constant(intp, lanes))
             ncol = builder.extract_value(wa.shape, 1)
+            welt = context.get_value_type(wdtype)
 
             def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
                 stride = builder.extract_value(arr.strides, 0)
@@ -382,44 +390,59 @@ def _tile_kernel(rows: int, vecs: int):
             rowi = [builder.add(r0i, ir.Constant(intp, r)) for r in range(rows)]
             xrows = [row_ptr(xa, r) for r in rowi]
             orows = [builder.gep(row_ptr(oa, r), [coff]) for r in rowi]
-            wbase = builder.gep(wa.data, [coff])
-            pre = builder.basic_block
-            loop = builder.append_basic_block("tile.loop")
-            after = builder.append_basic_block("tile.after")
-            builder.cbranch(builder.icmp_signed(">", nk, ir.Constant(intp, 0)), loop, after)
-            builder.position_at_end(loop)
-            j = builder.phi(intp)
-            sums = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
-            k = builder.load(builder.gep(aa.data, [j]))
-            wrow = builder.gep(wbase, [builder.mul(k, ncol)])
-            wv = [builder.load(builder.bitcast(builder.gep(wrow, [ir.Constant(intp, v * lanes)]),
-                                               vty.as_pointer()), align=size) for v in range(vecs)]
-            new = []
-            for r in range(rows):
-                xv = builder.shuffle_vector(builder.insert_element(
-                    undef, builder.load(builder.gep(xrows[r], [k])), ir.Constant(ir.IntType(32), 0)),
-                    undef, splat)
-                new.append([builder.call(fma, [xv, wv[v], sums[r][v]]) for v in range(vecs)])
-            jn = builder.add(j, ir.Constant(intp, 1))
-            end = builder.basic_block
-            j.add_incoming(ir.Constant(intp, 0), pre)
-            j.add_incoming(jn, end)
-            for r in range(rows):
-                for v in range(vecs):
-                    sums[r][v].add_incoming(zero, pre)
-                    sums[r][v].add_incoming(new[r][v], end)
-            builder.cbranch(builder.icmp_signed("<", jn, nk), loop, after)
-            builder.position_at_end(after)
-            final = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
-            for r in range(rows):
-                for v in range(vecs):
-                    final[r][v].add_incoming(zero, pre)
-                    final[r][v].add_incoming(new[r][v], end)
-            for r in range(rows):
-                for v in range(vecs):
-                    builder.store(final[r][v], builder.bitcast(
-                        builder.gep(orows[r], [ir.Constant(intp, v * lanes)]), vty.as_pointer()),
-                        align=size)
+            def tile(planes):             # the loop; planes: bf16 pairs, 2N per row
+                two = ir.Constant(intp, 2 if planes else 1)
+                wbase = builder.gep(wa.data, [builder.mul(coff, two)])
+                pre = builder.basic_block
+                loop = builder.append_basic_block("tile.loop")
+                after = builder.append_basic_block("tile.after")
+                builder.cbranch(builder.icmp_signed(">", nk, ir.Constant(intp, 0)), loop, after)
+                builder.position_at_end(loop)
+                j = builder.phi(intp)
+                sums = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
+                k = builder.load(builder.gep(aa.data, [j]))
+                wrow = builder.gep(wbase, [builder.mul(builder.mul(k, ncol), two)])
+                wptr = [builder.gep(wrow, [ir.Constant(intp, v * lanes * (2 if planes else 1))])
+                        for v in range(vecs)]
+                wv = [_widen_planes(builder, ptr, lanes, vty, fma) if planes else
+                      _widen(builder, ptr, wdtype, welt, lanes, vty, size) for ptr in wptr]
+                new = []
+                for r in range(rows):
+                    xv = builder.shuffle_vector(builder.insert_element(
+                        undef, builder.load(builder.gep(xrows[r], [k])),
+                        ir.Constant(ir.IntType(32), 0)), undef, splat)
+                    new.append([builder.call(fma, [xv, wv[v], sums[r][v]]) for v in range(vecs)])
+                jn = builder.add(j, ir.Constant(intp, 1))
+                end = builder.basic_block
+                j.add_incoming(ir.Constant(intp, 0), pre)
+                j.add_incoming(jn, end)
+                for r in range(rows):
+                    for v in range(vecs):
+                        sums[r][v].add_incoming(zero, pre)
+                        sums[r][v].add_incoming(new[r][v], end)
+                builder.cbranch(builder.icmp_signed("<", jn, nk), loop, after)
+                builder.position_at_end(after)
+                final = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
+                for r in range(rows):
+                    for v in range(vecs):
+                        final[r][v].add_incoming(zero, pre)
+                        final[r][v].add_incoming(new[r][v], end)
+                for r in range(rows):
+                    for v in range(vecs):
+                        builder.store(final[r][v], builder.bitcast(
+                            builder.gep(orows[r], [ir.Constant(intp, v * lanes)]),
+                            vty.as_pointer()), align=size)
+
+            if wdtype != types.uint16:
+                tile(False)
+                return context.get_dummy_value()
+            two = builder.icmp_unsigned("==", builder.extract_value(wa.shape, 0), builder.mul(
+                builder.extract_value(xa.shape, 1), ir.Constant(intp, 2)))
+            with builder.if_else(two) as (then, other):
+                with then:
+                    tile(True)
+                with other:
+                    tile(False)
             return context.get_dummy_value()
 
         return sig, codegen
@@ -456,7 +479,7 @@ def tiled_product(x, w, rows, act, out):
     increasing order (layers of :data:`TILE_SPARSE_FROM` vectors or more: only each 4-row
     tile's non-zero inputs), the chain :func:`product` computes: the same bits."""
     c = x.shape[1]
-    nvec = w.shape[1] * w.itemsize // _VECTOR_BYTES
+    nvec = w.shape[1] * x.itemsize // _VECTOR_BYTES
     top = -(-rows // TILE_ROWS) * TILE_ROWS
     if nvec < TILE_SPARSE_FROM:
         for k in range(c):
@@ -481,5 +504,39 @@ def tiled_product(x, w, rows, act, out):
         _tile_row(x, r0, w, nvec, out, act, n)
 
 
-__all__ = ["CHAIN", "GROUP_ROWS", "TILE_ROWS", "TILE_SPARSE_FROM", "tiled_product", "padded_columns", "pad_columns", "groups", "active", "product",
+#: batches of at least this many windows take :func:`product_rows` in the prediction network
+#: (tiles of 4 rows across windows; below, each window's steps stream the weight rows together)
+TILE_BATCH = 2
+
+
+@njit(cache=True, nogil=True)
+def product_rows(x, w, act, out):
+    """``out[r] = x[r] @ w`` for every row of ``x (R, C)``: whole 4-row tiles by
+    :func:`_tile_kernel` (each reading only the weight rows of its rows' non-zero inputs, the
+    sums in registers), the last ``R % 4`` rows by :func:`product`; every sum the chain
+    :func:`product` computes, so the same bits. ``w`` float or codes (as :func:`product`);
+    ``act``: work array of ``C`` indices."""
+    rows = x.shape[0]
+    c = x.shape[1]
+    nvec = w.shape[1] * x.itemsize // _VECTOR_BYTES
+    full = rows - rows % 4
+    for r0 in range(0, full, 4):
+        n = 0
+        for k in range(c):
+            for i in range(4):
+                if x[r0 + i, k] != 0:
+                    act[n] = k
+                    n += 1
+                    break
+        _tile_row(x, r0, w, nvec, out, act, n)
+    if full < rows:
+        grp = np.empty((1, 3), dtype=np.intp)
+        grp[0, 0], grp[0, 1], grp[0, 2] = full, 1, rows - full
+        ns = np.empty(1, dtype=np.intp)
+        rest = np.empty((1, c), dtype=np.intp)
+        active(x, grp, rest, ns)
+        product(x, w, grp, rest, ns, out)
+
+
+__all__ = ["CHAIN", "GROUP_ROWS", "TILE_ROWS", "TILE_SPARSE_FROM", "TILE_BATCH", "tiled_product", "product_rows", "padded_columns", "pad_columns", "groups", "active", "product",
            "project_dir"]

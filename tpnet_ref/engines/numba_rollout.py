@@ -87,7 +87,7 @@ def fusable(model, batch: int) -> bool:
     specialised head), 2-D points in canonical order."""
     head = model.head_for(batch)
     return (head.name == "numba" and model.engine_features is not None
-            and batch <= model.engine_features.max_batch and model.config.dim == 2
+            and model.engine_features.serves(batch) and model.config.dim == 2
             and model.sort_points)
 
 
