@@ -662,3 +662,16 @@ def test_product_rows_gives_product_s_bits_for_every_row_count(codes):
         got = np.full((rows, n), 7.0, dtype=dtype)
         NP.product_rows(x, w, np.empty(c, dtype=np.intp), got)
         np.testing.assert_array_equal(got.view(np.uint8), want.view(np.uint8))
+
+
+def test_a_window_gets_the_same_bits_alone_and_in_a_batch_of_any_size(shipped):
+    """The Numba engine's feature extractor serves every batch and its network computes each
+    row on its own (tiles of 4 rows across windows included): a window's prediction and rollout
+    are the same bits alone and in batches of 2, 9 and 70 windows (a split batch's chunks)."""
+    nb = shipped.with_engine("numba")
+    rng = np.random.default_rng(70)
+    wins = _windows(rng, 70).astype(np.float32)
+    alone = np.stack([nb.predict(w) for w in wins[:9]])
+    for b in (2, 9, 70):
+        np.testing.assert_array_equal(nb.predict_batch(wins[:b])[:min(b, 9)], alone[:min(b, 9)])
+    np.testing.assert_array_equal(nb.rollout_batch(wins[:9], 3)[4], nb.rollout(wins[4], 3))

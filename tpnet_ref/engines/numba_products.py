@@ -340,6 +340,54 @@ TILE_ROWS = 8
 TILE_SPARSE_FROM = 4
 
 
+def _tile_loop(builder, k, planes):
+    """The loop of a :func:`_tile_kernel` call (``k``: the call's values): ``k.rows x k.vecs``
+    sums in phi nodes, one step per input ``act[j]`` (its weight vectors widened, each row's
+    input broadcast), then every sum stored. ``planes``: bf16 pairs, 2N codes per row."""
+    intp, vty, lanes, rows, vecs = k.intp, k.vty, k.lanes, k.rows, k.vecs
+    two = ir.Constant(intp, 2 if planes else 1)
+    wbase = builder.gep(k.wdata, [builder.mul(k.coff, two)])
+    pre = builder.basic_block
+    loop = builder.append_basic_block("tile.loop")
+    after = builder.append_basic_block("tile.after")
+    builder.cbranch(builder.icmp_signed(">", k.nk, ir.Constant(intp, 0)), loop, after)
+    builder.position_at_end(loop)
+    j = builder.phi(intp)
+    sums = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
+    kk = builder.load(builder.gep(k.adata, [j]))
+    wrow = builder.gep(wbase, [builder.mul(builder.mul(kk, k.ncol), two)])
+    wptr = [builder.gep(wrow, [ir.Constant(intp, v * lanes * (2 if planes else 1))])
+            for v in range(vecs)]
+    wv = [_widen_planes(builder, ptr, lanes, vty, k.fma) if planes else
+          _widen(builder, ptr, k.wdtype, k.welt, lanes, vty, k.size) for ptr in wptr]
+    new = []
+    for r in range(rows):
+        xv = builder.shuffle_vector(builder.insert_element(
+            k.undef, builder.load(builder.gep(k.xrows[r], [kk])),
+            ir.Constant(ir.IntType(32), 0)), k.undef, k.splat)
+        new.append([builder.call(k.fma, [xv, wv[v], sums[r][v]]) for v in range(vecs)])
+    jn = builder.add(j, ir.Constant(intp, 1))
+    end = builder.basic_block
+    j.add_incoming(ir.Constant(intp, 0), pre)
+    j.add_incoming(jn, end)
+    for r in range(rows):
+        for v in range(vecs):
+            sums[r][v].add_incoming(k.zero, pre)
+            sums[r][v].add_incoming(new[r][v], end)
+    builder.cbranch(builder.icmp_signed("<", jn, k.nk), loop, after)
+    builder.position_at_end(after)
+    final = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
+    for r in range(rows):
+        for v in range(vecs):
+            final[r][v].add_incoming(k.zero, pre)
+            final[r][v].add_incoming(new[r][v], end)
+    for r in range(rows):
+        for v in range(vecs):
+            builder.store(final[r][v], builder.bitcast(
+                builder.gep(k.orows[r], [ir.Constant(intp, v * lanes)]), vty.as_pointer()),
+                align=k.size)
+
+
 def _tile_kernel(rows: int, vecs: int):
     """An intrinsic ``t(x, r0, w, c0, out, act, n)``: for the rows ``r0 .. r0 + rows - 1`` and
     the vectors of columns ``c0 .. c0 + vecs - 1``, ``out[r] = fma(x[r, k_last], w[k_last],
@@ -390,48 +438,13 @@ def _tile_kernel(rows: int, vecs: int):
             rowi = [builder.add(r0i, ir.Constant(intp, r)) for r in range(rows)]
             xrows = [row_ptr(xa, r) for r in rowi]
             orows = [builder.gep(row_ptr(oa, r), [coff]) for r in rowi]
-            def tile(planes):             # the loop; planes: bf16 pairs, 2N per row
-                two = ir.Constant(intp, 2 if planes else 1)
-                wbase = builder.gep(wa.data, [builder.mul(coff, two)])
-                pre = builder.basic_block
-                loop = builder.append_basic_block("tile.loop")
-                after = builder.append_basic_block("tile.after")
-                builder.cbranch(builder.icmp_signed(">", nk, ir.Constant(intp, 0)), loop, after)
-                builder.position_at_end(loop)
-                j = builder.phi(intp)
-                sums = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
-                k = builder.load(builder.gep(aa.data, [j]))
-                wrow = builder.gep(wbase, [builder.mul(builder.mul(k, ncol), two)])
-                wptr = [builder.gep(wrow, [ir.Constant(intp, v * lanes * (2 if planes else 1))])
-                        for v in range(vecs)]
-                wv = [_widen_planes(builder, ptr, lanes, vty, fma) if planes else
-                      _widen(builder, ptr, wdtype, welt, lanes, vty, size) for ptr in wptr]
-                new = []
-                for r in range(rows):
-                    xv = builder.shuffle_vector(builder.insert_element(
-                        undef, builder.load(builder.gep(xrows[r], [k])),
-                        ir.Constant(ir.IntType(32), 0)), undef, splat)
-                    new.append([builder.call(fma, [xv, wv[v], sums[r][v]]) for v in range(vecs)])
-                jn = builder.add(j, ir.Constant(intp, 1))
-                end = builder.basic_block
-                j.add_incoming(ir.Constant(intp, 0), pre)
-                j.add_incoming(jn, end)
-                for r in range(rows):
-                    for v in range(vecs):
-                        sums[r][v].add_incoming(zero, pre)
-                        sums[r][v].add_incoming(new[r][v], end)
-                builder.cbranch(builder.icmp_signed("<", jn, nk), loop, after)
-                builder.position_at_end(after)
-                final = [[builder.phi(vty) for _ in range(vecs)] for _ in range(rows)]
-                for r in range(rows):
-                    for v in range(vecs):
-                        final[r][v].add_incoming(zero, pre)
-                        final[r][v].add_incoming(new[r][v], end)
-                for r in range(rows):
-                    for v in range(vecs):
-                        builder.store(final[r][v], builder.bitcast(
-                            builder.gep(orows[r], [ir.Constant(intp, v * lanes)]),
-                            vty.as_pointer()), align=size)
+            k = SimpleNamespace(
+                rows=rows, vecs=vecs, intp=intp, vty=vty, lanes=lanes, size=size, fma=fma,
+                undef=undef, splat=splat, zero=zero, coff=coff, ncol=ncol, nk=nk, welt=welt,
+                wdtype=wdtype, wdata=wa.data, adata=aa.data, xrows=xrows, orows=orows)
+
+            def tile(planes):
+                _tile_loop(builder, k, planes)
 
             if wdtype != types.uint16:
                 tile(False)
