@@ -93,3 +93,16 @@ def test_score_and_baselines_read_a_3d_file_as_3d(file3d, tmp_path, capsys):
     assert "copy last" in out and "tiny3d.h5" in out and "Ep@10" in out
     assert main(["train", "baselines", str(file3d), "--val-fraction", "0.2"]) == 0
     assert "copy_last" in capsys.readouterr().out
+
+
+def test_a_resumed_run_keeps_its_snapshots(file3d, tmp_path):
+    """``--snapshots`` is the run's: a resume without the flag keeps writing them."""
+    run = tmp_path / "run"
+    common = ["--device", "cpu", "--threads", "1", "--quiet"]
+    assert main(["train", "run", str(file3d), "-o", str(run), "--preset", "released",
+                 "--size", "tiny", "--max-steps", "2", "--batch", "8", "--val-every", "2",
+                 "--val-fraction", "0.2", "--snapshots", *common]) == 0
+    assert main(["train", "run", str(file3d), "-o", str(run), "--resume", "--max-steps", "4",
+                 *common]) == 0
+    assert json.loads((run / "checkpoint.json").read_text())["snapshots"] is True
+    assert (run / "snapshots" / "step-0000004.h5").is_file()

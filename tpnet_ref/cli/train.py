@@ -189,9 +189,10 @@ def _add_run(tsub: Any) -> None:
     q.add_argument("--log-every", type=int, default=50, help="steps between train-loss log lines")
     q.add_argument("--val-every", type=int, default=None,
                    help="also validate every N steps (default: at epoch ends only)")
-    q.add_argument("--snapshots", action="store_true",
+    q.add_argument("--snapshots", action="store_true", default=None,
                    help="after every validation also write RUN_DIR/snapshots/step-NNNNNNN.h5 "
-                        "(native weights, for learning curves: tpnet train score)")
+                        "(native weights, for learning curves: tpnet train score; kept on "
+                        "--resume)")
     q.add_argument("--export", default=None, metavar="OUT.h5",
                    help="when the run completes, write the native weights file")
     q.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -162,9 +162,10 @@ def _trim_log(run_dir: Path, step: int) -> None:
 class TrainSettings:
     """How one call of :func:`train` runs (the ``tpnet train run`` flags other than the recipe's).
 
-    Not the recipe: these belong to the process, not the run; only ``val_every``, the
-    checkpoint's ``part_mib``/``optimizer``, ``compile`` and a budget's outcome are written to
-    ``checkpoint.json`` (and the first three are kept on resume unless given again).
+    Not the recipe: these belong to the process, not the run; only ``val_every``,
+    ``snapshots``, the checkpoint's ``part_mib``/``optimizer``, ``compile`` and a budget's
+    outcome are written to ``checkpoint.json`` (and the first four are kept on resume unless
+    given again).
 
     - ``resume``: continue the run in ``run_dir`` with its stored recipe.
     - ``epochs``: the run's length (on resume: extends or shortens it; the cosine schedule
@@ -180,6 +181,7 @@ class TrainSettings:
     - ``snapshots``: after every validation's checkpoint, also export the native weights file
       ``snapshots/step-NNNNNNN.h5`` (learning curves scored later with ``tpnet train score``);
       a run that completes between validations is validated (and snapshotted) at its last step.
+      None: False for a new run, the run's own on resume.
     - ``export_path``: when the run completes, write the native weights file (:func:`export`).
     - ``budget_minutes`` (new runs only): fit the run to a wall-clock budget on this device: a
       few steps of the longest loss (``r.rollout`` predictions, batch ``r.batch``) are timed on
@@ -215,7 +217,7 @@ class TrainSettings:
     allow_other_scene: bool = False
     compile: str = "off"
     precision: str = "float32"
-    snapshots: bool = False
+    snapshots: bool | None = None
 
 
 def train(data_path: str | os.PathLike, run_dir: str | os.PathLike, recipe: Recipe | None = None,
@@ -252,6 +254,8 @@ def _start_state(run_dir: Path, recipe: Recipe | None,
         r = Recipe.from_dict(state["recipe"])
         if val_every is None:                 # keep the run's validation cadence
             val_every = state.get("val_every")
+        if s.snapshots is None:               # and its snapshots
+            s.snapshots = bool(state.get("snapshots", False))
     else:
         if (run_dir / SIDECAR_NAME).exists():
             raise ValueError(f"{run_dir} already holds a run; pass --resume or another directory")
@@ -380,7 +384,7 @@ class _Run:
                       "total_steps": self.total, "train_windows": self.n_train,
                       "val_windows": len(self.data.val_win), "device": self.dev,
                       "hardware": hardware(self.dev), "torch": torch.__version__,
-                      "val_every": self.val_every})
+                      "val_every": self.val_every, "snapshots": bool(self.s.snapshots)})
         state.setdefault("compile", []).append({"step": int(state["step"]),
                                                 "mode": self.compile_mode})
         state.setdefault("precision", []).append({"step": int(state["step"]),
