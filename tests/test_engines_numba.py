@@ -675,3 +675,17 @@ def test_a_window_gets_the_same_bits_alone_and_in_a_batch_of_any_size(shipped):
     for b in (2, 9, 70):
         np.testing.assert_array_equal(nb.predict_batch(wins[:b])[:min(b, 9)], alone[:min(b, 9)])
     np.testing.assert_array_equal(nb.rollout_batch(wins[:9], 3)[4], nb.rollout(wins[4], 3))
+
+
+def test_the_directions_go_apart_only_for_batches_with_weight_reads_to_pay_for_it(monkeypatch):
+    """``NumbaHead.apart``: two threads for the prediction network's directions only when the
+    call's plan offers them and the directions' weight reads reach ``NETWORK_APART_BYTES``."""
+    cfg = dataclasses.replace(SMALL, lstm_units=(16, 8, 8))
+    head = init_random(cfg, seed=3, dtype="float32").with_engine("numba").head_for(1)
+    per = head.direction_bytes
+    assert per == sum(a[0].nbytes for a in (*head.kernels, *head.recs))
+    monkeypatch.setattr(EN, "NETWORK_APART_BYTES", 3 * per)
+    monkeypatch.setattr(EN, "two_threads", lambda: True)
+    assert [head.apart(b) for b in (1, 2, 3, 8)] == [False, False, True, True]
+    monkeypatch.setattr(EN, "two_threads", lambda: False)
+    assert not head.apart(8)

@@ -35,7 +35,8 @@ What it does that NumPy cannot:
   one by one anyway);
 - the gates are vectorised (a branch-free ``exp``, :func:`tpnet_ref.engines.numba_lstm._exp_neg`, within 1.5 ulp);
 - with ``parallel``, the two directions of a layer on two threads (``prange``), only beside a
-  one-thread BLAS (:func:`_two_threads`).
+  one-thread BLAS (:func:`_two_threads`), and only for batches whose weight reads are large
+  enough to pay for it (:data:`NETWORK_APART_BYTES`).
 
 Determinism: each output number is one chain of fused multiply-adds (``llvm.fma``, explicit,
 not left to the compiler) over its group's non-zero inputs in increasing order, starting from
@@ -164,6 +165,16 @@ def _two_threads(parallel: bool) -> bool:
     return parallel and in_one_thread() and _PARALLEL.acquire(blocking=False)
 
 
+#: the prediction network's two directions go to two threads (when the call's plan offers a
+#: second one) only for batches whose weight reads per direction come to this many bytes: a
+#: product at a small batch reads each weight once, and on a VM whose cores share the bandwidth
+#: that bounds it, a second thread costs its region launches (four per call) and gains little.
+#: AMD EPYC VM, two-thread plan, float32, median us of a call with the directions apart /
+#: together: quarter (0.9 MB a direction) B = 1 95 / 76, B = 8 255 / 229; half (3.5 MB) B = 1
+#: 163 / 135, B = 2 190 / 192, B = 8 495 / 540; full (14 MB) B = 1 320 / 375 (docs/performance.md)
+NETWORK_APART_BYTES = 10_000_000
+
+
 class NumbaHead:
     """A model's prediction network laid out for the kernels above (built once per model), the
     :class:`tpnet_ref.engines.interface.Head` "numba": ``params`` in the file's order (``model.params``),
@@ -243,17 +254,25 @@ class NumbaHead:
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
         self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
+        #: the weight bytes one direction's products read at one window (codes as stored)
+        self.direction_bytes = sum(int(a[0].nbytes) for a in (*self.kernels, *self.recs))
+
+    def apart(self, batch: int) -> bool:
+        """Whether a call on ``batch`` windows runs the two directions on two threads: when its
+        plan offers a second thread (:func:`two_threads`) and the directions' weight reads come
+        to :data:`NETWORK_APART_BYTES` (the same bits either way)."""
+        return two_threads() and self.direction_bytes * batch >= NETWORK_APART_BYTES
 
     def project(self, features: np.ndarray, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection of each frame's feature ``(F, k)`` -> ``(F, 2N)``, in this
         head's layout (:meth:`project_rows`, bias included)."""
-        return self.project_rows(features, two_threads(), batch).reshape(len(features), -1)
+        return self.project_rows(features, self.apart(batch), batch).reshape(len(features), -1)
 
     def __call__(self, features: np.ndarray, proj1: np.ndarray | None = None) -> np.ndarray:
         """``features (B, m, k)`` -> ``(B, n_out, dim)`` in [0, 1]; ``proj1`` ``(m, B, 2N)``:
         :meth:`project` of the frames, time-major, if already known."""
         batch, m = features.shape[:2]
-        parallel = two_threads()
+        parallel = self.apart(batch)
         if proj1 is None:
             proj1 = self.project_rows(features.transpose(1, 0, 2).reshape(m * batch, -1),
                                       parallel, batch)
