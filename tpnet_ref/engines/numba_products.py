@@ -1,8 +1,13 @@
-"""The Numba engine's product kernel: ``x @ w`` reading only the weight rows that a non-zero
+"""The Numba engine's product kernels: ``x @ w`` reading only the weight rows that a non-zero
 input multiplies, each output one chain of fused multiply-adds
 (:mod:`tpnet_ref.engines.numba_engine` says why and how); shared by the prediction network's
 kernels (:mod:`tpnet_ref.engines.numba_lstm`) and the feature extractor's
-(:mod:`tpnet_ref.engines.numba_features`). numba's cache keys a compiled kernel to its own
+(:mod:`tpnet_ref.engines.numba_features`). Two ways to compute the same chains: the row kernel
+(:func:`product`: weight rows streamed side by side, sums loaded and stored once per chain of
+:data:`CHAIN` rows; a window's products, which read each weight once) and the tile kernel
+(:func:`tiled_product`, :func:`product_rows`: a few rows by a few vectors of columns whose sums
+stay in registers for the whole chain; the per-point layers and batches, which reuse each
+weight across rows). numba's cache keys a compiled kernel to its own
 file's time stamp: after editing this file, delete the other two modules' cached kernels
 (``tpnet_ref/engines/__pycache__/numba_*``), which inline these.
 
@@ -136,6 +141,56 @@ def _stream(builder, k, nvec):
             _columns(builder, k, builder.add(done, loop.index), 1)
 
 
+def _operands_ok(x, w, out, act) -> bool:
+    """Whether a kernel's typed operands fit it: 2-D arrays, ``x`` and ``out`` of one float
+    dtype, ``w`` C-contiguous of that dtype or (float32 ``x``) of :data:`_CODES`, ``act`` an
+    array."""
+    return (isinstance(x, types.Array) and isinstance(w, types.Array)
+            and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
+            and x.dtype == out.dtype and w.layout == "C"
+            and (w.dtype == x.dtype or (x.dtype == types.float32 and w.dtype in _CODES))
+            and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
+
+
+def _vectors(context, builder, dtype):
+    """The codegen's common values for float ``dtype``: a namespace of ``elt`` (its LLVM type),
+    ``size`` (bytes), ``lanes`` (per 64-byte vector), ``vty`` (the vector type), ``intp``,
+    ``fma`` (``llvm.fma`` on vectors), ``undef`` and ``splat`` (a broadcast's operands)."""
+    elt = context.get_value_type(dtype)
+    size = dtype.bitwidth // 8
+    lanes = _VECTOR_BYTES // size
+    vty = ir.VectorType(elt, lanes)
+    return SimpleNamespace(
+        elt=elt, size=size, lanes=lanes, vty=vty, intp=context.get_value_type(types.intp),
+        fma=cgutils.get_or_insert_function(builder.module, ir.FunctionType(vty, [vty] * 3),
+                                           f"llvm.fma.v{lanes}f{size * 8}"),
+        undef=ir.Constant(vty, ir.Undefined),
+        splat=ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes))
+
+
+def _row_ptr(builder, arr, row, elt):
+    """Element pointer of ``arr[row, 0]`` (a 2-D array's struct; byte strides)."""
+    stride = builder.extract_value(arr.strides, 0)
+    p = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()),
+                    [builder.mul(row, stride)])
+    return builder.bitcast(p, elt.as_pointer())
+
+
+def _by_planes(builder, wdtype, wa, xa, intp, emit):
+    """``emit(planes)``: once with False for float or int8 weights; for bf16 codes behind a
+    branch on whether ``w`` has twice ``x``'s rows (two planes: ``emit(True)``) or not."""
+    if wdtype != types.uint16:
+        emit(False)
+        return
+    two = builder.icmp_unsigned("==", builder.extract_value(wa.shape, 0), builder.mul(
+        builder.extract_value(xa.shape, 1), ir.Constant(intp, 2)))
+    with builder.if_else(two) as (then, other):
+        with then:
+            emit(True)
+        with other:
+            emit(False)
+
+
 def _row_kernel(rows: int, chain: int):
     """An intrinsic ``k(x, r0, rstep, w, act, j0, out)``: for the rows ``r = r0 + i * rstep``,
     ``i < rows``, ``out[r, :] = fma(x[r, k_last], w[k_last], ... fma(x[r, k_0], w[k_0], out[r]))``
@@ -149,12 +204,7 @@ def _row_kernel(rows: int, chain: int):
 
     @intrinsic
     def kernel(typingctx, x, r0, rstep, w, act, j0, out):
-        ok = (isinstance(x, types.Array) and isinstance(w, types.Array)
-              and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
-              and x.dtype == out.dtype and w.layout == "C"
-              and (w.dtype == x.dtype or (x.dtype == types.float32 and w.dtype in _CODES))
-              and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
-        if not ok:
+        if not _operands_ok(x, w, out, act):
             return None
         sig = types.void(x, r0, rstep, w, act, j0, out)
 
@@ -164,24 +214,15 @@ def _row_kernel(rows: int, chain: int):
                               ((xt, args[0]), (wt, args[3]), (at, args[4]), (ot, args[6])))
             r0i, rs, j0i = (context.cast(builder, args[i], signature.args[i], types.intp)
                             for i in (1, 2, 5))
-            elt = context.get_value_type(xt.dtype)
+            v = _vectors(context, builder, xt.dtype)
+            elt, size, lanes, vty, intp, fma = v.elt, v.size, v.lanes, v.vty, v.intp, v.fma
+            undef, splat = v.undef, v.splat
             welt = context.get_value_type(wt.dtype)
-            size = xt.dtype.bitwidth // 8
-            lanes = _VECTOR_BYTES // size
-            vty = ir.VectorType(elt, lanes)
-            intp = context.get_value_type(types.intp)
-            i8p = ir.IntType(8).as_pointer()
-            fma = cgutils.get_or_insert_function(
-                builder.module, ir.FunctionType(vty, [vty] * 3), f"llvm.fma.v{lanes}f{size * 8}")
-            undef = ir.Constant(vty, ir.Undefined)
-            splat = ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes)
             i32_0 = ir.Constant(ir.IntType(32), 0)
             ncol = builder.extract_value(wa.shape, 1)
 
-            def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
-                stride = builder.extract_value(arr.strides, 0)
-                p = builder.gep(builder.bitcast(arr.data, i8p), [builder.mul(row, stride)])
-                return builder.bitcast(p, elt.as_pointer())
+            def row_ptr(arr, row):
+                return _row_ptr(builder, arr, row, elt)
 
             rowi = [builder.add(r0i, builder.mul(rs, ir.Constant(intp, r))) for r in range(rows)]
             xrows = [row_ptr(xa, r) for r in rowi]
@@ -202,16 +243,7 @@ def _row_kernel(rows: int, chain: int):
                     avs=avs, wdtype=wt.dtype, welt=welt, lanes=lanes, vty=vty, size=size,
                     fma=fma, intp=intp), nvec)
 
-            if wt.dtype != types.uint16:
-                stream(False)
-                return context.get_dummy_value()
-            two = builder.icmp_unsigned("==", builder.extract_value(wa.shape, 0), builder.mul(
-                builder.extract_value(xa.shape, 1), ir.Constant(intp, 2)))
-            with builder.if_else(two) as (then, other):
-                with then:
-                    stream(True)
-                with other:
-                    stream(False)
+            _by_planes(builder, wt.dtype, wa, xa, intp, stream)
             return context.get_dummy_value()
 
         return sig, codegen
@@ -400,12 +432,7 @@ def _tile_kernel(rows: int, vecs: int):
 
     @intrinsic
     def kernel(typingctx, x, r0, w, c0, out, act, n):
-        ok = (isinstance(x, types.Array) and isinstance(w, types.Array)
-              and isinstance(out, types.Array) and x.ndim == w.ndim == out.ndim == 2
-              and x.dtype == out.dtype and w.layout == "C"
-              and (w.dtype == x.dtype or (x.dtype == types.float32 and w.dtype in _CODES))
-              and isinstance(x.dtype, types.Float) and isinstance(act, types.Array))
-        if not ok:
+        if not _operands_ok(x, w, out, act):
             return None
         sig = types.void(x, r0, w, c0, out, act, n)
         wdtype = w.dtype
@@ -415,47 +442,18 @@ def _tile_kernel(rows: int, vecs: int):
                               for i in (0, 2, 4, 5))
             r0i, c0i, nk = (context.cast(builder, args[i], signature.args[i], types.intp)
                             for i in (1, 3, 6))
-            elt = context.get_value_type(signature.args[0].dtype)
-            size = signature.args[0].dtype.bitwidth // 8
-            lanes = _VECTOR_BYTES // size
-            vty = ir.VectorType(elt, lanes)
-            intp = context.get_value_type(types.intp)
-            fma = cgutils.get_or_insert_function(
-                builder.module, ir.FunctionType(vty, [vty] * 3), f"llvm.fma.v{lanes}f{size * 8}")
-            undef = ir.Constant(vty, ir.Undefined)
-            splat = ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes)
-            zero = ir.Constant(vty, [0.0] * lanes)
-            coff = builder.mul(c0i, ir.Constant(intp, lanes))
-            ncol = builder.extract_value(wa.shape, 1)
-            welt = context.get_value_type(wdtype)
-
-            def row_ptr(arr, row):       # element pointer of arr[row, 0] (byte strides)
-                stride = builder.extract_value(arr.strides, 0)
-                p = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()),
-                                [builder.mul(row, stride)])
-                return builder.bitcast(p, elt.as_pointer())
-
-            rowi = [builder.add(r0i, ir.Constant(intp, r)) for r in range(rows)]
-            xrows = [row_ptr(xa, r) for r in rowi]
-            orows = [builder.gep(row_ptr(oa, r), [coff]) for r in rowi]
-            k = SimpleNamespace(
-                rows=rows, vecs=vecs, intp=intp, vty=vty, lanes=lanes, size=size, fma=fma,
-                undef=undef, splat=splat, zero=zero, coff=coff, ncol=ncol, nk=nk, welt=welt,
-                wdtype=wdtype, wdata=wa.data, adata=aa.data, xrows=xrows, orows=orows)
-
-            def tile(planes):
-                _tile_loop(builder, k, planes)
-
-            if wdtype != types.uint16:
-                tile(False)
-                return context.get_dummy_value()
-            two = builder.icmp_unsigned("==", builder.extract_value(wa.shape, 0), builder.mul(
-                builder.extract_value(xa.shape, 1), ir.Constant(intp, 2)))
-            with builder.if_else(two) as (then, other):
-                with then:
-                    tile(True)
-                with other:
-                    tile(False)
+            k = _vectors(context, builder, signature.args[0].dtype)
+            rowi = [builder.add(r0i, ir.Constant(k.intp, r)) for r in range(rows)]
+            k.coff = builder.mul(c0i, ir.Constant(k.intp, k.lanes))
+            k.zero = ir.Constant(k.vty, [0.0] * k.lanes)
+            k.xrows = [_row_ptr(builder, xa, r, k.elt) for r in rowi]
+            k.orows = [builder.gep(_row_ptr(builder, oa, r, k.elt), [k.coff]) for r in rowi]
+            k.rows, k.vecs, k.nk, k.wdtype = rows, vecs, nk, wdtype
+            k.wdata, k.adata = wa.data, aa.data
+            k.ncol = builder.extract_value(wa.shape, 1)
+            k.welt = context.get_value_type(wdtype)
+            _by_planes(builder, wdtype, wa, xa, k.intp,
+                       lambda planes: _tile_loop(builder, k, planes))
             return context.get_dummy_value()
 
         return sig, codegen
@@ -483,6 +481,20 @@ def _tile_row(x, r0, w, nvec, out, act, n):
         _T41(x, r0, w, c, out, act, n)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _nonzero4(x, r0, act):
+    """The columns ``k`` non-zero (or NaN) in some row ``r0 .. r0 + 3`` of ``x``, in increasing
+    order, into ``act``; returns how many."""
+    n = 0
+    for k in range(x.shape[1]):
+        for i in range(4):
+            if x[r0 + i, k] != 0:
+                act[n] = k
+                n += 1
+                break
+    return n
+
+
 @njit(cache=True, nogil=True)
 def tiled_product(x, w, rows, act, out):
     """``out[r] = x[r] @ w`` for the rows ``r < rows`` rounded up to :data:`TILE_ROWS` (``x``
@@ -505,15 +517,7 @@ def tiled_product(x, w, rows, act, out):
                 _T82(x, r0, w, 0, out, act, c)
         return
     for r0 in range(0, top, 4):
-        n = c
-        if nvec >= TILE_SPARSE_FROM:
-            n = 0
-            for k in range(c):
-                for i in range(4):
-                    if x[r0 + i, k] != 0:
-                        act[n] = k
-                        n += 1
-                        break
+        n = _nonzero4(x, r0, act) if nvec >= TILE_SPARSE_FROM else c
         _tile_row(x, r0, w, nvec, out, act, n)
 
 
@@ -534,13 +538,7 @@ def product_rows(x, w, act, out):
     nvec = w.shape[1] * x.itemsize // _VECTOR_BYTES
     full = rows - rows % 4
     for r0 in range(0, full, 4):
-        n = 0
-        for k in range(c):
-            for i in range(4):
-                if x[r0 + i, k] != 0:
-                    act[n] = k
-                    n += 1
-                    break
+        n = _nonzero4(x, r0, act)
         _tile_row(x, r0, w, nvec, out, act, n)
     if full < rows:
         grp = np.empty((1, 3), dtype=np.intp)
@@ -551,5 +549,6 @@ def product_rows(x, w, act, out):
         product(x, w, grp, rest, ns, out)
 
 
-__all__ = ["CHAIN", "GROUP_ROWS", "TILE_ROWS", "TILE_SPARSE_FROM", "TILE_BATCH", "tiled_product", "product_rows", "padded_columns", "pad_columns", "groups", "active", "product",
+__all__ = ["CHAIN", "GROUP_ROWS", "TILE_ROWS", "TILE_SPARSE_FROM", "TILE_BATCH", "tiled_product",
+           "product_rows", "padded_columns", "pad_columns", "groups", "active", "product",
            "project_dir"]
