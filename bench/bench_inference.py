@@ -477,8 +477,8 @@ def main(argv: list[str] | None = None) -> int:
                             "onnxruntime, random points")),
                     ("B=1 predict(), random points / ring",
                      paired(alt["b1"], "numba predict(), random points", "numba predict(), ring"))]
-        print(f"\nratios and targets, engine=numba (the default where numba is installed; "
-              f"batches above {ENGINE_MAX_BATCH} windows take NumPy's feature extractor):")
+        print("\nratios and targets, engine=numba (the default where numba is installed; its "
+              "own feature extractor for every batch):")
         for label, val in nchecks:
             lim = label.split("target ")[1].rstrip(")") if "target" in label else None
             ok = None if lim is None else (val <= float(lim[2:]) if lim.startswith("<=")
