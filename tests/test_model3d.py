@@ -419,3 +419,19 @@ def test_the_warnings_that_carry_over_to_the_3d_scene():
     with pytest.warns(C.TooFewPointsWarning, match="trained on 42 per frame"):
         model.predict([f[:2] if i == 2 else f for i, f in enumerate(w)])
     assert NORM_LO < w.min() and w.max() < NORM_HI
+
+
+def test_the_shipped_3d_quarter_loads_as_a_3d_model_and_rolls_out_a_ball():
+    """``weights/tpnet3d-m4-quarter.h5`` (weights/MODEL_CARD.md, "The 3-D quarter"): a 3-D
+    network of 42 points whose rollout of a resting ball stays a ball of about its size."""
+    path = Path(__file__).resolve().parents[1] / "weights" / "tpnet3d-m4-quarter.h5"
+    model = load(str(path))
+    assert (model.config.dim, model.config.n_out, model.config.m) == (3, 42, 4)
+    assert model.config.lstm_units == (128, 64, 64)
+    rng = np.random.default_rng(0)
+    ball = rng.standard_normal((42, 3))
+    ball = 2.0 * ball / np.linalg.norm(ball, axis=1, keepdims=True) + np.array([22.5, 22.5, 2.2])
+    out = model.rollout(np.stack([ball] * 4), 20)
+    assert out.shape == (20, 42, 3) and np.isfinite(out).all()
+    radius = np.linalg.norm(out[-1] - out[-1].mean(axis=0), axis=1).mean()
+    assert 1.0 < radius < 3.0
