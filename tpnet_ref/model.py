@@ -186,11 +186,10 @@ class TPNet:
                        batch: int | None = None) -> np.ndarray:
         """Global feature of every frame: ``points (P, dim)`` frame after frame, each in
         canonical order, ``counts (F,)`` -> ``(F, global_features)``. ``batch``: the windows
-        they belong to; a batch the compiled extractor serves (the Numba engine's: every
-        batch) takes it (its frames on two threads when the call's thread plan offers a second
-        one; the same bits either way), anything else the NumPy one."""
-        if (self.engine_features is not None and batch is not None
-                and self.engine_features.serves(batch)):
+        they belong to; with a compiled extractor (the Numba engine's) every batch takes it
+        (its frames on two threads when the call's thread plan offers a second one; the same
+        bits either way), anything else the NumPy one."""
+        if self.engine_features is not None and batch is not None:
             return self.engine_features(points, counts, two_threads())
         return self.features(points, counts)
 
@@ -224,8 +223,7 @@ class TPNet:
         if not head.threaded and points <= BLOCK_POINTS:
             return one_thread()
         # the Numba engine's own kernels alone (its feature extractor, its head): no BLAS product
-        blas_free = (head.name == "numba" and self.engine_features is not None
-                     and self.engine_features.serves(batch))
+        blas_free = head.name == "numba" and self.engine_features is not None
         return adaptive((id(self), what, batch, points), held, blas_free)
 
     def preferred_threads(self, what: str = "predict", batch: int = 1, points: int = 0) -> int | None:

@@ -100,9 +100,7 @@ def build_features(model: Any, engine: str) -> Any:
     from . import numba_engine as engine_numba
     if not engine_numba.NumbaFeatures.supports(model.config):
         return None
-    features = engine_numba.NumbaFeatures(model.config, model.params, model.dtype)
-    features.max_batch = None                   # it serves every batch (TPNet.frame_features)
-    return features
+    return engine_numba.NumbaFeatures(model.config, model.params, model.dtype)
 
 
 def build_screen(engine: str, config: Any) -> Any:

@@ -96,13 +96,6 @@ class NumbaFeatures:
         self.k = int(config.global_features)
         self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
 
-    #: the largest batch it serves (None: any; set by :func:`tpnet_ref.engines.interface.build_features`)
-    max_batch: int | None = None
-
-    def serves(self, batch: int) -> bool:
-        """Whether it computes the features of batches of ``batch`` windows."""
-        return self.max_batch is None or batch <= self.max_batch
-
     @staticmethod
     def supports(config: Any) -> bool:
         return not (config.input_transform_trained or config.feature_transform_trained)

@@ -83,12 +83,11 @@ STEPS_FIRST = 8
 
 def fusable(model, batch: int) -> bool:
     """Whether ``model``'s rollouts of ``batch`` windows can run as :func:`rollout_steps`: the
-    Numba engine's own head and feature extractor (the batches the extractor serves, not a
-    specialised head), 2-D points in canonical order."""
+    Numba engine's own head (not a specialised one) and feature extractor, 2-D points in
+    canonical order."""
     head = model.head_for(batch)
     return (head.name == "numba" and model.engine_features is not None
-            and model.engine_features.serves(batch) and model.config.dim == 2
-            and model.sort_points)
+            and model.config.dim == 2 and model.sort_points)
 
 
 _MEMO: dict = {}
