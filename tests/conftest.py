@@ -75,6 +75,7 @@ def pytest_runtest_protocol(item, nextitem):
     _CURRENT["test"] = item.nodeid
 
 
+@pytest.hookimpl(trylast=True)        # after pytest's own teardown has ended the module's fixtures
 def pytest_runtest_teardown(item, nextitem):
     if nextitem is None or nextitem.module is not item.module:    # after each test module
         _release_freed_memory()

@@ -19,17 +19,24 @@ from hypothesis import strategies as st
 import tpnet_ref
 from tpnet_ref.model import TPNetConfig, init_random
 
-_BASE = {dt: init_random(seed=21, dtype=dt) for dt in ("float32", "float64")}
-
-
 _MODELS: dict = {}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _models_freed_after_the_module():
+    """The models below live while this module runs and go with it: held by the module, twelve
+    released-shape models (about 0.7 GB with their engines) stayed for the rest of the suite."""
+    yield
+    _MODELS.clear()
 
 
 def _model(m: int, dtype: str):
     """One model per (m, dtype), built once: a new 170 MB float64 model per example was kept
     alive by every failing example's traceback while hypothesis shrank (15 GB in 50 s)."""
     if (m, dtype) not in _MODELS:
-        base = _BASE[dtype]
+        if ("base", dtype) not in _MODELS:
+            _MODELS["base", dtype] = init_random(seed=21, dtype=dtype)
+        base = _MODELS["base", dtype]
         _MODELS[m, dtype] = type(base)(dataclasses.replace(base.config, m=m), base.params, dtype)
     return _MODELS[m, dtype]
 
