@@ -263,16 +263,16 @@ def test_a_rollout_through_it_is_the_rollout_through_the_checks(released_random6
 
 @settings(max_examples=60, deadline=None)
 @given(frames=st.integers(1, 6), n=st.integers(1, 40), seed=st.integers(0, 2 ** 16),
-       ties=st.booleans(), f32=st.booleans())
-def test_the_compiled_sort_is_the_canonical_order(frames, n, seed, ties, f32):
+       ties=st.booleans(), f32=st.booleans(), dim=st.sampled_from([2, 3]))
+def test_the_compiled_sort_is_the_canonical_order(frames, n, seed, ties, f32, dim):
     from tpnet_ref.engines.numba_checks import Screen
     from tpnet_ref.point_order import canonical_order
     rng = np.random.default_rng(seed)
-    pts = rng.uniform(-1, 1, (frames * n, 2))
-    if ties:                                # shared x, shared rows, and zeros of both signs
+    pts = rng.uniform(-1, 1, (frames * n, dim))
+    if ties:                                # shared x (and y), shared rows, zeros of both signs
         pts = np.round(pts * 2) / 2
-        pts[rng.random(len(pts)) < 0.2] = [-0.0, 0.0]
-        pts[rng.random(len(pts)) < 0.2] = [0.0, -0.0]
+        pts[rng.random(len(pts)) < 0.2] = [-0.0, 0.0, -0.0][:dim]
+        pts[rng.random(len(pts)) < 0.2] = [0.0, -0.0, 0.0][:dim]
     pts = pts.astype(np.float32 if f32 else np.float64)
     counts = np.full(frames, n)
     got = Screen().sorted(pts, counts)
@@ -328,3 +328,109 @@ def test_the_short_commands_run_the_first_pass_only_where_numba_has_it(net, monk
     assert w.count == 0 and not fresh.signatures and np.isfinite(y).all()
     monkeypatch.setattr(compile_watch, "TWO_THREAD_KERNELS_ON_DEMAND", True)   # the default
     assert screen(net, _window(), True, False) is not None and fresh.signatures   # compiled
+
+
+# ------------------------------------------------------------------ 3-D points (docs/spec.md §8)
+SMALL3 = TPNetConfig(dim=3, n_out=42, mlp1=(8, 8), mlp2=(8, 8, 16), global_features=8,
+                     lstm_units=(8, 8, 8))
+
+
+@pytest.fixture(scope="module", params=["float32", "float64"])
+def net3(request):
+    return init_random(SMALL3, seed=1, dtype=request.param).with_engine("numba")
+
+
+def _ball(rows_apart=4, centre=(20.0, 22.0, 30.0), v=(6.0, -3.0, 4.0), r=2.0):
+    """The scene's ball (42 points) thrown in free fall, frames ``rows_apart`` rows apart."""
+    from tpnet_ref.sim.scene3d import ball_positions
+    t = np.arange(4) * rows_apart * C.SIM_DT
+    c = np.asarray(centre) + np.outer(t, v) + np.outer(0.5 * t ** 2, [0, 0, -C.GRAVITY])
+    return np.stack([p + (ball_positions(0, 0, 0) * r / 2.0) for p in c])
+
+
+def test_3d_scene_windows_are_decided_and_say_what_the_checks_say(net3):
+    pytest.importorskip("mujoco")
+    from tpnet_ref.sim.cases3d import TEST_CASES3D
+    from tpnet_ref.sim.scene3d import simulate3d
+    wins = []
+    for case in TEST_CASES3D[:3]:
+        frames = simulate3d(*case, steps=300)[::4]
+        wins += [frames[s:s + 4] for s in range(0, len(frames) - 4, 11)]
+    decided = [_decided(net3, w.astype(dt)) for w in wins for dt in (np.float32, np.float64)]
+    assert sum(decided) >= 0.95 * len(decided)
+
+
+@pytest.mark.parametrize("name, make, normalized, verdict", [
+    ("a throw", lambda: _ball(), False, EC.VERDICT_CLEAR),
+    ("model units", lambda: (_ball() - 1.1438) / 42.7124, True, EC.VERDICT_CLEAR),
+    ("out of the box, above", lambda: _ball() + [0.0, 0.0, 20.0], False, EC.VERDICT_SPAN),
+    ("world units as normalized", lambda: _ball(), True, EC.VERDICT_SPAN),
+    ("a large ball", lambda: _ball(r=6.0), False, EC.VERDICT_RADIUS),
+    ("random points", lambda: np.random.default_rng(0).uniform(5.4, 39.6, (4, 42, 3)), False,
+     EC.VERDICT_RADIUS),
+    ("falling, consecutive rows", lambda: _ball(1), False, EC.VERDICT_FALL),
+    ("falling, every 8th row", lambda: _ball(8), False, EC.VERDICT_FALL),
+    ("at rest", lambda: np.stack([_ball()[0]] * 4), False, EC.VERDICT_STEP),
+    ("a stray point", lambda: np.concatenate([_ball(), _ball()[:, :1] + 6.0], axis=1), False,
+     EC.VERDICT_CLEAR),                 # the one-body test is the 2-D ring's only
+    ("a NaN", lambda: np.where(np.arange(504).reshape(4, 42, 3) == 7, np.nan, _ball()), False,
+     EC.VERDICT_UNDECIDED),
+    ("4 points a frame", lambda: _ball()[:, :4], False, EC.VERDICT_UNDECIDED),
+])
+def test_each_3d_verdict_is_the_checks_warning_or_left_to_them(net3, name, make, normalized,
+                                                               verdict):
+    x = make()
+    for dt in (np.float32, np.float64):
+        w = x.astype(dt)
+        decided = _decided(net3, w, normalized=normalized)
+        assert decided == (verdict != EC.VERDICT_UNDECIDED), name
+        if decided:
+            _, said = _record(lambda: _first_pass(net3, w, True, normalized))
+            kinds = {EC.VERDICT_CLEAR: [], EC.VERDICT_SPAN: [C.OutsideTrainingRangeWarning],
+                     EC.VERDICT_RADIUS: [C.OutsideTrainingRangeWarning],
+                     EC.VERDICT_FALL: [C.FrameSpacingWarning],
+                     EC.VERDICT_STEP: [C.FrameSpacingWarning]}[verdict]
+            assert [k for k, _ in said] == kinds, name
+            if verdict == EC.VERDICT_RADIUS:
+                assert "is a ball of radius 2" in said[0][1]
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(c=st.tuples(*[st.floats(-5, 50)] * 3), r=st.floats(0.05, 5.0),
+       v=st.tuples(*[st.floats(-40, 40)] * 3), rows=st.sampled_from([1, 2, 3.9999, 4, 5, 8]),
+       noise=st.sampled_from([0.0, 1e-3, 0.3]), seed=st.integers(0, 2 ** 16),
+       normalized=st.booleans(), f32=st.booleans(), batch=st.booleans())
+def test_whatever_it_decides_in_3d_is_what_the_checks_say(net3, c, r, v, rows, noise, seed,
+                                                          normalized, f32, batch):
+    rng = np.random.default_rng(seed)
+    w = _ball(rows, c, v, r) + noise * rng.standard_normal((4, 42, 3))
+    w = w[:, rng.permutation(42)]
+    if normalized:
+        w = (w - 1.1438) / 42.7124
+    w = w.astype(np.float32 if f32 else np.float64)
+    _decided(net3, w[None] if batch else w, one=not batch, normalized=normalized)
+
+
+def test_a_3d_prediction_and_rollout_through_it_are_those_through_the_checks(monkeypatch):
+    import tpnet_ref
+    from pathlib import Path
+    from tpnet_ref.engines import numba_rollout
+    path = Path(tpnet_ref.__file__).resolve().parents[1] / "weights" / "tpnet3d-m4-quarter.h5"
+    net = tpnet_ref.load(str(path))
+    checked = _without_first_pass(net)
+    rng = np.random.default_rng(5)
+    for w in (_ball(), rng.uniform(5.4, 39.6, (4, 42, 3)), _ball(1), _ball() + [0, 0, 20.0]):
+        for x in (w, w.astype(np.float32)):
+            assert _first_pass(net, x, True, False) is not None
+            fast, said = _record(lambda: net.predict(x))
+            slow, said_slow = _record(lambda: checked.predict(x))
+            assert fast.tobytes() == slow.tobytes() and said == said_slow
+    x = np.stack([_ball(centre=(15.0 + i, 22.0, 30.0)) for i in range(3)])
+    assert net.predict_batch(x).tobytes() == checked.predict_batch(x).tobytes()
+    # the rollout's steps in one compiled call (3-D too) are the step-by-step path's bits
+    assert numba_rollout.fusable(net, 1)
+    w = _ball()
+    fused, fused_batch = net.rollout(w, 30), net.rollout_batch(x, 12)
+    monkeypatch.setattr(numba_rollout, "fusable", lambda model, batch: False)
+    assert fused.tobytes() == checked.rollout(w, 30).tobytes()
+    assert fused_batch.tobytes() == checked.rollout_batch(x, 12).tobytes()

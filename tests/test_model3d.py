@@ -233,13 +233,14 @@ def test_per_frame_permutations_change_no_bit(dtype, data, normalized):
             assert np.array_equal(_quiet(model.predict, np.stack(frames), normalized=normalized), a)
 
 
-def test_the_compiled_2d_first_pass_and_fused_rollout_stand_aside():
+def test_the_compiled_first_pass_fused_rollout_and_extractor_run_3d():
+    """As in 2-D (tests/test_engines_numba_checks.py holds their bits and words)."""
     if "numba" not in _engines():
         pytest.skip("numba not installed")
     from tpnet_ref.engines import numba_rollout
     model = _model("float32", "numba")
-    assert model.screen is None and not numba_rollout.fusable(model, 1)
-    assert model.engine_features is not None          # the compiled feature extractor runs 3-D
+    assert model.screen is not None and numba_rollout.fusable(model, 1)
+    assert model.engine_features is not None
     assert _model("float32", "numba", cfg=TRAINED).engine_features is None   # as in 2-D
 
 

@@ -106,8 +106,8 @@ def build_features(model: Any, engine: str) -> Any:
 def build_screen(engine: str, config: Any) -> Any:
     """The compiled first pass over an array of windows
     (:class:`tpnet_ref.engines.numba_checks.Screen`) that goes with the numba head, or None: engine
-    "numpy", or points of another dimension than 2 (the checks then serve every call)."""
-    if engine != "numba" or config.dim != 2:
+    "numpy", or points of another dimension than 2 or 3 (the checks then serve every call)."""
+    if engine != "numba" or config.dim not in (2, 3):
         return None
     from . import numba_checks
     return numba_checks.Screen()

@@ -13,10 +13,10 @@ on a rounding boundary of its printed digits), and the points are bit for bit th
 :meth:`tpnet_ref.model.TPNet.canonical_points`: ``tests/test_engines_numba_checks.py`` holds both
 against the checks, on scene windows, random points, and windows built to sit on each threshold.
 
-What it decides, for frames of ``N`` points each (``5 <= N``), in the order the checks give
-their warnings:
+What it decides, for frames of ``N`` points each (``5 <= N``) in 2-D or 3-D, in the order the
+checks give their warnings:
 
-1. one body (one window only): every frame within ``BODY_MAX_RADIUS`` of its bounding box's
+1. one body (one window of 2-D points only; the checks have no one-body test in 3-D): every frame within ``BODY_MAX_RADIUS`` of its bounding box's
    centre and its points, taken in the order of their angle about that centre, never more than
    ``BODY_LINK_MIN`` apart (:func:`tpnet_ref.checks._all_one_body`'s shortcut), and no frame's
    centre more than ``BODY_MAX_STEP`` from the last's; or, failing that, a first frame whose
@@ -56,16 +56,16 @@ VERDICT_CLEAR, VERDICT_UNDECIDED, VERDICT_SPAN, VERDICT_RADIUS, VERDICT_FALL, VE
 
 
 def warn_verdict(code: int, a: float, b: float, norm_lo: float, norm_hi: float,
-                 normalized: bool, name: str) -> None:
+                 normalized: bool, name: str, dim: int = 2) -> None:
     """The warning :func:`tpnet_ref.checks.warn_about_input` gives for a decided verdict ``code`` (one of the
     ``VERDICT_*`` other than undecided) with its numbers: ``a, b`` the span's ends in model
     units (``VERDICT_SPAN``), ``a`` the frame's mean radius in world units (``VERDICT_RADIUS``),
     the rows per frame of a free fall (``VERDICT_FALL``) or the centroid's mean step in world
-    units (``VERDICT_STEP``); nothing for ``VERDICT_CLEAR``."""
+    units (``VERDICT_STEP``); nothing for ``VERDICT_CLEAR``. ``dim``: the points' dimension."""
     if code == VERDICT_SPAN:
         C.warn_range(name, C.span_problem(a, b, norm_lo, norm_hi, normalized))
     elif code == VERDICT_RADIUS:
-        C.warn_range(name, C.radius_problem(a, normalized))
+        C.warn_range(name, C.radius_problem(a, normalized, dim))
     elif code == VERDICT_FALL:
         C.warn_motion(name, C.fall_problem(a))
     elif code == VERDICT_STEP:
@@ -103,28 +103,41 @@ def _band(threshold):
 
 @njit(cache=True, nogil=True)
 def _sort_rows(out, base, n):
-    """Rows ``base .. base + n - 1`` of ``out (P, 2)`` sorted in place by x then y: an insertion
-    sort (a frame is a few dozen points), stable as ``np.lexsort`` (rows that tie on both are
-    the same numbers)."""
+    """Rows ``base .. base + n - 1`` of ``out (P, dim)``, ``dim`` 2 or 3, sorted in place by x,
+    then y (then z): an insertion sort (a frame is a few dozen points) on scalars, stable as
+    ``np.lexsort`` (rows that tie on every coordinate are the same numbers)."""
+    three = out.shape[1] == 3
+    last = out.shape[1] - 1
     for i in range(1, n):
-        px, py = out[base + i, 0], out[base + i, 1]
+        px, py, pz = out[base + i, 0], out[base + i, 1], out[base + i, last]
         j = i - 1
-        while j >= 0 and (out[base + j, 0] > px or (out[base + j, 0] == px and out[base + j, 1] > py)):
-            out[base + j + 1, 0] = out[base + j, 0]
+        while j >= 0:                           # move row j up while it comes after p
+            a = out[base + j, 0]
+            if a < px:
+                break
+            if a == px:
+                b = out[base + j, 1]
+                if b < py or (b == py and (not three or out[base + j, 2] <= pz)):
+                    break
+            out[base + j + 1, 0] = a
             out[base + j + 1, 1] = out[base + j, 1]
+            if three:
+                out[base + j + 1, 2] = out[base + j, 2]
             j -= 1
         out[base + j + 1, 0] = px
         out[base + j + 1, 1] = py
+        if three:
+            out[base + j + 1, 2] = pz
 
 
 @njit(cache=True, nogil=True)
 def _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out):
     """Frame ``f`` of ``x`` in model coordinates (the model's dtype, as ``canonical_points``
-    computes them) into its rows of ``out``, sorted by x then y when ``sort``."""
+    computes them) into its rows of ``out``, in canonical order when ``sort``."""
     n = x.shape[1]
     zero = out.dtype.type(0.0)
     for i in range(n):
-        for k in range(2):
+        for k in range(x.shape[2]):
             v = out.dtype.type(x[f, i, k])
             out[f * n + i, k] = v + zero if normalized else (v - lo_d) / scale_d
     if sort:
@@ -133,12 +146,12 @@ def _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out):
 
 @njit(cache=True, nogil=True)
 def sort_frames(points, n, out):
-    """``out``: ``points (F * n, 2)`` with each frame of ``n`` rows sorted by x then y (stable,
-    as ``np.lexsort``)."""
+    """``out``: ``points (F * n, dim)`` with each frame of ``n`` rows in canonical order (x,
+    then y, then z; stable, as ``np.lexsort``)."""
     for f in range(points.shape[0] // n):
         for i in range(n):
-            out[f * n + i, 0] = points[f * n + i, 0]
-            out[f * n + i, 1] = points[f * n + i, 1]
+            for k in range(points.shape[1]):
+                out[f * n + i, k] = points[f * n + i, k]
         _sort_rows(out, f * n, n)
 
 
@@ -217,7 +230,7 @@ def _scattered(x, f, normalized, norm_lo, scale, v):
 def _centroids(x, normalized, norm_lo, scale, c):
     f_all, n = x.shape[0], x.shape[1]
     for f in range(f_all):
-        for k in range(2):
+        for k in range(x.shape[2]):
             s = 0.0
             for i in range(n):
                 s += _world(x, f, i, k, normalized, norm_lo, scale)
@@ -249,16 +262,17 @@ def _body(x, normalized, norm_lo, scale, c):
 
 @njit(cache=True, nogil=True)
 def _motion(c):
-    """The motion test of one window's centroids ``c (m, 2)``: (verdict, number)."""
-    m = c.shape[0]
+    """The motion test of one window's centroids ``c (m, dim)``: (verdict, number). Gravity
+    acts along the last axis (y in 2-D, z in 3-D)."""
+    m, down = c.shape[0], c.shape[1] - 1
     if m < 2:
         return _CLEAR, 0.0
     if m >= 4:
         fall_lo, fall_hi, fall_sum, dx_max = np.inf, -np.inf, 0.0, 0.0
         for i in range(m - 2):
-            ddx = c[i + 2, 0] - 2.0 * c[i + 1, 0] + c[i, 0]
-            fall = -(c[i + 2, 1] - 2.0 * c[i + 1, 1] + c[i, 1])
-            dx_max = max(dx_max, abs(ddx))
+            for k in range(down):
+                dx_max = max(dx_max, abs(c[i + 2, k] - 2.0 * c[i + 1, k] + c[i, k]))
+            fall = -(c[i + 2, down] - 2.0 * c[i + 1, down] + c[i, down])
             fall_lo, fall_hi = min(fall_lo, fall), max(fall_hi, fall)
             fall_sum += fall
         mean = fall_sum / (m - 2)
@@ -276,8 +290,10 @@ def _motion(c):
             return (_CLEAR, 0.0) if s < 0 else (_FALL, rows)
     total = 0.0
     for i in range(m - 1):
-        dx, dy = c[i + 1, 0] - c[i, 0], c[i + 1, 1] - c[i, 1]
-        total += math.sqrt(dx * dx + dy * dy)
+        d2 = 0.0
+        for k in range(down + 1):
+            d2 += (c[i + 1, k] - c[i, k]) ** 2
+        total += math.sqrt(d2)
     step = total / (m - 1)
     lo, hi = _side(step, _MOTION_LO, _band(_MOTION_LO)), _side(step, _MOTION_HI, _band(_MOTION_HI))
     if lo == 0 or hi == 0:
@@ -287,34 +303,33 @@ def _motion(c):
 
 @njit(cache=True, nogil=True)
 def screen(x, m, normalized, norm_lo, scale, lo_d, scale_d, limit, one_window, sort, out):
-    """``x (F, N, 2)``: ``F / m`` windows of ``m`` frames (one window when ``one_window``), world
-    units unless ``normalized``; ``norm_lo``, ``scale``: the model's normalisation (float64),
+    """``x (F, N, dim)``, ``dim`` 2 or 3: ``F / m`` windows of ``m`` frames (one window when
+    ``one_window``), world units unless ``normalized``; ``norm_lo``, ``scale``: the model's normalisation (float64),
     ``lo_d``, ``scale_d`` the same in the model's dtype; ``limit``: the largest magnitude the
-    model's dtype holds (infinity when ``x``'s dtype is no wider). Fills ``out (F * N, 2)`` (the
+    model's dtype holds (infinity when ``x``'s dtype is no wider). Fills ``out (F * N, dim)`` (the
     model's dtype) with the points in model coordinates, each frame sorted when ``sort``, and
     returns ``(verdict, a, b)`` (:func:`warn_verdict`)."""
-    f_all, n = x.shape[0], x.shape[1]
-    if n < _MIN_POINTS or n > MAX_POINTS or x.shape[2] != 2:
+    f_all, n, dim = x.shape[0], x.shape[1], x.shape[2]
+    if n < _MIN_POINTS or n > MAX_POINTS or dim not in (2, 3):
         return _UNDECIDED, 0.0, 0.0
     for f in range(f_all):                      # refused values: the checks word the error
         for i in range(n):
-            for k in range(2):
+            for k in range(dim):
                 v = x[f, i, k]
                 if not np.isfinite(v) or abs(v) > limit:
                     return _UNDECIDED, 0.0, 0.0
     for f in range(f_all):
         _normalise_and_sort(x, f, normalized, lo_d, scale_d, sort, out)
-    c = np.empty((f_all, 2))
+    c = np.empty((f_all, dim))
     _centroids(x, normalized, norm_lo, scale, c)
-    for f in range(f_all):                      # a world or model value beyond float64
-        if not (np.isfinite(c[f, 0]) and np.isfinite(c[f, 1])):
-            return _UNDECIDED, 0.0, 0.0
-    if one_window and _body(x, normalized, norm_lo, scale, c) == 0:
+    if not np.isfinite(c).all():                # a world or model value beyond float64
+        return _UNDECIDED, 0.0, 0.0
+    if one_window and dim == 2 and _body(x, normalized, norm_lo, scale, c) == 0:
         return _UNDECIDED, 0.0, 0.0
     lo, hi = np.inf, -np.inf                    # the span, in model units
     for f in range(f_all):
         for i in range(n):
-            for k in range(2):
+            for k in range(dim):
                 v = np.float64(x[f, i, k])
                 if not normalized:
                     v = (v - norm_lo) / scale
@@ -324,17 +339,19 @@ def screen(x, m, normalized, norm_lo, scale, lo_d, scale_d, limit, one_window, s
     if lo < _RANGE_LO or hi > _RANGE_HI:
         return _SPAN, lo, hi
     if n >= _RADIUS_MIN_POINTS:                 # each frame's mean radius, world units
+        g = np.empty(dim)
         for f in range(f_all):
-            gx, gy = 0.0, 0.0
+            g[:] = 0.0
             for i in range(n):
-                gx += np.float64(x[f, i, 0])
-                gy += np.float64(x[f, i, 1])
-            gx /= n
-            gy /= n
+                for k in range(dim):
+                    g[k] += np.float64(x[f, i, k])
+            g /= n
             total = 0.0
             for i in range(n):
-                dx, dy = np.float64(x[f, i, 0]) - gx, np.float64(x[f, i, 1]) - gy
-                total += math.sqrt(dx * dx + dy * dy)
+                d2 = 0.0
+                for k in range(dim):
+                    d2 += (np.float64(x[f, i, k]) - g[k]) ** 2
+                total += math.sqrt(d2)
             r = total / n * scale if normalized else total / n
             a, b = _side(r, _RADIUS_LO, _band(_RADIUS_LO)), _side(r, _RADIUS_HI, _band(_RADIUS_HI))
             if a == 0 or b == 0:
@@ -357,8 +374,8 @@ class Screen:
         self._memo: dict = {}
 
     def __call__(self, model, x, one: bool, normalized: bool):
-        """For an array of one window ``(m, N, 2)`` (``one``) or of fewer than
-        ``SPLIT_MIN_BATCH`` windows ``(B, m, N, 2)``, float32 or float64: the warnings the checks
+        """For an array of one window ``(m, N, dim)`` (``one``) or of fewer than
+        ``SPLIT_MIN_BATCH`` windows ``(B, m, N, dim)``, float32 or float64: the warnings the checks
         give, and ``(points, counts, batch)`` as ``model.canonical_points`` gives them; None
         for any other input, or where :func:`screen` leaves the verdict to the checks."""
         c = model.config
@@ -387,15 +404,15 @@ class Screen:
             return None
         if code != _CLEAR:
             warn_verdict(code, a, b, c.norm_lo, c.norm_hi, normalized,
-                         "window" if one else "windows")
+                         "window" if one else "windows", c.dim)
         return pts, np.full(batch * c.m, n, dtype=np.intp), batch
 
     def sorted(self, points: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
-        """``points (P, 2)`` in canonical order (``points[canonical_order(points, counts)]``,
+        """``points (P, dim)`` in canonical order (``points[canonical_order(points, counts)]``,
         :mod:`tpnet_ref.point_order`) when every frame has the same number of points, at most
         :data:`MAX_POINTS` (a rollout's predicted frames); else None."""
         n = int(counts[0]) if len(counts) else 0
-        if (points.ndim != 2 or points.shape[1] != 2 or not 0 < n <= MAX_POINTS
+        if (points.ndim != 2 or points.shape[1] not in (2, 3) or not 0 < n <= MAX_POINTS
                 or points.shape[0] != n * len(counts) or (counts != n).any()):
             return None
         out = np.empty_like(points, order="C")

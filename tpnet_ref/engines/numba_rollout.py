@@ -83,11 +83,11 @@ STEPS_FIRST = 8
 
 def fusable(model, batch: int) -> bool:
     """Whether ``model``'s rollouts of ``batch`` windows can run as :func:`rollout_steps`: the
-    Numba engine's own head (not a specialised one) and feature extractor, 2-D points in
+    Numba engine's own head (not a specialised one) and feature extractor, 2-D or 3-D points in
     canonical order."""
     head = model.head_for(batch)
     return (head.name == "numba" and model.engine_features is not None
-            and model.config.dim == 2 and model.sort_points)
+            and model.config.dim in (2, 3) and model.sort_points)
 
 
 _MEMO: dict = {}
