@@ -40,6 +40,12 @@ def _falling(rows_apart, v=(0.3, 0.1)):
     return np.stack([_ring() + np.array(v) * i + 0.5 * a * i * i for i in range(4)])
 
 
+#: the warnings of each decided verdict
+_WARNINGS = {EC.VERDICT_CLEAR: [], EC.VERDICT_SPAN: [C.OutsideTrainingRangeWarning],
+             EC.VERDICT_RADIUS: [C.OutsideTrainingRangeWarning],
+             EC.VERDICT_FALL: [C.FrameSpacingWarning], EC.VERDICT_STEP: [C.FrameSpacingWarning]}
+
+
 def _first_pass(net, x, one, normalized):
     """The model's compiled first pass on ``x`` (None: not decided, or no first pass)."""
     return None if net.screen is None else net.screen(net, x, one, normalized)
@@ -140,11 +146,7 @@ def test_each_verdict_is_the_checks_warning_or_left_to_them(net, name, make, nor
         elif verdict is not None:
             assert decided, name
             _, said = _record(lambda: _first_pass(net, w, True, normalized))
-            kinds = {EC.VERDICT_CLEAR: [], EC.VERDICT_SPAN: [C.OutsideTrainingRangeWarning],
-                     EC.VERDICT_RADIUS: [C.OutsideTrainingRangeWarning],
-                     EC.VERDICT_FALL: [C.FrameSpacingWarning],
-                     EC.VERDICT_STEP: [C.FrameSpacingWarning]}[verdict]
-            assert [k for k, _ in said] == kinds, name
+            assert [k for k, _ in said] == _WARNINGS[verdict], name
 
 
 def test_values_beyond_the_models_dtype_are_left_to_the_checks_error():
@@ -386,11 +388,7 @@ def test_each_3d_verdict_is_the_checks_warning_or_left_to_them(net3, name, make,
         assert decided == (verdict != EC.VERDICT_UNDECIDED), name
         if decided:
             _, said = _record(lambda: _first_pass(net3, w, True, normalized))
-            kinds = {EC.VERDICT_CLEAR: [], EC.VERDICT_SPAN: [C.OutsideTrainingRangeWarning],
-                     EC.VERDICT_RADIUS: [C.OutsideTrainingRangeWarning],
-                     EC.VERDICT_FALL: [C.FrameSpacingWarning],
-                     EC.VERDICT_STEP: [C.FrameSpacingWarning]}[verdict]
-            assert [k for k, _ in said] == kinds, name
+            assert [k for k, _ in said] == _WARNINGS[verdict], name
             if verdict == EC.VERDICT_RADIUS:
                 assert "is a ball of radius 2" in said[0][1]
 
