@@ -114,11 +114,11 @@ def _plot_front(rows: list[dict[str, Any]], curves: list[Curve], path: Path) -> 
     ax.set_xscale("log")
     ax.set_yscale("log")
     lat = [r["latency_us"] for r in rows if r.get("latency_us")]
-    narrow = bool(lat) and max(lat) < 10 * min(lat)    # no decade mark in view: label minors
     for axis in (ax.xaxis, ax.yaxis):               # plain numbers; minor labels on y
         axis.set_major_formatter(FormatStrFormatter("%g"))
-        axis.set_minor_formatter(FormatStrFormatter("%g") if axis is ax.yaxis or narrow
-                                 else NullFormatter())
+        axis.set_minor_formatter(FormatStrFormatter("%g") if axis is ax.yaxis else NullFormatter())
+    if lat:                                         # x: each model's own latency marked
+        ax.set_xticks(sorted({float(round(v)) for v in lat}))
     ax.set_xlabel("B = 1 latency (µs, the machine in results3d.md)")
     ax.set_ylabel("E_p (squared, normalised)")
     ax.legend(fontsize=7)
