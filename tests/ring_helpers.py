@@ -1,5 +1,6 @@
 """Shared by the unit-order and specialisation tests: a small network shape and windows of a
-ring drifting through the box (the scene's kind of input, cheap to make)."""
+ring drifting through the box (the scene's kind of input, cheap to make); by the 3-D tests: a
+window of the 3-D scene's ball thrown in free fall."""
 from __future__ import annotations
 
 import numpy as np
@@ -20,3 +21,15 @@ def rings(rng: np.random.Generator, n: int, m: int = 4, wobble: float = 0.0) -> 
     if wobble:
         out = out + rng.normal(0, wobble, (n, m, 30, 2))
     return out
+
+
+def thrown_ball(rows_apart: float = 4, centre=(20.0, 22.0, 30.0), v=(6.0, -3.0, 4.0),
+                radius: float = 2.0) -> np.ndarray:
+    """A window of the 3-D scene's ball (docs/spec.md §8: 42 points, radius 2; here of
+    ``radius``) thrown in free fall from ``centre`` at ``v``: frames ``rows_apart`` simulator
+    rows apart, world units, ``(4, 42, 3)``."""
+    from tpnet_ref import checks as C
+    from tpnet_ref.sim.scene3d import ball_positions
+    t = np.arange(4) * rows_apart * C.SIM_DT
+    c = np.asarray(centre) + np.outer(t, v) + np.outer(0.5 * t ** 2, [0, 0, -C.GRAVITY])
+    return np.stack([p + ball_positions(0, 0, 0) * (radius / 2.0) for p in c])

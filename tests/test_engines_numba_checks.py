@@ -16,6 +16,7 @@ from tpnet_ref import checks as C  # noqa: E402
 from tpnet_ref.engines import numba_checks as EC  # noqa: E402
 from tpnet_ref.config import TPNetConfig  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
+from ring_helpers import thrown_ball  # noqa: E402
 
 SMALL = TPNetConfig(mlp1=(8, 8), mlp2=(8, 8, 16), global_features=8, lstm_units=(8, 8, 8))
 
@@ -342,14 +343,6 @@ def net3(request):
     return init_random(SMALL3, seed=1, dtype=request.param).with_engine("numba")
 
 
-def _ball(rows_apart=4, centre=(20.0, 22.0, 30.0), v=(6.0, -3.0, 4.0), r=2.0):
-    """The scene's ball (42 points) thrown in free fall, frames ``rows_apart`` rows apart."""
-    from tpnet_ref.sim.scene3d import ball_positions
-    t = np.arange(4) * rows_apart * C.SIM_DT
-    c = np.asarray(centre) + np.outer(t, v) + np.outer(0.5 * t ** 2, [0, 0, -C.GRAVITY])
-    return np.stack([p + (ball_positions(0, 0, 0) * r / 2.0) for p in c])
-
-
 def test_3d_scene_windows_are_decided_and_say_what_the_checks_say(net3):
     pytest.importorskip("mujoco")
     from tpnet_ref.sim.cases3d import TEST_CASES3D
@@ -363,21 +356,21 @@ def test_3d_scene_windows_are_decided_and_say_what_the_checks_say(net3):
 
 
 @pytest.mark.parametrize("name, make, normalized, verdict", [
-    ("a throw", lambda: _ball(), False, EC.VERDICT_CLEAR),
-    ("model units", lambda: (_ball() - 1.1438) / 42.7124, True, EC.VERDICT_CLEAR),
-    ("out of the box, above", lambda: _ball() + [0.0, 0.0, 20.0], False, EC.VERDICT_SPAN),
-    ("world units as normalized", lambda: _ball(), True, EC.VERDICT_SPAN),
-    ("a large ball", lambda: _ball(r=6.0), False, EC.VERDICT_RADIUS),
+    ("a throw", lambda: thrown_ball(), False, EC.VERDICT_CLEAR),
+    ("model units", lambda: (thrown_ball() - 1.1438) / 42.7124, True, EC.VERDICT_CLEAR),
+    ("out of the box, above", lambda: thrown_ball() + [0.0, 0.0, 20.0], False, EC.VERDICT_SPAN),
+    ("world units as normalized", lambda: thrown_ball(), True, EC.VERDICT_SPAN),
+    ("a large ball", lambda: thrown_ball(radius=6.0), False, EC.VERDICT_RADIUS),
     ("random points", lambda: np.random.default_rng(0).uniform(5.4, 39.6, (4, 42, 3)), False,
      EC.VERDICT_RADIUS),
-    ("falling, consecutive rows", lambda: _ball(1), False, EC.VERDICT_FALL),
-    ("falling, every 8th row", lambda: _ball(8), False, EC.VERDICT_FALL),
-    ("at rest", lambda: np.stack([_ball()[0]] * 4), False, EC.VERDICT_STEP),
-    ("a stray point", lambda: np.concatenate([_ball(), _ball()[:, :1] + 6.0], axis=1), False,
-     EC.VERDICT_CLEAR),                 # the one-body test is the 2-D ring's only
-    ("a NaN", lambda: np.where(np.arange(504).reshape(4, 42, 3) == 7, np.nan, _ball()), False,
-     EC.VERDICT_UNDECIDED),
-    ("4 points a frame", lambda: _ball()[:, :4], False, EC.VERDICT_UNDECIDED),
+    ("falling, consecutive rows", lambda: thrown_ball(1), False, EC.VERDICT_FALL),
+    ("falling, every 8th row", lambda: thrown_ball(8), False, EC.VERDICT_FALL),
+    ("at rest", lambda: np.stack([thrown_ball()[0]] * 4), False, EC.VERDICT_STEP),
+    ("a stray point", lambda: np.concatenate([thrown_ball(), thrown_ball()[:, :1] + 6.0], axis=1),
+     False, EC.VERDICT_CLEAR),          # the one-body test is the 2-D ring's only
+    ("a NaN", lambda: np.where(np.arange(504).reshape(4, 42, 3) == 7, np.nan, thrown_ball()),
+     False, EC.VERDICT_UNDECIDED),
+    ("4 points a frame", lambda: thrown_ball()[:, :4], False, EC.VERDICT_UNDECIDED),
 ])
 def test_each_3d_verdict_is_the_checks_warning_or_left_to_them(net3, name, make, normalized,
                                                                verdict):
@@ -401,7 +394,7 @@ def test_each_3d_verdict_is_the_checks_warning_or_left_to_them(net3, name, make,
 def test_whatever_it_decides_in_3d_is_what_the_checks_say(net3, c, r, v, rows, noise, seed,
                                                           normalized, f32, batch):
     rng = np.random.default_rng(seed)
-    w = _ball(rows, c, v, r) + noise * rng.standard_normal((4, 42, 3))
+    w = thrown_ball(rows, c, v, r) + noise * rng.standard_normal((4, 42, 3))
     w = w[:, rng.permutation(42)]
     if normalized:
         w = (w - 1.1438) / 42.7124
@@ -411,23 +404,23 @@ def test_whatever_it_decides_in_3d_is_what_the_checks_say(net3, c, r, v, rows, n
 
 def test_a_3d_prediction_and_rollout_through_it_are_those_through_the_checks(monkeypatch):
     import tpnet_ref
-    from pathlib import Path
     from tpnet_ref.engines import numba_rollout
-    path = Path(tpnet_ref.__file__).resolve().parents[1] / "weights" / "tpnet3d-m4-quarter.h5"
-    net = tpnet_ref.load(str(path))
+    from tpnet_ref.weights.shipped import REPO_WEIGHTS_DIR
+    net = tpnet_ref.load(str(REPO_WEIGHTS_DIR / "tpnet3d-m4-quarter.h5"))
     checked = _without_first_pass(net)
     rng = np.random.default_rng(5)
-    for w in (_ball(), rng.uniform(5.4, 39.6, (4, 42, 3)), _ball(1), _ball() + [0, 0, 20.0]):
+    for w in (thrown_ball(), rng.uniform(5.4, 39.6, (4, 42, 3)), thrown_ball(1),
+              thrown_ball() + [0, 0, 20.0]):
         for x in (w, w.astype(np.float32)):
             assert _first_pass(net, x, True, False) is not None
             fast, said = _record(lambda: net.predict(x))
             slow, said_slow = _record(lambda: checked.predict(x))
             assert fast.tobytes() == slow.tobytes() and said == said_slow
-    x = np.stack([_ball(centre=(15.0 + i, 22.0, 30.0)) for i in range(3)])
+    x = np.stack([thrown_ball(centre=(15.0 + i, 22.0, 30.0)) for i in range(3)])
     assert net.predict_batch(x).tobytes() == checked.predict_batch(x).tobytes()
     # the rollout's steps in one compiled call (3-D too) are the step-by-step path's bits
     assert numba_rollout.fusable(net, 1)
-    w = _ball()
+    w = thrown_ball()
     fused, fused_batch = net.rollout(w, 30), net.rollout_batch(x, 12)
     monkeypatch.setattr(numba_rollout, "fusable", lambda model, batch: False)
     assert fused.tobytes() == checked.rollout(w, 30).tobytes()

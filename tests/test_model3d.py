@@ -35,6 +35,8 @@ from tpnet_ref import checks as C
 from tpnet_ref.config import NORM_HI, NORM_LO
 from tpnet_ref.engines import reference
 from tpnet_ref.model import SPLIT_MIN_BATCH, TPNet, TPNetConfig, init_random, load
+from tpnet_ref.weights.shipped import REPO_WEIGHTS_DIR
+from ring_helpers import thrown_ball
 
 FIX = Path(__file__).parent / "fixtures"
 #: the suite's 3-D network: a small released structure (identity transforms, so that the Numba
@@ -384,15 +386,6 @@ def test_a_window_of_the_other_dimension_gets_one_line_naming_both(engine):
 
 
 # ------------------------------------------------------------------ warnings in the 3-D scene
-def _ball_window(rows_apart: int = 4, centre=(20.0, 22.0, 30.0), v=(6.0, -3.0, 4.0)):
-    """A 3-D ball (docs/spec.md §8's 42 points, radius 2) thrown in free fall: frames
-    ``rows_apart`` simulator rows apart (world units, ``(4, 42, 3)``)."""
-    from tpnet_ref.sim.scene3d import ball_positions
-    t = np.arange(4) * rows_apart * C.SIM_DT
-    c = np.asarray(centre) + np.outer(t, v) + np.outer(0.5 * t ** 2, [0, 0, -C.GRAVITY])
-    return np.stack([ball_positions(*p) for p in c])
-
-
 def test_the_3d_scene_shares_the_checks_constants():
     from tpnet_ref.sim.scene3d import SceneParams3D
     p = SceneParams3D()
@@ -402,7 +395,7 @@ def test_the_3d_scene_shares_the_checks_constants():
 
 def test_the_warnings_that_carry_over_to_the_3d_scene():
     model = _model("float64")
-    w = _ball_window()
+    w = thrown_ball()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         model.predict(w)                                      # a throw of the scene: no warning
@@ -410,7 +403,7 @@ def test_the_warnings_that_carry_over_to_the_3d_scene():
         stray[1] = np.concatenate([stray[1], stray[1][:1] + 6.0])
         model.predict(stray)          # a stray point: the one-body test is the 2-D ring's only
     with pytest.warns(C.FrameSpacingWarning, match="falls freely.*1/45 s apart"):
-        model.predict(_ball_window(rows_apart=1))             # free fall read along z
+        model.predict(thrown_ball(rows_apart=1))             # free fall read along z
     with pytest.warns(C.FrameSpacingWarning, match="moves 0 world units"):
         model.predict(np.stack([w[0]] * 4))                   # at rest
     with pytest.warns(C.OutsideTrainingRangeWarning, match="is a ball of radius 2"):
@@ -425,8 +418,7 @@ def test_the_warnings_that_carry_over_to_the_3d_scene():
 def test_the_shipped_3d_quarter_loads_as_a_3d_model_and_rolls_out_a_ball():
     """``weights/tpnet3d-m4-quarter.h5`` (weights/MODEL_CARD.md, "The 3-D quarter"): a 3-D
     network of 42 points whose rollout of a resting ball stays a ball of about its size."""
-    path = Path(__file__).resolve().parents[1] / "weights" / "tpnet3d-m4-quarter.h5"
-    model = load(str(path))
+    model = load(str(REPO_WEIGHTS_DIR / "tpnet3d-m4-quarter.h5"))
     assert (model.config.dim, model.config.n_out, model.config.m) == (3, 42, 4)
     assert model.config.lstm_units == (128, 64, 64)
     rng = np.random.default_rng(0)

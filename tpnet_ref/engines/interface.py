@@ -106,11 +106,12 @@ def build_features(model: Any, engine: str) -> Any:
 def build_screen(engine: str, config: Any) -> Any:
     """The compiled first pass over an array of windows
     (:class:`tpnet_ref.engines.numba_checks.Screen`) that goes with the numba head, or None: engine
-    "numpy", or points of another dimension than 2 or 3 (the checks then serve every call)."""
-    if engine != "numba" or config.dim not in (2, 3):
+    "numpy", or points of a dimension it does not read (``numba_checks.DIMS``; the checks then
+    serve every call)."""
+    if engine != "numba":
         return None
     from . import numba_checks
-    return numba_checks.Screen()
+    return numba_checks.Screen() if config.dim in numba_checks.DIMS else None
 
 
 def for_batch(heads: list[Head], batch: int) -> Head:

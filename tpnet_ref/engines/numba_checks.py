@@ -16,10 +16,11 @@ against the checks, on scene windows, random points, and windows built to sit on
 What it decides, for frames of ``N`` points each (``5 <= N``) in 2-D or 3-D, in the order the
 checks give their warnings:
 
-1. one body (one window of 2-D points only; the checks have no one-body test in 3-D): every frame within ``BODY_MAX_RADIUS`` of its bounding box's
-   centre and its points, taken in the order of their angle about that centre, never more than
-   ``BODY_LINK_MIN`` apart (:func:`tpnet_ref.checks._all_one_body`'s shortcut), and no frame's
-   centre more than ``BODY_MAX_STEP`` from the last's; or, failing that, a first frame whose
+1. one body (one window of 2-D points only; the checks have no one-body test in 3-D): every
+   frame within ``BODY_MAX_RADIUS`` of its bounding box's centre and its points, taken in the
+   order of their angle about that centre, never more than ``BODY_LINK_MIN`` apart
+   (:func:`tpnet_ref.checks._all_one_body`'s shortcut), and no frame's centre more than
+   ``BODY_MAX_STEP`` from the last's; or, failing that, a first frame whose
    points cannot hold a body of the scene's size (no stray-point test applies then). Anything
    else is undecided.
 2. the training range: the span of the coordinates, then each frame's mean radius
@@ -84,6 +85,8 @@ _MOTION_LO, _MOTION_HI = C.MOTION_RANGE
 _GRAVITY, _SIM_DT, _FRAME_ROWS, _FALL_TOL = C.GRAVITY, C.SIM_DT, C.FRAME_ROWS, C.FREE_FALL_TOL
 #: frames of more points go the checks' way (the outline's sort here is by insertion)
 MAX_POINTS = 256
+#: the points' dimensions it reads (its sort keeps up to three coordinates in registers)
+DIMS = (2, 3)
 
 
 @njit(cache=True, nogil=True)
@@ -103,9 +106,9 @@ def _band(threshold):
 
 @njit(cache=True, nogil=True)
 def _sort_rows(out, base, n):
-    """Rows ``base .. base + n - 1`` of ``out (P, dim)``, ``dim`` 2 or 3, sorted in place by x,
-    then y (then z): an insertion sort (a frame is a few dozen points) on scalars, stable as
-    ``np.lexsort`` (rows that tie on every coordinate are the same numbers)."""
+    """Rows ``base .. base + n - 1`` of ``out (P, dim)``, ``dim`` in :data:`DIMS`, sorted in
+    place by x, then y (then z): an insertion sort (a frame is a few dozen points) on scalars,
+    stable as ``np.lexsort`` (rows that tie on every coordinate are the same numbers)."""
     three = out.shape[1] == 3
     last = out.shape[1] - 1
     for i in range(1, n):
@@ -303,14 +306,14 @@ def _motion(c):
 
 @njit(cache=True, nogil=True)
 def screen(x, m, normalized, norm_lo, scale, lo_d, scale_d, limit, one_window, sort, out):
-    """``x (F, N, dim)``, ``dim`` 2 or 3: ``F / m`` windows of ``m`` frames (one window when
-    ``one_window``), world units unless ``normalized``; ``norm_lo``, ``scale``: the model's normalisation (float64),
-    ``lo_d``, ``scale_d`` the same in the model's dtype; ``limit``: the largest magnitude the
-    model's dtype holds (infinity when ``x``'s dtype is no wider). Fills ``out (F * N, dim)`` (the
-    model's dtype) with the points in model coordinates, each frame sorted when ``sort``, and
-    returns ``(verdict, a, b)`` (:func:`warn_verdict`)."""
+    """``x (F, N, dim)``, ``dim`` in :data:`DIMS`: ``F / m`` windows of ``m`` frames (one window
+    when ``one_window``), world units unless ``normalized``; ``norm_lo``, ``scale``: the model's
+    normalisation (float64), ``lo_d``, ``scale_d`` the same in the model's dtype; ``limit``: the
+    largest magnitude the model's dtype holds (infinity when ``x``'s dtype is no wider). Fills
+    ``out (F * N, dim)`` (the model's dtype) with the points in model coordinates, each frame
+    sorted when ``sort``, and returns ``(verdict, a, b)`` (:func:`warn_verdict`)."""
     f_all, n, dim = x.shape[0], x.shape[1], x.shape[2]
-    if n < _MIN_POINTS or n > MAX_POINTS or dim not in (2, 3):
+    if n < _MIN_POINTS or n > MAX_POINTS or dim not in DIMS:
         return _UNDECIDED, 0.0, 0.0
     for f in range(f_all):                      # refused values: the checks word the error
         for i in range(n):
@@ -412,7 +415,7 @@ class Screen:
         :mod:`tpnet_ref.point_order`) when every frame has the same number of points, at most
         :data:`MAX_POINTS` (a rollout's predicted frames); else None."""
         n = int(counts[0]) if len(counts) else 0
-        if (points.ndim != 2 or points.shape[1] not in (2, 3) or not 0 < n <= MAX_POINTS
+        if (points.ndim != 2 or points.shape[1] not in DIMS or not 0 < n <= MAX_POINTS
                 or points.shape[0] != n * len(counts) or (counts != n).any()):
             return None
         out = np.empty_like(points, order="C")
@@ -423,6 +426,6 @@ class Screen:
         return out
 
 
-__all__ = ["screen", "Screen", "MAX_POINTS", "sort_frames", "warn_verdict",
+__all__ = ["screen", "Screen", "MAX_POINTS", "DIMS", "sort_frames", "warn_verdict",
            "VERDICT_CLEAR", "VERDICT_UNDECIDED", "VERDICT_SPAN", "VERDICT_RADIUS", "VERDICT_FALL",
            "VERDICT_STEP"]

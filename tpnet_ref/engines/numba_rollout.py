@@ -16,7 +16,7 @@ from numba import njit
 
 from ..checks import overflow_error
 from .compile_watch import may_compile
-from .numba_checks import sort_frames
+from .numba_checks import DIMS, sort_frames
 from .numba_features import frame_range
 from .numba_lstm import head_serial, project_serial
 
@@ -83,11 +83,11 @@ STEPS_FIRST = 8
 
 def fusable(model, batch: int) -> bool:
     """Whether ``model``'s rollouts of ``batch`` windows can run as :func:`rollout_steps`: the
-    Numba engine's own head (not a specialised one) and feature extractor, 2-D or 3-D points in
-    canonical order."""
+    Numba engine's own head (not a specialised one) and feature extractor, points of a
+    dimension its sort reads (:data:`~tpnet_ref.engines.numba_checks.DIMS`) in canonical order."""
     head = model.head_for(batch)
     return (head.name == "numba" and model.engine_features is not None
-            and model.config.dim in (2, 3) and model.sort_points)
+            and model.config.dim in DIMS and model.sort_points)
 
 
 _MEMO: dict = {}
