@@ -21,7 +21,7 @@ import numpy as np
 from .engines import interface as H, rollout as R, specialised as S, unit_order as U
 from .engines.batch_split import SPLIT_CHUNK, SPLIT_MIN_BATCH, split_batch  # noqa: F401
 from .engines.thread_policy import adaptive, two_threads
-from .engines.blas import in_one_thread, one_thread  # noqa: F401
+from .engines.blas import one_thread
 from .checks import (NonFiniteResultError, check_params, check_window, check_windows,
                      warn_about_input)
 from .config import NORM_HI, NORM_LO, TPNetConfig, param_shapes, random_params
@@ -76,6 +76,8 @@ class TPNet:
         self._scale = self.dtype.type(config.norm_hi - config.norm_lo)
         #: the compiled first pass over an array of windows (None: the checks serve every call)
         self.screen = H.build_screen(self.engine, config)
+        #: the network as one compiled call for the one-thread plan (None: separate calls)
+        self.fused = H.build_fused(self.engine)
 
     # ------------------------------------------------------- the same network, changed
     def _replace(self, **changes: Any) -> "TPNet":
@@ -214,11 +216,10 @@ class TPNet:
         return self.head_for(len(features))(features, proj1)
 
     def _threads(self, what: str, batch: int, points: int, held: bool = False) -> Any:
-        """The block a call's work runs in: always a one-thread BLAS, and
-        :data:`tpnet_ref.engines.thread_policy.adaptive`, which lets the parts that may take a second thread (the
-        feature extractor's blocks of :data:`~tpnet_ref.engines.numpy_engine.BLOCK_POINTS` points, the
-        numba head's two directions) take it while that measures faster (the same bits either
-        way). A call with nothing to share runs on one thread."""
+        """The block a call's work runs in: a one-thread BLAS, and :data:`~tpnet_ref.engines.thread_policy.adaptive`,
+        which lets the parts that may take a second thread (the NumPy extractor's blocks of points,
+        the Numba kernels) take it while that measures faster (the same bits either way), and
+        says which plan runs. A call with nothing to share runs on one thread."""
         head = self.head_for(batch)
         if not head.threaded and points <= BLOCK_POINTS:
             return one_thread()
@@ -269,9 +270,12 @@ class TPNet:
 
     def _network(self, points: np.ndarray, counts: np.ndarray, batch: int,
                  normalized: bool) -> np.ndarray:
-        """:meth:`canonical_points`' ``points`` and ``counts`` of ``batch`` windows ->
-        ``(batch, n_out, dim)``, world units unless ``normalized``."""
-        with self._threads("predict", batch, len(points)):
+        """:meth:`canonical_points`' output for ``batch`` windows -> ``(batch, n_out, dim)``."""
+        with self._threads("predict", batch, len(points)) as plan:   # one thread: one call
+            y = None if plan == 0 or not self.fused else self.fused.run(self, points, counts,
+                                                                         batch, normalized)
+            if y is not None:
+                return y
             g = self.frame_features(points, counts, batch)
             y = self.sequence_head(g.reshape(batch, self.config.m, -1))
         return y if normalized else self.denormalize(y)
@@ -308,8 +312,7 @@ def load(path: str | os.PathLike | None = None, dtype: Any = "float32",
     config, params, meta = read_native(path)             # the digest checked: the file is whole
     unit_order, used = U.read(path), S.read(path)
     try:
-        return TPNet(config, params, dtype, meta, engine, unit_order=unit_order,
-                     used=used)       # specialised if the file says so
+        return TPNet(config, params, dtype, meta, engine, unit_order=unit_order, used=used)
     except ValueError as exc:         # what the file holds does not fit together
         raise ValueError(f"{path}: {exc}") from None
 

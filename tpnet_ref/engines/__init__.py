@@ -9,7 +9,8 @@
                         by stage: :mod:`.numba_products` (the product), :mod:`.numba_lstm` (the
                         prediction network), :mod:`.numba_features` (the feature extractor); its
                         first pass over a window (:mod:`.numba_checks`: the input checks' verdict,
-                        the canonical order) and a rollout's steps in one call (:mod:`.numba_rollout`)
+                        the canonical order), a rollout's steps in one call (:mod:`.numba_rollout`)
+                        and a prediction's network in one call (:mod:`.numba_predict`)
 * :mod:`.specialised`   the scene-specialised head (``model.specialize``); its pass on one
                         window in :mod:`.specialised_window`
 * :mod:`.unit_order`    each layer's units laid out most used first

@@ -114,6 +114,15 @@ def build_screen(engine: str, config: Any) -> Any:
     return numba_checks.Screen() if config.dim in numba_checks.DIMS else None
 
 
+def build_fused(engine: str) -> Any:
+    """The prediction's network as one compiled call (:mod:`tpnet_ref.engines.numba_predict`)
+    that goes with the numba head, or None: engine "numpy"."""
+    if engine != "numba":
+        return None
+    from . import numba_predict
+    return numba_predict
+
+
 def for_batch(heads: list[Head], batch: int) -> Head:
     """The first of ``heads`` that runs batches of ``batch`` windows."""
     return next(h for h in heads if h.max_batch is None or batch <= h.max_batch)

@@ -10,12 +10,11 @@ makes every step wait); both plans run every BLAS product on one thread
 """
 from __future__ import annotations
 
-import contextlib
 import os
 import threading
 import time
 from collections import deque
-from typing import Hashable, Iterator
+from typing import Any, Hashable
 
 from .blas import cpu_count, in_one_thread, one_thread
 from .load_monitor import CoreMonitor
@@ -37,11 +36,29 @@ def two_threads() -> bool:
     return getattr(_LOCAL, "two", False)
 
 
+#: the values of TPNET_THREADS that fix a plan: 1 one thread, 0 two threads
+_FIXED = {"1": 1, "2": 0, "all": 0}
+#: the environment's own dict where it has one (POSIX: bytes keys), read without the KeyError
+#: that ``os.environ.get`` raises and catches for every unset name (a microsecond a call)
+_ENV_DATA = getattr(os.environ, "_data", None) if os.name == "posix" else None
+if not (isinstance(_ENV_DATA, dict) and all(isinstance(k, bytes) for k in _ENV_DATA)):
+    _ENV_DATA = None
+
+
+def _getenv(name: str, key: bytes) -> str | None:
+    """``os.environ.get(name)`` (``key``: ``name`` encoded), cheaply where the name is unset."""
+    if _ENV_DATA is not None and key not in _ENV_DATA:
+        return None
+    return os.environ.get(name)
+
+
 def _fixed_choice() -> int | None:
     """``TPNET_THREADS=1`` (or the older ``TPNET_BLAS_THREADS=1``) fixes the one-thread plan,
     ``=2`` / ``=all`` the two-thread plan; None: measure."""
-    fixed = os.environ.get("TPNET_THREADS", os.environ.get("TPNET_BLAS_THREADS"))
-    return {"1": 1, "2": 0, "all": 0}.get(fixed or "")
+    fixed = _getenv("TPNET_THREADS", b"TPNET_THREADS")
+    if fixed is None:
+        fixed = _getenv("TPNET_BLAS_THREADS", b"TPNET_BLAS_THREADS")
+    return _FIXED.get(fixed or "")
 
 
 class ThreadPolicy:
@@ -161,33 +178,51 @@ class ThreadPolicy:
                 return None
             return self._best(times)
 
-    @contextlib.contextmanager
     def __call__(self, kind: Hashable, held: bool = False,
-                 blas_free: bool = False) -> Iterator[int]:
-        """Run the block with a one-thread BLAS and the chosen plan (:func:`two_threads` tells
-        the block); yields the choice (1, 0, or -1 when the policy stands aside: nested in
-        another :func:`one_thread` block, or one core) and records the block's latency.
-        ``held``: the caller holds a :func:`one_thread` block of its own around many such
-        blocks (a rollout's steps) and was not itself nested in one when it
-        took it: the policy chooses all the same. ``blas_free``: the block calls no BLAS
-        product (the Numba engine's kernels alone), so on one thread it needs no one-thread
-        BLAS block; its two-thread plan still takes one."""
-        if (in_one_thread() and not held) or cpu_count() < 2:
-            with one_thread():
-                yield -1
-            return
-        choice = self.choose(kind)
-        t = time.perf_counter()
+                 blas_free: bool = False) -> "_Block":
+        """A block (``with``) run with a one-thread BLAS and the chosen plan
+        (:func:`two_threads` tells the block); it gives the choice (1, 0, or -1 when the policy
+        stands aside: nested in another :func:`one_thread` block, or one core) and records the
+        block's latency. ``held``: the caller holds a :func:`one_thread` block of its own around
+        many such blocks (a rollout's steps) and was not itself nested in one when it took it:
+        the policy chooses all the same. ``blas_free``: the block calls no BLAS product (the
+        Numba engine's kernels alone), so on one thread it needs no one-thread BLAS block; its
+        two-thread plan still takes one."""
+        return _Block(self, kind, held, blas_free)
+
+
+class _Block:
+    """:meth:`ThreadPolicy.__call__`'s block (a class, not a generator: a microsecond less a
+    call). A failing block records nothing."""
+
+    __slots__ = ("policy", "kind", "held", "blas_free", "choice", "blas", "t")
+
+    def __init__(self, policy: ThreadPolicy, kind: Hashable, held: bool,
+                 blas_free: bool) -> None:
+        self.policy, self.kind, self.held, self.blas_free = policy, kind, held, blas_free
+
+    def __enter__(self) -> int:
+        self.blas = None
+        if (in_one_thread() and not self.held) or cpu_count() < 2:
+            self.choice = -1
+            self.blas = one_thread()
+            self.blas.__enter__()
+            return -1
+        self.choice = choice = self.policy.choose(self.kind)
+        self.t = time.perf_counter()             # the plan's latency, its BLAS block included
         _LOCAL.two = choice == 0
-        try:
-            if held or (blas_free and choice == 1):
-                yield choice
-            else:
-                with one_thread():
-                    yield choice
-        finally:
+        if not (self.held or (self.blas_free and choice == 1)):
+            self.blas = one_thread()
+            self.blas.__enter__()
+        return choice
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.blas is not None:
+            self.blas.__exit__(*exc)
+        if self.choice != -1:
             _LOCAL.two = False
-        self.record(kind, choice, time.perf_counter() - t)
+            if exc[0] is None:
+                self.policy.record(self.kind, self.choice, time.perf_counter() - self.t)
 
 
 #: the process-wide policy :mod:`tpnet_ref.model` runs the Numba engine's single windows under;

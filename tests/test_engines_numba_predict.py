@@ -1,0 +1,166 @@
+"""tpnet_ref.engines.numba_predict: a prediction's network in one compiled call gives the separate
+calls' bits, takes over only where the thread plan is one thread, and raises their errors."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba")
+
+import tpnet_ref  # noqa: E402
+from tpnet_ref.checks import NonFiniteResultError  # noqa: E402
+from tpnet_ref.engines import compile_watch as CW  # noqa: E402
+from tpnet_ref.engines.blas import one_thread  # noqa: E402
+from tpnet_ref.engines import numba_predict as NP  # noqa: E402
+from ring_helpers import thrown_ball  # noqa: E402
+
+
+def _ring(cx, cy, n=30):
+    a = np.arange(n) * 2 * np.pi / n
+    return np.stack([cx + 2 * np.sin(a), cy + 2 * np.cos(a)], axis=1)
+
+
+def _windows(batch):
+    return np.stack([np.stack([_ring(15 + 2 * b + 0.5 * i, 25 - 0.2 * i) for i in range(4)])
+                     for b in range(batch)])
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """The batch sizes the compiled call ran (not those it declined)."""
+    seen = []
+    run = NP.run
+
+    def counted(model, points, counts, batch, normalized):
+        got = run(model, points, counts, batch, normalized)
+        seen.extend([] if got is None else [batch])
+        return got
+    monkeypatch.setattr(NP, "run", counted)
+    return seen
+
+
+def _separate(model):
+    """The same network with the compiled call switched off: the separate calls at every plan."""
+    out = model._replace()
+    out.fused = None
+    return out
+
+
+def _inputs(dim=2):
+    rng = np.random.default_rng(7)
+    if dim == 3:
+        w = thrown_ball()
+        return [(w, True), (w.astype(np.float32), True), (rng.uniform(5.4, 39.6, (4, 42, 3)), True),
+                (np.stack([thrown_ball(centre=(15.0 + i, 22.0, 30.0)) for i in range(3)]), False)]
+    w = _windows(1)[0]
+    ragged = [w[0][:25], w[1], w[2][:28], w[3]]
+    return [(w, True), (w.astype(np.float32), True), (ragged, True),
+            (rng.uniform(5.4, 39.6, (4, 30, 2)), True), (_windows(3), False),
+            (_windows(9), False)]
+
+
+def _predict(model, x, one, normalized=False):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return (model.predict if one else model.predict_batch)(x, normalized=normalized)
+
+
+@pytest.mark.parametrize("size", ["quarter", "full"])            # both with a unit order
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_the_compiled_call_gives_the_separate_calls_bits(size, dtype, calls, monkeypatch):
+    model = tpnet_ref.load(size=size, dtype=dtype)
+    separate = _separate(model)
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    for x, one in _inputs():
+        for normalized in (False, True):
+            y = (x / 40.0) if normalized and not isinstance(x, list) else x
+            got = _predict(model, y, one, normalized)
+            assert got.tobytes() == _predict(separate, y, one, normalized).tobytes()
+            monkeypatch.setenv("TPNET_THREADS", "2")               # the two-thread plan
+            assert got.tobytes() == _predict(model, y, one, normalized).tobytes()
+            monkeypatch.setenv("TPNET_THREADS", "1")
+    assert len(calls) == 2 * len(_inputs()) and set(calls) == {1, 3, 9}
+
+
+@pytest.mark.parametrize("weights", ["int8", "bf16"])
+def test_weights_of_fewer_bits_through_the_compiled_call(weights, calls, monkeypatch):
+    model = tpnet_ref.load(size="quarter", weights=weights)
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    for x, one in _inputs():
+        assert _predict(model, x, one).tobytes() == _predict(_separate(model), x, one).tobytes()
+    assert len(calls) == len(_inputs())
+
+
+def test_a_3d_model_through_the_compiled_call(calls, monkeypatch):
+    from tpnet_ref.weights.shipped import REPO_WEIGHTS_DIR
+    model = tpnet_ref.load(str(REPO_WEIGHTS_DIR / "tpnet3d-m4-quarter.h5"))
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    for x, one in _inputs(dim=3):
+        got = _predict(model, x, one)
+        assert got.shape[-2:] == (42, 3)
+        assert got.tobytes() == _predict(_separate(model), x, one).tobytes()
+    assert len(calls) == len(_inputs(dim=3))
+
+
+def test_only_the_one_thread_plan_of_the_numba_engines_own_head_is_compiled_whole(
+        released_random64, calls, monkeypatch):
+    model = released_random64.astype("float32").with_engine("numba")
+    w = _windows(1)[0]
+    monkeypatch.setenv("TPNET_THREADS", "2")
+    model.predict(w)
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    model.with_engine("numpy").predict(w)
+    assert model.with_engine("numpy").fused is None
+    assert calls == []
+    model.predict(w)
+    model.with_point_sort(False).predict(w)                 # the points as given: still whole
+    assert calls == [1, 1]
+    with one_thread():                                      # nested: the policy stands aside
+        model.predict(w)
+    assert calls == [1, 1, 1]
+
+
+def test_a_specialised_model_compiles_whole_only_what_its_numba_head_runs(released_random64,
+                                                                         calls, monkeypatch):
+    from tpnet_ref.engines.interface import ENGINE_MAX_BATCH
+    model = released_random64.astype("float32").with_engine("numba")
+    spec = model.specialize(_windows(2))
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    big = _windows(ENGINE_MAX_BATCH + 1)
+    assert NP.fusable(spec, ENGINE_MAX_BATCH) and not NP.fusable(spec, len(big))
+    for x, one in ((big[0], True), (big[:ENGINE_MAX_BATCH], False), (big, False)):
+        assert _predict(spec, x, one).tobytes() == _predict(_separate(spec), x, one).tobytes()
+    assert calls == [1, ENGINE_MAX_BATCH]                    # the larger batch: its own head
+    assert spec.counts["windows"] == len(big)
+
+
+def test_where_the_kernel_may_not_compile_the_separate_calls_serve(released_random64, calls,
+                                                                  monkeypatch):
+    model = released_random64.astype("float32").with_engine("numba")
+    w = _windows(1)[0]
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    monkeypatch.setattr(CW, "TWO_THREAD_KERNELS_ON_DEMAND", False)
+    monkeypatch.setattr(NP, "_MEMO", {})
+    monkeypatch.setattr(NP, "may_compile", lambda *a: False)
+    got = model.predict(w)
+    assert calls == []                                       # asked, and declined
+    assert got.tobytes() == _separate(model).predict(w).tobytes()
+
+
+def test_an_overflow_in_the_compiled_call_is_the_separate_calls_error(released_random64,
+                                                                       monkeypatch):
+    model = released_random64.astype("float32").with_engine("numba")
+    w = _windows(1)[0] * 1e30                                # the float32 network overflows
+    said, kernel = [], NP.network_steps
+    monkeypatch.setattr(NP, "network_steps", lambda *a: said.append(kernel(*a)) or said[-1])
+    errors = []
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    for net in (model, _separate(model)):
+        with pytest.raises(NonFiniteResultError) as got, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            net.predict(w)
+        errors.append(str(got.value))
+    assert len(said) == 1 and said[0] != 0                  # the compiled call saw it first
+    assert errors[0] == errors[1] and "overflowed in float32" in errors[0]

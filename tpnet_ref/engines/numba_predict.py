@@ -1,0 +1,108 @@
+"""A prediction's network in one compiled call: the Numba engine's feature extractor, BiLSTM 1's
+input projection, the prediction network and the way back to world units, without returning to
+Python in between.
+
+:meth:`tpnet_ref.model.TPNet.predict` runs these as four calls (features, projection, head,
+denormalisation), each with its own Python around it: at the small sizes that Python is a
+fifth of a call. Where the call's thread plan is one thread anyway (the policy measured one
+thread faster, or another process takes the second core), the model hands its windows to
+:func:`network_steps`, which calls the very same kernels on the very same numbers: the same
+bits (``tests/test_engines_numba_predict.py``). A two-thread plan keeps the separate calls,
+whose kernels take the second thread.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..checks import overflow_error
+from .compile_watch import may_compile
+from .numba_features import frame_range
+from .numba_lstm import head_serial, project_serial
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def network_steps(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, csts, units,
+                  gammas, betas, head_w, head_b, relu, one, eps, limit, w0, b0, ws, bs, gw, gb,
+                  zero, normalized, lo, scale, out):
+    """``batch`` windows of ``m`` frames, the frames' points ``pts (P, dim)`` in model
+    coordinates and canonical order, ``counts (batch * m,)`` a frame, window after window ->
+    ``out (batch, n_out * dim)``, world units unless ``normalized`` (``y * scale + lo``, two
+    roundings as NumPy's). ``order``: the head's order of the global features; the head's
+    arrays as :class:`tpnet_ref.engines.numba_engine.NumbaHead` holds them, the extractor's as
+    :class:`~tpnet_ref.engines.numba_engine.NumbaFeatures` does. Returns 0, the 1-based layer
+    that overflowed, or -1 for a non-finite output (``out`` then unfinished)."""
+    nf = batch * m
+    k = order.shape[0]
+    starts = np.zeros(nf, dtype=np.intp)
+    for f in range(1, nf):
+        starts[f] = starts[f - 1] + counts[f - 1]
+    g = np.empty((nf, gw.shape[1]), dtype=out.dtype)
+    frame_range(pts, starts, counts, 0, nf, w0, b0, ws, bs, gw, gb, zero, g)
+    x = np.empty((nf, k), dtype=out.dtype)              # time-major rows, the head's order
+    for t in range(m):
+        for b in range(batch):
+            for j in range(k):
+                x[t * batch + b, j] = g[b * m + t, order[j]]
+    kern1 = kernels[0]
+    proj = np.empty((nf, 2, kern1.shape[2]), dtype=out.dtype)
+    project_serial(x, kern1, kscs[0], csts[0], proj, m, batch)
+    y, bad = head_serial(proj, kernels, recs, kscs, rscs, gks, csts, units, gammas, betas,
+                         head_w, head_b, m, batch, relu, one, eps, limit)
+    if bad:
+        return bad
+    for b in range(batch):
+        for j in range(y.shape[1]):
+            v = y[b, j]
+            if not np.isfinite(v):
+                return -1
+            out[b, j] = v if normalized else v * scale + lo
+    return 0
+
+
+def fusable(model, batch: int) -> bool:
+    """Whether ``model``'s predictions of ``batch`` windows can run as :func:`network_steps`:
+    the Numba engine's own head (not a specialised one) and feature extractor."""
+    return model.head_for(batch).name == "numba" and model.engine_features is not None
+
+
+_MEMO: dict = {}
+
+
+def run(model, points: np.ndarray, counts: np.ndarray, batch: int,
+        normalized: bool) -> np.ndarray | None:
+    """The windows' predictions ``(batch, n_out, dim)`` as :func:`network_steps` gives them,
+    raising the overflow errors the separate calls raise; None (nothing run) where the model
+    is not :func:`fusable` or the kernel may not be compiled now
+    (:func:`tpnet_ref.engines.compile_watch.may_compile`)."""
+    head, fx, c = model.head_for(batch), model.engine_features, model.config
+    if head.name != "numba" or fx is None:
+        return None
+    dt = model.dtype
+    order = head.feature_order
+    if order is None:
+        order = _IDENTITY.get(fx.k)
+        if order is None:
+            order = _IDENTITY[fx.k] = np.arange(fx.k)
+    out = np.empty((batch, c.n_out, c.dim), dtype=dt)
+    args = (np.ascontiguousarray(points, dtype=dt), np.ascontiguousarray(counts, dtype=np.intp),
+            c.m, batch, order, head.kernels, head.recs, head.kscs, head.rscs, head.gks,
+            head.csts, head.units, head.gammas, head.betas, head.head_w, head.head_b, head.relu,
+            head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw, fx.gb,
+            dt.type(0), normalized, model._lo, model._scale, out.reshape(batch, -1))
+    key = (dt, head.recs[0].dtype, len(head.recs), len(fx.ws), points.shape[1])
+    if not may_compile(network_steps, key, _MEMO, args):
+        return None
+    bad = network_steps(*args)
+    if bad > 0:
+        raise overflow_error(head.dtype, f"BiLSTM {bad}")
+    if bad < 0:
+        raise overflow_error(head.dtype, "the output layer")
+    return out
+
+
+#: ``arange(k)`` by ``k``: the feature order of a head in the file's order
+_IDENTITY: dict = {}
+
+
+__all__ = ["network_steps", "fusable", "run"]
