@@ -13,6 +13,7 @@ import tpnet_ref  # noqa: E402
 from tpnet_ref.checks import NonFiniteResultError  # noqa: E402
 from tpnet_ref.engines import compile_watch as CW  # noqa: E402
 from tpnet_ref.engines.blas import one_thread  # noqa: E402
+from tpnet_ref.engines.numba_engine import NETWORK_APART_BYTES  # noqa: E402
 from tpnet_ref.engines import numba_predict as NP  # noqa: E402
 from ring_helpers import thrown_ball  # noqa: E402
 
@@ -29,13 +30,14 @@ def _windows(batch):
 
 @pytest.fixture
 def calls(monkeypatch):
-    """The batch sizes the compiled call ran (not those it declined)."""
+    """The batch sizes the compiled call ran (not those it declined); ``(batch, True)`` for a
+    two-thread plan's."""
     seen = []
     run = NP.run
 
-    def counted(model, points, counts, batch, normalized):
-        got = run(model, points, counts, batch, normalized)
-        seen.extend([] if got is None else [batch])
+    def counted(model, points, counts, batch, normalized, two=False):
+        got = run(model, points, counts, batch, normalized, two)
+        seen.extend([] if got is None else [(batch, two)] if two else [batch])
         return got
     monkeypatch.setattr(NP, "run", counted)
     return seen
@@ -81,7 +83,14 @@ def test_the_compiled_call_gives_the_separate_calls_bits(size, dtype, calls, mon
             monkeypatch.setenv("TPNET_THREADS", "2")               # the two-thread plan
             assert got.tobytes() == _predict(model, y, one, normalized).tobytes()
             monkeypatch.setenv("TPNET_THREADS", "1")
-    assert len(calls) == 2 * len(_inputs()) and set(calls) == {1, 3, 9}
+    batches = [1 if one else len(x) for x, one in _inputs()] * 2
+    head = model.head_for(1)
+    apart = [b for b in batches if head.direction_bytes * b >= NETWORK_APART_BYTES]
+    assert sorted(c for c in calls if type(c) is int) == sorted(batches)
+    assert sorted(c[0] for c in calls if type(c) is tuple) == [b for b in sorted(batches)
+                                                                if b not in apart]
+    assert (size, dtype) != ("quarter", "float32") or not apart      # the quarter's: whole
+    assert size != "full" or len(apart) == len(batches)              # the full size's: apart
 
 
 @pytest.mark.parametrize("weights", ["int8", "bf16"])

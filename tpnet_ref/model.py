@@ -271,9 +271,9 @@ class TPNet:
     def _network(self, points: np.ndarray, counts: np.ndarray, batch: int,
                  normalized: bool) -> np.ndarray:
         """:meth:`canonical_points`' output for ``batch`` windows -> ``(batch, n_out, dim)``."""
-        with self._threads("predict", batch, len(points)) as plan:   # one thread: one call
-            y = None if plan == 0 or not self.fused else self.fused.run(self, points, counts,
-                                                                         batch, normalized)
+        with self._threads("predict", batch, len(points)) as plan:   # mostly one call
+            y = None if not self.fused else self.fused.run(self, points, counts, batch,
+                                                            normalized, plan == 0)
             if y is not None:
                 return y
             g = self.frame_features(points, counts, batch)

@@ -2,13 +2,13 @@
 input projection, the prediction network and the way back to world units, without returning to
 Python in between.
 
-:meth:`tpnet_ref.model.TPNet.predict` runs these as four calls (features, projection, head,
-denormalisation), each with its own Python around it: at the small sizes that Python is a
-fifth of a call. Where the call's thread plan is one thread anyway (the policy measured one
-thread faster, or another process takes the second core), the model hands its windows to
-:func:`network_steps`, which calls the very same kernels on the very same numbers: the same
-bits (``tests/test_engines_numba_predict.py``). A two-thread plan keeps the separate calls,
-whose kernels take the second thread.
+Run separately (:meth:`tpnet_ref.model.TPNet.frame_features`, then ``sequence_head``), these
+are four calls (features, projection, head, denormalisation), each with its own Python around
+it: at the small sizes that Python is a fifth of a call. The model hands its windows to :func:`network_steps`, which calls the very
+same kernels on the very same numbers: the same bits (``tests/test_engines_numba_predict.py``).
+A two-thread plan runs the feature extractor on two threads first (its own call) and the rest
+as one call, or keeps the separate calls where the prediction network's directions take the
+second thread too (large weight reads: the full size).
 """
 from __future__ import annotations
 
@@ -24,21 +24,24 @@ from .numba_lstm import head_serial, project_serial
 @njit(cache=True, nogil=True, error_model="numpy")
 def network_steps(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, csts, units,
                   gammas, betas, head_w, head_b, relu, one, eps, limit, w0, b0, ws, bs, gw, gb,
-                  zero, normalized, lo, scale, out):
+                  zero, normalized, lo, scale, feats, out):
     """``batch`` windows of ``m`` frames, the frames' points ``pts (P, dim)`` in model
     coordinates and canonical order, ``counts (batch * m,)`` a frame, window after window ->
     ``out (batch, n_out * dim)``, world units unless ``normalized`` (``y * scale + lo``, two
     roundings as NumPy's). ``order``: the head's order of the global features; the head's
     arrays as :class:`tpnet_ref.engines.numba_engine.NumbaHead` holds them, the extractor's as
-    :class:`~tpnet_ref.engines.numba_engine.NumbaFeatures` does. Returns 0, the 1-based layer
-    that overflowed, or -1 for a non-finite output (``out`` then unfinished)."""
+    :class:`~tpnet_ref.engines.numba_engine.NumbaFeatures` does; ``feats``: the frames' global
+    features if already known (``(batch * m, >= k)``; ``(0, 0)``: computed here). Returns 0,
+    the 1-based layer that overflowed, or -1 for a non-finite output (``out`` then unfinished)."""
     nf = batch * m
     k = order.shape[0]
-    starts = np.zeros(nf, dtype=np.intp)
-    for f in range(1, nf):
-        starts[f] = starts[f - 1] + counts[f - 1]
-    g = np.empty((nf, gw.shape[1]), dtype=out.dtype)
-    frame_range(pts, starts, counts, 0, nf, w0, b0, ws, bs, gw, gb, zero, g)
+    g = feats
+    if feats.shape[0] == 0:
+        starts = np.zeros(nf, dtype=np.intp)
+        for f in range(1, nf):
+            starts[f] = starts[f - 1] + counts[f - 1]
+        g = np.empty((nf, gw.shape[1]), dtype=out.dtype)
+        frame_range(pts, starts, counts, 0, nf, w0, b0, ws, bs, gw, gb, zero, g)
     x = np.empty((nf, k), dtype=out.dtype)              # time-major rows, the head's order
     for t in range(m):
         for b in range(batch):
@@ -69,14 +72,17 @@ def fusable(model, batch: int) -> bool:
 _MEMO: dict = {}
 
 
-def run(model, points: np.ndarray, counts: np.ndarray, batch: int,
-        normalized: bool) -> np.ndarray | None:
+def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
+        two: bool = False) -> np.ndarray | None:
     """The windows' predictions ``(batch, n_out, dim)`` as :func:`network_steps` gives them,
     raising the overflow errors the separate calls raise; None (nothing run) where the model
     is not :func:`fusable` or the kernel may not be compiled now
-    (:func:`tpnet_ref.engines.compile_watch.may_compile`)."""
+    (:func:`tpnet_ref.engines.compile_watch.may_compile`). ``two``: the call's plan has a
+    second thread: the feature extractor takes it in a call of its own, then the rest runs as
+    one call, unless the prediction network's directions take it too
+    (:meth:`~tpnet_ref.engines.numba_engine.NumbaHead.apart`: None)."""
     head, fx, c = model.head_for(batch), model.engine_features, model.config
-    if head.name != "numba" or fx is None:
+    if head.name != "numba" or fx is None or (two and head.apart(batch)):
         return None
     dt = model.dtype
     order = head.feature_order
@@ -89,10 +95,13 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int,
             c.m, batch, order, head.kernels, head.recs, head.kscs, head.rscs, head.gks,
             head.csts, head.units, head.gammas, head.betas, head.head_w, head.head_b, head.relu,
             head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw, fx.gb,
-            dt.type(0), normalized, model._lo, model._scale, out.reshape(batch, -1))
+            dt.type(0), normalized, model._lo, model._scale, _NO_FEATURES[dt],
+            out.reshape(batch, -1))
     key = (dt, head.recs[0].dtype, len(head.recs), len(fx.ws), points.shape[1])
     if not may_compile(network_steps, key, _MEMO, args):
         return None
+    if two:
+        args = args[:-2] + (fx(points, counts, True), args[-1])
     bad = network_steps(*args)
     if bad > 0:
         raise overflow_error(head.dtype, f"BiLSTM {bad}")
@@ -103,6 +112,8 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int,
 
 #: ``arange(k)`` by ``k``: the feature order of a head in the file's order
 _IDENTITY: dict = {}
+#: :func:`network_steps`' ``feats`` when it computes them
+_NO_FEATURES = {np.dtype(t): np.empty((0, 0), dtype=t) for t in (np.float32, np.float64)}
 
 
 __all__ = ["network_steps", "fusable", "run"]
