@@ -1,12 +1,14 @@
 """Where one B = 1 prediction of the shipped model spends its time, stage by stage.
 
     PYTHONPATH=bench python bench/probes/profile_stages.py [--reps 300] [--engine numpy|numba]
-        [--size full|half|quarter]
+        [--size full|half|quarter] [--separate]
 
 Inputs: 64 windows of simulated test cases (``_common.scene_windows``), normalised, one
 after another, a one-thread BLAS. Each stage's time is the median over predictions of the time
 spent inside it (the stages nest: ``sequence head`` holds the products and recurrences; the
-layer functions are timed separately).
+layer functions are timed separately). The Numba engine runs the network as one compiled call
+(``engines/numba_predict.py``), timed as one stage; ``--separate`` runs it as separate calls
+(extractor, projection, head), each timed.
 
 With the NumPy engine it also counts the weight bytes the prediction network's products read
 per prediction (the rows each product reads: recurrent prefixes and projection spans) and
@@ -92,11 +94,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--engine", default="numpy", choices=("numpy", "numba"))
     ap.add_argument("--size", default="full", choices=("full", "half", "quarter"),
                     help="which shipped size (default: the full one)")
+    ap.add_argument("--separate", action="store_true",
+                    help="the Numba engine's network as separate calls, not one compiled call")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     model = tpnet_ref.load(engine=args.engine, size=args.size)
     if model.screen is not None:          # the Numba engine's first pass, where it decides
         STAGES["input checks: the compiled first pass"] = (type(model.screen), "__call__")
+    if args.separate:
+        model.fused = None
+    elif model.fused is not None:
+        STAGES["the network in one compiled call"] = (model.fused, "run")
     _, x256 = scene_windows(model)
     wins = list(x256[::4])
     spent: dict[str, float] = collections.defaultdict(float)
