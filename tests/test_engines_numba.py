@@ -687,5 +687,11 @@ def test_the_directions_go_apart_only_for_batches_with_weight_reads_to_pay_for_i
     monkeypatch.setattr(EN, "NETWORK_APART_BYTES", 3 * per)
     monkeypatch.setattr(EN, "two_threads", lambda: True)
     assert [head.apart(b) for b in (1, 2, 3, 8)] == [False, False, True, True]
+    # int8 codes count as the floats they stand for (a quarter of the bytes, the same work)
+    from tpnet_ref.weights.convert import with_weights
+    q = with_weights(init_random(cfg, seed=3, dtype="float32"), "int8")
+    head8 = q.with_engine("numba").head_for(1)
+    assert head8.weights == "int8" and head8.recs[0].dtype == np.int8
+    assert head8.direction_bytes >= per and [head8.apart(b) for b in (2, 3)] == [False, True]
     monkeypatch.setattr(EN, "two_threads", lambda: False)
     assert not head.apart(8)

@@ -164,7 +164,10 @@ def _two_threads(parallel: bool) -> bool:
 #: that bounds it, a second thread costs its region launches (four per call) and gains little.
 #: AMD EPYC VM, two-thread plan, float32, median us of a call with the directions apart /
 #: together: quarter (0.9 MB a direction) B = 1 95 / 76, B = 8 255 / 229; half (3.5 MB) B = 1
-#: 163 / 135, B = 2 190 / 192, B = 8 495 / 540; full (14 MB) B = 1 320 / 375 (docs/performance.md)
+#: 163 / 135, B = 2 190 / 192, B = 8 495 / 540; full (14 MB) B = 1 320 / 375 (docs/performance.md).
+#: Codes of fewer bits count at the model's float size (:attr:`NumbaHead.direction_bytes`):
+#: widening each one costs what reading a float does, so int8's products are bound by
+#: arithmetic, and a second thread pays (the full size's int8 at B = 1: 243 / 301 us)
 NETWORK_APART_BYTES = 10_000_000
 
 
@@ -247,8 +250,9 @@ class NumbaHead:
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
         self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
-        #: the weight bytes one direction's products read at one window (codes as stored)
-        self.direction_bytes = sum(int(a[0].nbytes) for a in (*self.kernels, *self.recs))
+        #: the bytes of the float weights one direction's products read at one window (codes
+        #: of fewer bits counted at the model's float size: see :data:`NETWORK_APART_BYTES`)
+        self.direction_bytes = sum(int(a[0].size) for a in (*self.kernels, *self.recs)) * dt.itemsize
 
     def apart(self, batch: int) -> bool:
         """Whether a call on ``batch`` windows runs the two directions on two threads: when its
