@@ -58,7 +58,10 @@ def add_cli(sub: Any) -> None:
                     "int8: symmetric, one float32 scale per output column "
                     "(max |column| / 127), applied to each sum; BiLSTM 1's input kernels and "
                     "the last BiLSTM's recurrent matrices in two int8 planes (16 bits: the "
-                    "matrices a prediction is most sensitive to). The per-point MLP, the global "
+                    "matrices a prediction is most sensitive to); with --calibrate, every matrix "
+                    "in one int8 plane, its rows rounded in order with each row's error moved "
+                    "onto the rows after it as training windows' inputs co-vary (GPTQ; smaller "
+                    "and closer to float32: docs/deployment.md). The per-point MLP, the global "
                     "layer, the output "
                     "layer, biases and LayerNorm stay float32; sums and activations are float32. "
                     "The file records the scheme (quantization) and its source "
@@ -72,6 +75,14 @@ def add_cli(sub: Any) -> None:
                         "int8 (a quarter)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.h5",
                    help="native weights file to write (may not be W)")
+    p.add_argument("--calibrate", metavar="DATA",
+                   help="int8 only: round on windows of DATA's training split (a dataset of "
+                        "`tpnet data generate` of the model's dimension; never the test cases), "
+                        "every matrix in one plane")
+    p.add_argument("--windows", type=int, default=256,
+                   help="calibration windows drawn from DATA (default: 256)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="the draw of the calibration windows (default: 0)")
     p.set_defaults(func=_cli_quantize)
 
 
@@ -138,12 +149,24 @@ def _cli_quantize(args: argparse.Namespace) -> int:
 
     if os.path.abspath(args.output) == os.path.abspath(args.weights):
         raise ValueError("quantize: -o must name a new file, not --weights")
+    if args.calibrate and args.to != "int8":
+        raise ValueError(f"quantize: --calibrate rounds int8 codes; --to {args.to} rounds to "
+                         "nearest")
+    if args.windows < 1:
+        raise ValueError(f"quantize: --windows must be at least 1, got {args.windows}")
     base = load(args.weights, engine="numpy")
-    model = with_weights(base, args.to)
+    if args.calibrate:
+        from ..weights import calibrate as C
+        c = base.config
+        wins = C.training_windows(args.calibrate, c.m, c.dim, args.windows, args.seed)
+        model = C.calibrated_int8(base, wins, os.path.basename(args.calibrate))
+    else:
+        model = with_weights(base, args.to)
     meta = write_replacing(args.output, model.config, model.params, model.meta,
                            extra_groups(args.weights), "gzip")
     change = max(float(np.max(np.abs(model.params[k] - base.params[k]))) for k in base.params)
     print(f"wrote {args.output}: {os.path.getsize(args.output) / 1e6:.2f} MB "
           f"({os.path.getsize(args.weights) / 1e6:.2f} MB before), BiLSTM matrices as "
-          f"{args.to}, largest change of a weight {change:.3g}; {meta['content_sha256']}")
+          f"{args.to}{' (calibrated, one plane)' if args.calibrate else ''}, largest change "
+          f"of a weight {change:.3g}; {meta['content_sha256']}")
     return 0

@@ -29,6 +29,7 @@ import numpy as np
 
 from . import specialised as S
 from ..extras import require
+from ..weights.quantize import wide_of
 from .numpy_engine import NumpyHead
 
 #: the prediction engines: "numpy" (the NumPy head), "numba" (the compiled head of
@@ -80,9 +81,10 @@ def build(model: Any, engine: str, used: dict[str, np.ndarray] | None) -> list[H
         from . import numba_engine as engine_numba  # optional: imports numba
         # every batch, or (specialised) the batches up to ENGINE_MAX_BATCH, the larger ones
         # going to the specialised head, which computes only the scene's units
+        scheme = model.meta.get("quantization")
         full.insert(0, engine_numba.NumbaHead(cfg, model.params, model.dtype, model.unit_order,
-                                              None if used is None else ENGINE_MAX_BATCH,
-                                              model.meta.get("quantization")))
+                                              None if used is None else ENGINE_MAX_BATCH, scheme,
+                                              None if scheme is None else wide_of(cfg, model.meta)))
     if used is None:
         return full
     # the specialised head after the numba one (faster on the batches it runs), its flagged

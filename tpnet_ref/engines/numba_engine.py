@@ -179,14 +179,16 @@ class NumbaHead:
     :data:`tpnet_ref.engines.thread_policy.adaptive` offers (``threaded``); the bits do not depend on it.
     ``weights`` "bf16" or "int8" (a float32 model whose BiLSTM matrices lie on that grid:
     :mod:`tpnet_ref.weights.quantize`): the kernels read those matrices' codes, widened to
-    float32 in registers, and apply int8's scales to each sum."""
+    float32 in registers, and apply int8's scales to each sum; ``wide``: the matrices held in two
+    planes (:func:`tpnet_ref.weights.quantize.wide_of`; None: the scheme's default)."""
 
     name = "numba"
     threaded = True
 
     def __init__(self, config: Any, params: dict[str, np.ndarray], dtype: np.dtype,
                  unit_order: dict[str, np.ndarray] | None = None,
-                 max_batch: int | None = None, weights: str | None = None) -> None:
+                 max_batch: int | None = None, weights: str | None = None,
+                 wide: Any = None) -> None:
         #: the largest batch it runs (None: any; :data:`tpnet_ref.engines.interface.ENGINE_MAX_BATCH`)
         self.max_batch = max_batch
         self.dtype = dt = np.dtype(dtype)
@@ -234,7 +236,8 @@ class NumbaHead:
         #: the weights' scheme the kernels read (:mod:`tpnet_ref.weights.quantize`; float32
         #: models only), None: the model's dtype
         self.weights = weights if weights in SCHEMES and dt == np.float32 else None
-        wide = set(wide_names(config, self.weights)) if self.weights else set()
+        wide = (set() if not self.weights else
+                set(wide_names(config, self.weights) if wide is None else wide))
         (self.kernels, self.kscs), (self.recs, self.rscs) = (
             _codes(ws, self.weights, dt, [f"lstm{i}.fwd.{t}" in wide for i in
                                           range(1, len(ws) + 1)])

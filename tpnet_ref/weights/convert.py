@@ -58,6 +58,15 @@ def import_checkpoint(path: str | os.PathLike, dtype: Any = "float32", **kw: Any
     return model
 
 
+def quantized_meta(model: TPNet, scheme: str) -> dict:
+    """``model.meta`` with the scheme and its source (``quantized_from``: the file and its
+    digest) added."""
+    src = model.meta.get("path", "a model in memory")
+    digest = model.meta.get("content_sha256")
+    return {**model.meta, Q.ATTR: scheme,
+            Q.FROM_ATTR: f"{Path(src).name} ({digest})" if digest else str(src)}
+
+
 def with_weights(model: TPNet, weights: str | None) -> TPNet:
     """``model`` with its BiLSTM matrices on the grid of ``weights`` ("bf16" or "int8":
     :mod:`tpnet_ref.weights.quantize`; the Numba engine then reads their codes), or as it is
@@ -75,10 +84,7 @@ def with_weights(model: TPNet, weights: str | None) -> TPNet:
     names, wide = set(Q.quantized_names(model.config)), set(Q.wide_names(model.config, weights))
     params = {n: (Q.round_to(p, weights, n in wide) if n in names else p)
               for n, p in model.params.items()}
-    src = model.meta.get("path", "a model in memory")
-    digest = model.meta.get("content_sha256")
-    meta = {**model.meta, Q.ATTR: weights,
-            Q.FROM_ATTR: f"{Path(src).name} ({digest})" if digest else str(src)}
+    meta = quantized_meta(model, weights)
     used = None if model.specialization is None else model.specialization.used
     out = TPNet(model.config, params, model.dtype, meta, model.engine,
                 unit_order=model.unit_order, used=used, sort_points=model.sort_points)
@@ -86,4 +92,4 @@ def with_weights(model: TPNet, weights: str | None) -> TPNet:
     return out
 
 
-__all__ = ["import_checkpoint", "with_weights"]
+__all__ = ["import_checkpoint", "with_weights", "quantized_meta"]

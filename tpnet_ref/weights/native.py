@@ -310,8 +310,7 @@ def _encoded(config: TPNetConfig, stored: dict[str, np.ndarray], meta: dict[str,
     groups = {k: v for k, v in groups.items() if k != Q.SCALES}
     if scheme is None:
         return groups
-    Q.check_scheme(scheme, "meta")
-    scales, wide = {}, Q.wide_names(config, scheme)
+    scales, wide = {}, Q.wide_of(config, meta)
     for name in Q.quantized_names(config):
         stored[name], sc = Q.codes_of(stored[name], scheme, f"parameter {name!r}", name in wide)
         if sc is not None:
@@ -326,8 +325,9 @@ def _decoded(f: Any, where: str, cfg: TPNetConfig, group: Any,
     otherwise)."""
     scheme = hdf5.py_value(hdf5.attr(f, Q.ATTR, where, None))
     names = set() if scheme is None else set(Q.quantized_names(cfg))
-    if scheme is not None:
-        Q.check_scheme(scheme, where)
+    wide = set() if scheme is None else set(Q.wide_of(cfg, {
+        Q.ATTR: scheme, Q.WIDE_ATTR: hdf5.py_value(hdf5.attr(f, Q.WIDE_ATTR, where, None))},
+        where))
     stored = {name: hdf5.read_array(group, name, shape, where) for name, shape in shapes.items()
               if name not in names}
     params = dict(stored)
@@ -343,7 +343,7 @@ def _decoded(f: Any, where: str, cfg: TPNetConfig, group: Any,
                 raise ValueError(f"{where}: int8 file without the scales of {name!r}")
             scale = np.asarray(hdf5.read(hdf5.safe_dataset(sg, name, where), f"{where}: scales"))
         params[name] = Q.check_codes(codes, scale, scheme, shapes[name], f"{where}: {name!r}",
-                                     name in Q.wide_names(cfg, scheme))
+                                     name in wide)
     return stored, {name: params[name] for name in shapes}            # the file's order
 
 

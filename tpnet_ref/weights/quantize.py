@@ -55,6 +55,9 @@ SCHEMES = ("bf16", "int8")
 ATTR = "quantization"
 #: root attribute naming the file a quantized file was made from (path and digest)
 FROM_ATTR = "quantized_from"
+#: root attribute (and ``model.meta`` key) listing the matrices in two planes, comma-separated
+#: ("" none: calibrated int8, :mod:`tpnet_ref.weights.calibrate`); absent: :func:`wide_names`
+WIDE_ATTR = "quantized_wide"
 #: the group holding the int8 scales, one dataset per quantized tensor
 SCALES = "scales"
 #: columns whose largest weight is below this become zeros (scale 1)
@@ -78,6 +81,22 @@ def wide_names(config: Any, scheme: str = "int8") -> list[str]:
     kinds = ("kernel", "recurrent") if check_scheme(scheme) == "bf16" else ("recurrent",)
     return list(dict.fromkeys([f"lstm1.{d}.kernel" for d in ("fwd", "bwd")] + [
         f"lstm{last}.{d}.{t}" for t in kinds for d in ("fwd", "bwd")]))
+
+
+def wide_of(config: Any, meta: dict[str, Any], where: str = "meta") -> list[str]:
+    """The matrices a quantized model (``meta``: its scheme, and :data:`WIDE_ATTR` if recorded)
+    holds in two planes: the recorded list, else the scheme's :func:`wide_names`; a one-line
+    ``ValueError`` for a list naming anything but a quantized matrix."""
+    scheme = check_scheme(meta.get(ATTR), where)
+    got = meta.get(WIDE_ATTR)
+    if got is None:
+        return wide_names(config, scheme)
+    names = [n for n in str(got).split(",") if n] if isinstance(got, str) else None
+    known = set(quantized_names(config))
+    if names is None or not set(names) <= known or len(set(names)) != len(names):
+        raise ValueError(f"{where}: corrupted {WIDE_ATTR} {got!r} (comma-separated names of "
+                         f"quantized matrices expected)")
+    return names
 
 
 def check_scheme(scheme: Any, where: str = "weights") -> str:
@@ -213,6 +232,7 @@ def check_codes(codes: np.ndarray, scales: np.ndarray | None, scheme: str, shape
     return w
 
 
-__all__ = ["SCHEMES", "ATTR", "FROM_ATTR", "SCALES", "TINY", "quantized_names", "wide_names",
+__all__ = ["SCHEMES", "ATTR", "FROM_ATTR", "WIDE_ATTR", "SCALES", "TINY", "quantized_names",
+           "wide_names", "wide_of",
            "check_scheme", "int8_scales", "encode", "decode", "decode_wide", "round_to", "codes_of",
            "check_codes"]
