@@ -37,7 +37,7 @@ def test_the_rounding_is_on_int8s_grid_with_the_scales_of_the_float_weights(seed
     rng = np.random.default_rng(seed)
     w = (rng.normal(size=(48, 40)) * 0.05).astype(np.float32)
     x = _correlated(48, seed=seed)
-    got = C.round_int8(w, x.T @ x)
+    got = C.round_rows(w, x.T @ x)
     codes, scales = Q.codes_of(got, "int8", "w")               # on the grid, scales re-derived
     assert np.array_equal(scales, Q.int8_scales(w))
     assert (np.abs(codes).max(axis=0) == 127).all()
@@ -45,15 +45,24 @@ def test_the_rounding_is_on_int8s_grid_with_the_scales_of_the_float_weights(seed
     assert np.array_equal(got[top, np.arange(40)], Q.round_to(w, "int8")[top, np.arange(40)])
 
 
-def test_uncorrelated_inputs_round_to_nearest_and_correlated_ones_beat_it():
+def test_bf16_rounding_is_on_bf16s_grid():
+    w = (np.random.default_rng(3).normal(size=(48, 40)) * 0.05).astype(np.float32)
+    x = _correlated(48)
+    got = C.round_rows(w, x.T @ x, "bf16")
+    assert np.array_equal(Q.round_to(got, "bf16"), got) and not np.array_equal(got, w)
+    assert np.abs(got - w).max() < 0.05 * np.abs(w).max()
+
+
+@pytest.mark.parametrize("scheme", ["int8", "bf16"])
+def test_uncorrelated_inputs_round_to_nearest_and_correlated_ones_beat_it(scheme):
     rng = np.random.default_rng(4)
     w = (rng.normal(size=(64, 32)) * 0.05).astype(np.float32)
-    nearest = Q.round_to(w, "int8")
+    nearest = Q.round_to(w, scheme)
     h = np.diag(rng.uniform(0.5, 2.0, 64))                     # no co-variation: nothing to move
-    assert np.array_equal(C.round_int8(w, h), nearest)
+    assert np.array_equal(C.round_rows(w, h, scheme), nearest)
     x = _correlated(64)
     x[:, 5] = 0.0                                              # an input that never occurs
-    got = C.round_int8(w, x.T @ x)
+    got = C.round_rows(w, x.T @ x, scheme)
     err = [np.linalg.norm(x @ (q.astype(np.float64) - w)) for q in (got, nearest)]
     assert err[0] < 0.7 * err[1], err
     held = _correlated(64, draw=1)                             # inputs it was not fitted on
@@ -87,23 +96,25 @@ def base():
     return tpnet_ref.load(size="quarter", engine="numba")
 
 
-@pytest.fixture(scope="module")
-def calibrated(base, data):
-    return C.calibrated_int8(base, C.training_windows(str(data), 4, 2, n=48), "grid.h5")
+@pytest.fixture(scope="module", params=["int8", "bf16"])
+def calibrated(base, data, request):
+    return C.calibrated(base, C.training_windows(str(data), 4, 2, n=48), "grid.h5",
+                        request.param)
 
 
 def test_a_calibrated_model_holds_every_matrix_in_one_plane(base, calibrated):
     m = calibrated
-    assert m.meta[Q.ATTR] == "int8" and m.meta[Q.WIDE_ATTR] == ""
+    scheme = m.meta[Q.ATTR]
+    assert m.meta[Q.WIDE_ATTR] == ""
     assert "48 training windows of grid.h5" in m.meta[C.ROUNDING_ATTR]
     assert "tpnet-m4-quarter.h5" in m.meta[Q.FROM_ATTR]
     names = set(Q.quantized_names(base.config))
     for k, v in base.params.items():
         assert np.array_equal(m.params[k], v) == (k not in names), k
     head = m.head_for(1)
-    assert head.weights == "int8"
+    assert head.weights == scheme
     for k, r, i in zip(head.kernels, head.recs, range(1, 4)):   # one plane: rows as the floats
-        assert k.dtype == r.dtype == np.int8
+        assert k.dtype == r.dtype == (np.int8 if scheme == "int8" else np.uint16)
         assert k.shape[1] == base.params[f"lstm{i}.fwd.kernel"].shape[0]
         assert r.shape[1] == base.config.lstm_units[i - 1]
 
@@ -122,7 +133,8 @@ def test_it_moves_predictions_less_than_round_to_nearest_in_one_plane(base, cali
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         want = base.predict_batch(x)
-        nearest = {n: (Q.round_to(p, "int8") if n in Q.quantized_names(base.config) else p)
+        scheme = calibrated.meta[Q.ATTR]
+        nearest = {n: (Q.round_to(p, scheme) if n in Q.quantized_names(base.config) else p)
                    for n, p in base.params.items()}
         one_plane = tpnet_ref.model.TPNet(base.config, nearest, "float32", engine="numpy",
                                           unit_order=base.unit_order)
@@ -159,10 +171,11 @@ def _quantize(*extra):
 
 def test_the_command_writes_a_smaller_file_that_loads_as_it_was_made(data, calibrated, tmp_path):
     out, nearest = tmp_path / "cal.h5", tmp_path / "rtn.h5"
-    r = _quantize("--to", "int8", "--calibrate", str(data), "--windows", "48", "-o", str(out))
+    scheme = calibrated.meta[Q.ATTR]
+    r = _quantize("--to", scheme, "--calibrate", str(data), "--windows", "48", "-o", str(out))
     assert r.returncode == 0, r.stderr
-    assert "int8 (calibrated, one plane)" in r.stdout
-    assert _quantize("--to", "int8", "-o", str(nearest)).returncode == 0
+    assert f"{scheme} (calibrated, one plane)" in r.stdout
+    assert _quantize("--to", scheme, "-o", str(nearest)).returncode == 0
     assert out.stat().st_size < 0.95 * nearest.stat().st_size    # the full size: 0.88
     got = tpnet_ref.load(out)
     assert got.meta[Q.WIDE_ATTR] == "" and got.meta[C.ROUNDING_ATTR] == calibrated.meta[
@@ -209,8 +222,5 @@ def test_bad_calibration_data_is_one_line(data, tmp_path):
     r = _quantize("--to", "int8", "--calibrate", str(data), "--windows", "100000",
                   "-o", str(tmp_path / "x.h5"))
     assert "60 training windows, 100000 asked" in r.stderr
-    r = _quantize("--to", "bf16", "--calibrate", str(data), "-o", str(tmp_path / "x.h5"))
-    assert "--calibrate rounds int8 codes" in r.stderr
     with pytest.raises(ValueError, match="already int8"):
-        C.calibrated_int8(tpnet_ref.load(size="quarter", weights="int8"), np.zeros((1, 4, 30, 2)),
-                          "x")
+        C.calibrated(tpnet_ref.load(size="quarter", weights="int8"), np.zeros((1, 4, 30, 2)), "x")

@@ -5,7 +5,7 @@ dynamic int8 (``onnxruntime.quantization.quantize_dynamic``, ``QuantType.QInt8``
 
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py            # speed, error, file sizes
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --errors   # also E_p@40/@80, 60 cases
-    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --calibrate data/grid-m4.h5  # + int8 cal
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --calibrate data/grid-m4.h5  # + calibrated
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --errors --plot docs/eval_error_vs_precision.png
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --sizes full --rounds 9
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --layers   # error per layer only
@@ -69,7 +69,8 @@ def _ort_sessions(model, threads, tmp: Path) -> dict:
 def _engines(size: str, tmp: Path, calibrate: str | None = None) -> dict:
     """The Numba engine on ``size`` in each scheme: {label: (model, file bytes)} (the float32
     file is the shipped one; the others written by ``tpnet quantize``'s code, gzip); with
-    ``calibrate`` (a dataset file) also "int8 cal", ``tpnet quantize --calibrate``'s int8."""
+    ``calibrate`` (a dataset file) also "bf16 cal" and "int8 cal", ``tpnet quantize
+    --calibrate``'s."""
     from tpnet_ref.weights.native import extra_groups, write_replacing
     from tpnet_ref.weights.shipped import shipped_weights_path
     src = shipped_weights_path(4, size)
@@ -83,10 +84,12 @@ def _engines(size: str, tmp: Path, calibrate: str | None = None) -> dict:
         from tpnet_ref.weights import calibrate as C
         f32 = out["float32"][0]
         c = f32.config
-        q = C.calibrated_int8(f32, C.training_windows(calibrate, c.m, c.dim), Path(calibrate).name)
-        path = tmp / f"{size}-int8-cal.h5"
-        write_replacing(path, q.config, q.params, q.meta, extra_groups(src), "gzip")
-        out["int8 cal"] = (tpnet_ref.load(path, engine="numba"), path.stat().st_size)
+        wins = C.training_windows(calibrate, c.m, c.dim)
+        for s in SCHEMES[1:]:
+            q = C.calibrated(f32, wins, Path(calibrate).name, s)
+            path = tmp / f"{size}-{s}-cal.h5"
+            write_replacing(path, q.config, q.params, q.meta, extra_groups(src), "gzip")
+            out[f"{s} cal"] = (tpnet_ref.load(path, engine="numba"), path.stat().st_size)
     return out
 
 
@@ -200,12 +203,11 @@ def _print(size: str, rows: dict) -> None:
         err = f"  {r['ep40']:6.4f}  {r['ep80']:6.4f}" if "ep40" in r else ""
         print(f"  {k:12s} {r['b1_ms']:7.3f} {r['b256_ms']:9.1f} {r['b256_wps']:7.0f} "
               f"{r['max_d']:8.4f} {r['median_d']:7.4f} {r['file_mb']:8.2f}{err}")
-    f, b = rows["float32"], rows["bf16"]
-    for i8 in [k for k in ("int8", "int8 cal") if k in rows]:
-        i = rows[i8]
-        ratios = {f"{i8} / float32 B=1": i["b1_ms"] / f["b1_ms"]}
-        if i8 == "int8":
-            ratios["bf16 / float32 B=1"] = b["b1_ms"] / f["b1_ms"]
+    f = rows["float32"]
+    for i8, bf in [(k, k.replace("int8", "bf16")) for k in ("int8", "int8 cal") if k in rows]:
+        i, b = rows[i8], rows[bf]
+        ratios = {f"{i8} / float32 B=1": i["b1_ms"] / f["b1_ms"],
+                  f"{bf} / float32 B=1": b["b1_ms"] / f["b1_ms"]}
         if "ort int8" in rows:
             o = rows["ort int8"]
             ratios[f"{i8} / ort int8 B=1"] = i["b1_ms"] / o["b1_ms"]
@@ -214,12 +216,13 @@ def _print(size: str, rows: dict) -> None:
         if size != "full":
             continue
         checks = [(k, ratios[k] <= v) for k, v in
-                  ((t.replace("int8", i8, 1), v) for t, v in TARGETS.items()) if k in ratios]
+                  ((t.replace("int8", i8, 1).replace("bf16", bf, 1), v)
+                   for t, v in TARGETS.items()) if k in ratios]
         if f"{i8} / ort int8 B=256 throughput" in ratios:
             checks.append((f"{i8} B=256 throughput >= ort int8",
                            ratios[f"{i8} / ort int8 B=256 throughput"] >= 1))
         checks += [(f"{i8} within 0.05", i["max_d"] <= 0.05), (f"{i8} file <= 8 MB", i["file_mb"] <= 8.0)]
-        checks += [("bf16 within 0.01", b["max_d"] <= 0.01)] if i8 == "int8" else []
+        checks += [(f"{bf} within 0.01", b["max_d"] <= 0.01)]
         print("  targets: " + "; ".join(f"{k}: {'met' if ok else 'NOT met'}" for k, ok in checks))
 
 
@@ -232,8 +235,8 @@ def plot(rows: dict, path: str) -> None:
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     marks = {"full": "o", "half": "s", "quarter": "^"}
-    colours = {"float32": "C0", "bf16": "C1", "int8": "C2", "int8 cal": "C4", "ort float32": "C7",
-               "ort int8": "C3"}
+    colours = {"float32": "C0", "bf16": "C1", "int8": "C2", "bf16 cal": "C5", "int8 cal": "C4",
+               "ort float32": "C7", "ort int8": "C3"}
     for size, by in rows.items():
         for k, r in by.items():
             kw = dict(marker=marks.get(size, "o"), color=colours.get(k, "k"), s=40)
@@ -311,8 +314,8 @@ def main(argv=None) -> int:
     ap.add_argument("--errors", action="store_true",
                     help="also E_p@40 / @80 on the 60 test cases (simulates them: minutes)")
     ap.add_argument("--calibrate", default=None, metavar="DATA",
-                    help="also int8 calibrated on DATA's training windows (`tpnet quantize "
-                         "--calibrate`), row 'int8 cal'")
+                    help="also bf16 and int8 calibrated on DATA's training windows (`tpnet "
+                         "quantize --calibrate`), rows 'bf16 cal' and 'int8 cal'")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     print(_common.machine())

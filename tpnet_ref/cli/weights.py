@@ -59,7 +59,7 @@ def add_cli(sub: Any) -> None:
                     "(max |column| / 127), applied to each sum; BiLSTM 1's input kernels and "
                     "the last BiLSTM's recurrent matrices in two int8 planes (16 bits: the "
                     "matrices a prediction is most sensitive to); with --calibrate, every matrix "
-                    "in one int8 plane, its rows rounded in order with each row's error moved "
+                    "in one plane, its rows rounded in order with each row's error moved "
                     "onto the rows after it as training windows' inputs co-vary (GPTQ; smaller "
                     "and closer to float32: docs/deployment.md). The per-point MLP, the global "
                     "layer, the output "
@@ -76,9 +76,9 @@ def add_cli(sub: Any) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.h5",
                    help="native weights file to write (may not be W)")
     p.add_argument("--calibrate", metavar="DATA",
-                   help="int8 only: round on windows of DATA's training split (a dataset of "
-                        "`tpnet data generate` of the model's dimension; never the test cases), "
-                        "every matrix in one plane")
+                   help="round on windows of DATA's training split (a dataset of `tpnet data "
+                        "generate` of the model's dimension; never the test cases), every matrix "
+                        "in one plane")
     p.add_argument("--windows", type=int, default=256,
                    help="calibration windows drawn from DATA (default: 256)")
     p.add_argument("--seed", type=int, default=0,
@@ -149,9 +149,6 @@ def _cli_quantize(args: argparse.Namespace) -> int:
 
     if os.path.abspath(args.output) == os.path.abspath(args.weights):
         raise ValueError("quantize: -o must name a new file, not --weights")
-    if args.calibrate and args.to != "int8":
-        raise ValueError(f"quantize: --calibrate rounds int8 codes; --to {args.to} rounds to "
-                         "nearest")
     if args.windows < 1:
         raise ValueError(f"quantize: --windows must be at least 1, got {args.windows}")
     base = load(args.weights, engine="numpy")
@@ -159,7 +156,7 @@ def _cli_quantize(args: argparse.Namespace) -> int:
         from ..weights import calibrate as C
         c = base.config
         wins = C.training_windows(args.calibrate, c.m, c.dim, args.windows, args.seed)
-        model = C.calibrated_int8(base, wins, os.path.basename(args.calibrate))
+        model = C.calibrated(base, wins, os.path.basename(args.calibrate), args.to)
     else:
         model = with_weights(base, args.to)
     meta = write_replacing(args.output, model.config, model.params, model.meta,

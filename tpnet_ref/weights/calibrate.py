@@ -1,5 +1,5 @@
-"""Calibrated int8: each BiLSTM matrix rounded to int8 with the rounding errors fed forward
-(NumPy only).
+"""Calibrated int8 and bf16: each BiLSTM matrix rounded to the scheme's grid with the rounding
+errors fed forward (NumPy only).
 
 Round-to-nearest int8 (:mod:`tpnet_ref.weights.quantize`) rounds each weight on its own; a
 layer's output error is then ``x @ (W - Q)``, whatever the inputs ``x`` the layer sees. Rounding
@@ -13,15 +13,17 @@ ICLR 2023; their Algorithm 1 without blocks). Here:
   never the test cases): BiLSTM 1's input kernels see the frames' global features, the later
   input kernels the LayerNorm outputs before them, each recurrent matrix its direction's
   previous states, from a float64 forward pass of the float model (:func:`layer_inputs`);
-- the grid is int8's (one scale per output column, ``max |column| / 127`` of the float
-  weights, 17 significand bits), and each column's largest weight keeps its code +-127 (no
-  error is moved onto it), so that the scale re-derives from the rounded weights as for any
-  int8 model (:func:`tpnet_ref.weights.quantize.codes_of`): the Numba engine, the file and
-  every check read a calibrated model as they read any int8 one;
+- int8: its grid (one scale per output column, ``max |column| / 127`` of the float weights, 17
+  significand bits), each column's largest weight keeping its code +-127 (no error is moved
+  onto it), so that the scale re-derives from the rounded weights as for any int8 model
+  (:func:`tpnet_ref.weights.quantize.codes_of`); bf16: each weight rounded to bfloat16. The
+  Numba engine, the file and every check read a calibrated model as they read any other of
+  its scheme;
 - every matrix in one plane (:data:`tpnet_ref.weights.quantize.WIDE_ATTR` empty): measured on
-  the full size, the largest move of a prediction from float32 on 256 scene windows 0.026-0.033
-  world units with every matrix in one plane, against round-to-nearest's 0.099 in one plane and
-  0.043 with four matrices in two (``python bench/probes/bench_quantized.py``).
+  the full size, the largest move of a prediction from float32 on 256 scene windows (NumPy
+  engine) int8 0.026-0.033 world units, against round-to-nearest's 0.099 in one plane and 0.043
+  with four matrices in two; bf16 0.0061, against 0.0125 in one plane and 0.0044 with six in
+  two (``python bench/probes/bench_quantized.py --calibrate DATA``).
 
 The rounding's arithmetic is float64 NumPy and LAPACK; a file written by ``tpnet quantize
 --calibrate`` holds the codes, so loading it gives the same bits everywhere.
@@ -101,14 +103,16 @@ def layer_inputs(model: Any, windows: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def round_int8(w: np.ndarray, h: np.ndarray, damp: float = DAMP) -> np.ndarray:
-    """``w (C, N)`` on int8's grid (float32, the scales :func:`tpnet_ref.weights.quantize.int8_scales`
-    of ``w``), its rows rounded in order with each row's error moved onto the rows after it
-    through the upper Cholesky factor of ``(H + damp * mean(diag H) * I)^-1`` (GPTQ); each
-    column's largest weight keeps its code +-127. Inputs that never occur (a zero row of
-    ``H``) are rounded to nearest."""
+def round_rows(w: np.ndarray, h: np.ndarray, scheme: str = "int8",
+               damp: float = DAMP) -> np.ndarray:
+    """``w (C, N)`` on ``scheme``'s grid (float32; int8: the scales
+    :func:`tpnet_ref.weights.quantize.int8_scales` of ``w``), its rows rounded in order with each
+    row's error moved onto the rows after it through the upper Cholesky factor of
+    ``(H + damp * mean(diag H) * I)^-1`` (GPTQ); int8: each column's largest weight keeps its
+    code +-127. Where inputs do not co-vary (``H`` diagonal) this is rounding to nearest."""
     w = np.array(w, dtype=np.float64)
-    s = Q.int8_scales(w).astype(np.float64)
+    int8 = Q.check_scheme(scheme) == "int8"
+    s = Q.int8_scales(w).astype(np.float64) if int8 else None
     rows, cols = w.shape
     h = np.array(h, dtype=np.float64)
     dead = np.diag(h) == 0
@@ -116,38 +120,42 @@ def round_int8(w: np.ndarray, h: np.ndarray, damp: float = DAMP) -> np.ndarray:
     h[np.diag_indices(rows)] += damp * float(np.mean(np.diag(h)))
     u = np.linalg.cholesky(np.linalg.inv(h)).T                    # upper: Hinv = U^T U
     frozen = np.zeros((rows, cols), dtype=bool)
-    frozen[np.argmax(np.abs(w), axis=0), np.arange(cols)] = True
+    if int8:
+        frozen[np.argmax(np.abs(w), axis=0), np.arange(cols)] = True
     q = np.empty((rows, cols))
     for i in range(rows):
-        q[i] = np.clip(np.rint(w[i] / s), -127, 127)
-        err = (w[i] - q[i] * s) / u[i, i]
+        if int8:
+            q[i] = np.clip(np.rint(w[i] / s), -127, 127) * s
+        else:
+            q[i] = Q.round_to(w[i].astype(np.float32), "bf16")  # float32 first, as at load
+        err = (w[i] - q[i]) / u[i, i]
         err[frozen[i]] = 0.0                                        # exact: nothing to move
         if i + 1 < rows:
             upd = np.outer(u[i, i + 1:], err)
             upd[frozen[i + 1:]] = 0.0
             w[i + 1:] -= upd
-    out = (q * s).astype(np.float32)
-    Q.codes_of(out, "int8", "round_int8", False)                    # the scales re-derive
+    out = q.astype(np.float32)
+    Q.codes_of(out, scheme, "round_rows", False)                    # on the grid, re-derived
     return out
 
 
-def calibrated_int8(model: Any, windows: np.ndarray, source: str,
-                    damp: float = DAMP) -> Any:
-    """``model`` (float32, not quantized) with every BiLSTM matrix rounded by
-    :func:`round_int8` on ``windows`` (``(B, m, N, dim)``, model coordinates, from
+def calibrated(model: Any, windows: np.ndarray, source: str, scheme: str = "int8",
+               damp: float = DAMP) -> Any:
+    """``model`` (float32, not quantized) with every BiLSTM matrix rounded to ``scheme`` by
+    :func:`round_rows` on ``windows`` (``(B, m, N, dim)``, model coordinates, from
     ``source``), in one plane; ``meta`` records the scheme, the source file, the empty list
     of two-plane matrices and the rounding."""
     from ..model import TPNet
     from .convert import quantized_meta
 
     if model.meta.get(Q.ATTR) is not None:
-        raise ValueError(f"calibrated int8: this model's weights are already "
+        raise ValueError(f"calibrated {scheme}: this model's weights are already "
                          f"{model.meta[Q.ATTR]}; quantize the float32 file")
     hs = layer_inputs(model, windows)
     names = set(Q.quantized_names(model.config))
-    params = {n: (round_int8(p, hs[n], damp) if n in names else p)
+    params = {n: (round_rows(p, hs[n], scheme, damp) if n in names else p)
               for n, p in model.params.items()}
-    meta = {**quantized_meta(model, "int8"), Q.WIDE_ATTR: ""}
+    meta = {**quantized_meta(model, scheme), Q.WIDE_ATTR: ""}
     meta[ROUNDING_ATTR] = (f"rows in order, errors fed forward (GPTQ), damping {damp:g}, "
                            f"{len(windows)} training windows of {source}")
     used = None if model.specialization is None else model.specialization.used
@@ -157,5 +165,5 @@ def calibrated_int8(model: Any, windows: np.ndarray, source: str,
     return out
 
 
-__all__ = ["WINDOWS", "DAMP", "ROUNDING_ATTR", "training_windows", "layer_inputs", "round_int8",
-           "calibrated_int8"]
+__all__ = ["WINDOWS", "DAMP", "ROUNDING_ATTR", "training_windows", "layer_inputs", "round_rows",
+           "calibrated"]
