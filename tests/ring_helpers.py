@@ -1,6 +1,7 @@
 """Shared by the unit-order and specialisation tests: a small network shape and windows of a
 ring drifting through the box (the scene's kind of input, cheap to make); by the 3-D tests: a
-window of the 3-D scene's ball thrown in free fall."""
+window of the 3-D scene's ball thrown in free fall; by the compiled-call tests: fixed windows of
+a moving ring."""
 from __future__ import annotations
 
 import numpy as np
@@ -21,6 +22,15 @@ def rings(rng: np.random.Generator, n: int, m: int = 4, wobble: float = 0.0) -> 
     if wobble:
         out = out + rng.normal(0, wobble, (n, m, 30, 2))
     return out
+
+
+def ring_windows(batch: int) -> np.ndarray:
+    """``batch`` windows ``(batch, 4, 30, 2)`` of a ring of radius 2 moving right and down, the
+    windows 2 units apart (fixed: no draw)."""
+    a = np.arange(30) * 2 * np.pi / 30
+    ring = 2 * np.stack([np.sin(a), np.cos(a)], axis=1)
+    return np.stack([np.stack([ring + [15 + 2 * b + 0.5 * i, 25 - 0.2 * i] for i in range(4)])
+                     for b in range(batch)])
 
 
 def thrown_ball(rows_apart: float = 4, centre=(20.0, 22.0, 30.0), v=(6.0, -3.0, 4.0),

@@ -15,17 +15,10 @@ from tpnet_ref.engines import compile_watch as CW  # noqa: E402
 from tpnet_ref.engines.blas import one_thread  # noqa: E402
 from tpnet_ref.engines.numba_engine import NETWORK_APART_BYTES  # noqa: E402
 from tpnet_ref.engines import numba_predict as NP  # noqa: E402
-from ring_helpers import thrown_ball  # noqa: E402
+from ring_helpers import ring_windows, thrown_ball  # noqa: E402
 
 
-def _ring(cx, cy, n=30):
-    a = np.arange(n) * 2 * np.pi / n
-    return np.stack([cx + 2 * np.sin(a), cy + 2 * np.cos(a)], axis=1)
-
-
-def _windows(batch):
-    return np.stack([np.stack([_ring(15 + 2 * b + 0.5 * i, 25 - 0.2 * i) for i in range(4)])
-                     for b in range(batch)])
+_windows = ring_windows                                   # fixed windows of a moving ring
 
 
 @pytest.fixture

@@ -11,16 +11,10 @@ import tpnet_ref  # noqa: E402
 from tpnet_ref.engines import thread_policy as TP  # noqa: E402
 from tpnet_ref.engines import numba_rollout as ER  # noqa: E402
 from tpnet_ref.checks import NonFiniteResultError  # noqa: E402
+from ring_helpers import ring_windows  # noqa: E402
 
 
-def _ring(cx, cy, n=30):
-    a = np.arange(n) * 2 * np.pi / n
-    return np.stack([cx + 2 * np.sin(a), cy + 2 * np.cos(a)], axis=1)
-
-
-def _windows(batch):
-    return np.stack([np.stack([_ring(15 + 2 * b + 0.5 * i, 25 - 0.2 * i) for i in range(4)])
-                     for b in range(batch)])
+_windows = ring_windows                                   # fixed windows of a moving ring
 
 
 @pytest.fixture
