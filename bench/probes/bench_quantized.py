@@ -233,7 +233,7 @@ def plot(rows: dict, path: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(11.5, 4))
     marks = {"full": "o", "half": "s", "quarter": "^"}
     colours = {"float32": "C0", "bf16": "C1", "int8": "C2", "bf16 cal": "C5", "int8 cal": "C4",
                "ort float32": "C7", "ort int8": "C3"}
@@ -256,7 +256,7 @@ def plot(rows: dict, path: str) -> None:
         ax.set_ylabel(label)
     handles = [plt.Line2D([], [], ls="", marker="o", color=c, label=k) for k, c in colours.items()]
     handles += [plt.Line2D([], [], ls="", marker=m, color="k", label=k) for k, m in marks.items()]
-    axes[1].legend(handles=handles, fontsize=7, loc="best")
+    axes[1].legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     print(f"wrote {path}")
