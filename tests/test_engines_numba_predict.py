@@ -166,3 +166,17 @@ def test_an_overflow_in_the_compiled_call_is_the_separate_calls_error(released_r
         errors.append(str(got.value))
     assert len(said) == 1 and said[0] != 0                  # the compiled call saw it first
     assert errors[0] == errors[1] and "overflowed in float32" in errors[0]
+
+
+def test_a_model_with_its_compiled_call_copies_and_pickles(calls, monkeypatch):
+    """The model keeps a picklable handle on the compiled call (not the module): a copied or
+    pickled model predicts through it, with the same bits."""
+    import copy
+    import pickle
+    model = tpnet_ref.load(size="quarter")
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    w = _windows(1)[0]
+    want = model.predict(w)
+    for other in (copy.deepcopy(model), pickle.loads(pickle.dumps(model))):
+        assert other.predict(w).tobytes() == want.tobytes()
+    assert calls == [1, 1, 1]

@@ -122,7 +122,7 @@ def build_fused(engine: str) -> Any:
     if engine != "numba":
         return None
     from . import numba_predict
-    return numba_predict
+    return numba_predict.Network()
 
 
 def for_batch(heads: list[Head], batch: int) -> Head:

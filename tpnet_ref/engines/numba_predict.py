@@ -110,10 +110,18 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: b
     return out
 
 
+class Network:
+    """What a model holds to reach :func:`run` (``model.fused``): picklable, as the model is."""
+
+    def run(self, model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
+            two: bool = False) -> np.ndarray | None:
+        return run(model, points, counts, batch, normalized, two)
+
+
 #: ``arange(k)`` by ``k``: the feature order of a head in the file's order
 _IDENTITY: dict = {}
 #: :func:`network_steps`' ``feats`` when it computes them
 _NO_FEATURES = {np.dtype(t): np.empty((0, 0), dtype=t) for t in (np.float32, np.float64)}
 
 
-__all__ = ["network_steps", "fusable", "run"]
+__all__ = ["network_steps", "fusable", "run", "Network"]
