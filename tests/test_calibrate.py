@@ -224,3 +224,16 @@ def test_bad_calibration_data_is_one_line(data, tmp_path):
     assert "60 training windows, 100000 asked" in r.stderr
     with pytest.raises(ValueError, match="already int8"):
         C.calibrated(tpnet_ref.load(size="quarter", weights="int8"), np.zeros((1, 4, 30, 2)), "x")
+
+
+def test_its_engine_is_within_float32_rounding_of_the_float64_reference(calibrated):
+    """The Numba engine on the calibrated codes (one plane) against the float64 reference on the
+    same dequantized weights: the rule of ``tpnet vectors``, as for every quantized model."""
+    from tpnet_ref import testing
+    m = calibrated
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        testing.agrees_with_reference(lambda w: m.predict(w), m,
+                                      windows=testing.windows(m=4, n=30, centre=(15.0, 30.0),
+                                                              scales=(1.0, 3.0)),
+                                      max_examples=8, seed=58)
