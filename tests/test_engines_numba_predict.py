@@ -180,3 +180,62 @@ def test_a_model_with_its_compiled_call_copies_and_pickles(calls, monkeypatch):
     for other in (copy.deepcopy(model), pickle.loads(pickle.dumps(model))):
         assert other.predict(w).tobytes() == want.tobytes()
     assert calls == [1, 1, 1]
+
+
+@pytest.mark.parametrize("which", ["quarter", "int8", "3-D"])
+def test_the_two_thread_plan_runs_the_two_thread_kernel_with_the_same_bits(which, calls,
+                                                                            monkeypatch):
+    from tpnet_ref.weights.shipped import REPO_WEIGHTS_DIR
+    if which == "3-D":
+        model, dim = tpnet_ref.load(str(REPO_WEIGHTS_DIR / "tpnet3d-m4-quarter.h5")), 3
+    else:
+        model, dim = tpnet_ref.load(size="quarter", weights="int8" if which == "int8"
+                                    else "float32"), 2
+    ran, kernel = [], NP.network_parallel
+    monkeypatch.setattr(NP, "network_parallel", lambda *a: ran.append(1) or kernel(*a))
+    for x, one in _inputs(dim):
+        monkeypatch.setenv("TPNET_THREADS", "1")
+        want = _predict(model, x, one).tobytes()
+        monkeypatch.setenv("TPNET_THREADS", "2")
+        assert _predict(model, x, one).tobytes() == want
+    assert len(ran) == len(_inputs(dim))                     # every two-thread call took it
+    assert len(calls) == 2 * len(_inputs(dim))
+
+
+def test_where_the_two_thread_kernel_is_missing_the_extractor_takes_the_second_thread(
+        calls, monkeypatch):
+    """A short command (two-thread kernels only where numba has them) in a process where numba
+    has not got :func:`network_parallel`: the extractor's own two-thread call, then the rest."""
+    from tpnet_ref.engines import two_thread_gate as G
+    model = tpnet_ref.load(size="quarter")          # the full size's directions go apart
+    w = _windows(1)[0]
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    want = model.predict(w).tobytes()
+    monkeypatch.setattr(CW, "TWO_THREAD_KERNELS_ON_DEMAND", False)
+    monkeypatch.setattr(NP, "_MEMO", {})
+    monkeypatch.setattr(CW, "compiled_or_cached",
+                        lambda kernel, args: kernel is not NP.network_parallel)
+    monkeypatch.setattr(G, "_SKIPPED", set())
+    ran, kernel = [], NP.network_parallel
+
+    def network_parallel(*a):                               # a spy of the kernel's name
+        ran.append(1)
+        return kernel(*a)
+    monkeypatch.setattr(NP, "network_parallel", network_parallel)
+    monkeypatch.setenv("TPNET_THREADS", "2")
+    assert model.predict(w).tobytes() == want
+    assert ran == [] and calls == [1, (1, True)], calls
+    assert "network_parallel" in G.two_thread_kernels_skipped()
+
+
+def test_an_overflow_in_the_two_thread_kernel_is_the_one_thread_error(monkeypatch):
+    model = tpnet_ref.load(size="quarter")
+    w = _windows(1)[0] * 1e30
+    errors = []
+    for threads in ("1", "2"):
+        monkeypatch.setenv("TPNET_THREADS", threads)
+        with pytest.raises(NonFiniteResultError) as got, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model.predict(w)
+        errors.append(str(got.value))
+    assert errors[0] == errors[1] and "overflowed in float32" in errors[0]

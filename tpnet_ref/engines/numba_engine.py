@@ -53,13 +53,11 @@ Products accumulate in the model's dtype (as the BLAS does); LayerNorm statistic
 """
 from __future__ import annotations
 
-import threading
 from typing import Any
 
 import numpy as np
 
-from . import compile_watch
-from .blas import in_one_thread
+from .two_thread_gate import _PARALLEL, _available, _two_threads, two_thread_kernels_skipped
 from .thread_policy import two_threads
 from ..checks import overflow_error
 from ..weights.quantize import SCHEMES, codes_of, wide_names
@@ -121,50 +119,13 @@ class NumbaFeatures:
         return out if out.shape[1] == self.k else np.ascontiguousarray(out[:, :self.k])
 
 
-#: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
-_PARALLEL = threading.Lock()
-
-
-def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...]) -> bool:
-    """Whether the two-thread ``kernel`` may run on ``args``: always where two-thread kernels
-    are compiled on demand (:data:`tpnet_ref.engines.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, the
-    library's default);
-    else (``tpnet demo``, ``predict``, ``animate``) only if numba has it for these argument
-    types, compiled in this process or in its cache (loaded then), so that a short command never
-    stops to compile it -- the one-thread kernel gives the same bits. ``memo``: the caller's
-    answers, by kernel (its argument types do not change)."""
-    got = compile_watch.may_compile(kernel, kernel, memo, args)
-    if not got:
-        _SKIPPED.add(kernel.__name__)
-    return got
-
-
-#: the two-thread kernels that :func:`_available` found missing in this process
-_SKIPPED: set[str] = set()
-
-
-def two_thread_kernels_skipped() -> tuple[str, ...]:
-    """The two-thread kernels that ran on one thread in this process because numba did not have
-    them and they are not compiled on demand (:func:`_available`), sorted."""
-    return tuple(sorted(_SKIPPED))
-
-
-def _two_threads(parallel: bool) -> bool:
-    """Whether a call asked to run ``parallel`` takes the two-thread kernels now: only inside a
-    :func:`tpnet_ref.engines.blas.one_thread` block (a one-thread BLAS), and one such call at a time.
-    Beside a multi-threaded BLAS, whose threads spin between calls, numba's second thread waits
-    for a core and costs several times what it saves; beside a one-thread BLAS it pays
-    (docs/performance.md)."""
-    return parallel and in_one_thread() and _PARALLEL.acquire(blocking=False)
-
-
 #: the prediction network's two directions go to two threads (when the call's plan offers a
 #: second one) only for batches whose weight reads per direction come to this many bytes: a
 #: product at a small batch reads each weight once, and on a VM whose cores share the bandwidth
 #: that bounds it, a second thread costs its region launches (four per call) and gains little.
 #: AMD EPYC VM, two-thread plan, float32, median us of a call with the directions apart /
 #: together: quarter (0.9 MB a direction) B = 1 95 / 76, B = 8 255 / 229; half (3.5 MB) B = 1
-#: 163 / 135, B = 2 190 / 192, B = 8 495 / 540; full (14 MB) B = 1 320 / 375 (docs/performance.md).
+#: 163 / 135, B = 2 190 / 192, B = 8 495 / 540; full (14 MB) B = 1 320 / 375.
 #: Codes of fewer bits count at the model's float size (:attr:`NumbaHead.direction_bytes`):
 #: widening each one costs what reading a float does, so int8's products are bound by
 #: arithmetic, and a second thread pays (the full size's int8 at B = 1: 243 / 301 us)

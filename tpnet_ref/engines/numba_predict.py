@@ -6,19 +6,23 @@ Run separately (:meth:`tpnet_ref.model.TPNet.frame_features`, then ``sequence_he
 are four calls (features, projection, head, denormalisation), each with its own Python around
 it: at the small sizes that Python is a fifth of a call. The model hands its windows to :func:`network_steps`, which calls the very
 same kernels on the very same numbers: the same bits (``tests/test_engines_numba_predict.py``).
-A two-thread plan runs the feature extractor on two threads first (its own call) and the rest
-as one call, or keeps the separate calls where the prediction network's directions take the
-second thread too (large weight reads: the full size).
+A two-thread plan runs :func:`network_parallel`: the feature extractor's frames in two halves on
+two threads, then the rest on one, in the same call (the same bits: each frame by the same code);
+it keeps the separate calls where the prediction network's directions take the second thread
+too (large weight reads: the full size).
 """
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ..checks import overflow_error
 from .compile_watch import may_compile
 from .numba_features import frame_range
 from .numba_lstm import head_serial, project_serial
+from .two_thread_gate import _PARALLEL, _available, _two_threads
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -63,13 +67,55 @@ def network_steps(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, 
     return 0
 
 
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def network_parallel(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, csts, units,
+                     gammas, betas, head_w, head_b, relu, one, eps, limit, w0, b0, ws, bs, gw,
+                     gb, zero, normalized, lo, scale, feats, out):
+    """:func:`network_steps` (the same arguments, ``feats`` unused) with the frames' features
+    computed on two threads, the frames in two halves (each by :func:`frame_range`, as the
+    one-thread call computes it), then the rest on one: the same bits."""
+    nf = batch * m
+    starts = np.zeros(nf, dtype=np.intp)
+    for f in range(1, nf):
+        starts[f] = starts[f - 1] + counts[f - 1]
+    g = np.empty((nf, gw.shape[1]), dtype=out.dtype)
+    half = (nf + 1) // 2
+    for h in prange(2):
+        frame_range(pts, starts, counts, h * half, min(nf, (h + 1) * half), w0, b0, ws, bs, gw,
+                    gb, zero, g)
+    return network_steps(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, csts,
+                         units, gammas, betas, head_w, head_b, relu, one, eps, limit, w0, b0, ws,
+                         bs, gw, gb, zero, normalized, lo, scale, g, out)
+
+
 def fusable(model, batch: int) -> bool:
     """Whether ``model``'s predictions of ``batch`` windows can run as :func:`network_steps`:
     the Numba engine's own head (not a specialised one) and feature extractor."""
     return model.head_for(batch).name == "numba" and model.engine_features is not None
 
 
+#: :func:`tpnet_ref.engines.compile_watch.may_compile`'s answers by the kernels' argument types
+#: (the two-thread kernel's keys begin with "two")
 _MEMO: dict = {}
+#: per head: ``(feature extractor, the kernels' arguments that do not change between calls,
+#: may_compile's key without the points' dimension)``
+_CONSTANTS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _constants(head, fx, dt) -> tuple:
+    """``_CONSTANTS[head]``, built on the first call."""
+    got = _CONSTANTS.get(head)
+    if got is None or got[0] is not fx:
+        order = head.feature_order
+        if order is None:
+            order = np.arange(fx.k)
+        const = (order, head.kernels, head.recs, head.kscs, head.rscs, head.gks, head.csts,
+                 head.units, head.gammas, head.betas, head.head_w, head.head_b, head.relu,
+                 head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw, fx.gb,
+                 dt.type(0))
+        got = _CONSTANTS[head] = (fx, const, (dt, head.recs[0].dtype, len(head.recs),
+                                              len(fx.ws)))
+    return got
 
 
 def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
@@ -78,31 +124,34 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: b
     raising the overflow errors the separate calls raise; None (nothing run) where the model
     is not :func:`fusable` or the kernel may not be compiled now
     (:func:`tpnet_ref.engines.compile_watch.may_compile`). ``two``: the call's plan has a
-    second thread: the feature extractor takes it in a call of its own, then the rest runs as
-    one call, unless the prediction network's directions take it too
+    second thread: :func:`network_parallel` takes it (where numba has it or may compile it,
+    else the feature extractor takes it in a call of its own, then the rest runs as one call),
+    unless the prediction network's directions take it too
     (:meth:`~tpnet_ref.engines.numba_engine.NumbaHead.apart`: None)."""
     head, fx, c = model.head_for(batch), model.engine_features, model.config
     if head.name != "numba" or fx is None or (two and head.apart(batch)):
         return None
     dt = model.dtype
-    order = head.feature_order
-    if order is None:
-        order = _IDENTITY.get(fx.k)
-        if order is None:
-            order = _IDENTITY[fx.k] = np.arange(fx.k)
+    fx, const, key = _constants(head, fx, dt)
     out = np.empty((batch, c.n_out, c.dim), dtype=dt)
-    args = (np.ascontiguousarray(points, dtype=dt), np.ascontiguousarray(counts, dtype=np.intp),
-            c.m, batch, order, head.kernels, head.recs, head.kscs, head.rscs, head.gks,
-            head.csts, head.units, head.gammas, head.betas, head.head_w, head.head_b, head.relu,
-            head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw, fx.gb,
-            dt.type(0), normalized, model._lo, model._scale, _NO_FEATURES[dt],
-            out.reshape(batch, -1))
-    key = (dt, head.recs[0].dtype, len(head.recs), len(fx.ws), points.shape[1])
+    if points.dtype != dt or not points.flags.c_contiguous:
+        points = np.ascontiguousarray(points, dtype=dt)
+    if counts.dtype != np.intp or not counts.flags.c_contiguous:
+        counts = np.ascontiguousarray(counts, dtype=np.intp)
+    args = (points, counts, c.m, batch, *const, normalized, model._lo, model._scale,
+            _NO_FEATURES[dt], out.reshape(batch, -1))
+    key = key + (points.shape[1],)
     if not may_compile(network_steps, key, _MEMO, args):
         return None
-    if two:
-        args = args[:-2] + (fx(points, counts, True), args[-1])
-    bad = network_steps(*args)
+    if not two:
+        bad = network_steps(*args)
+    elif _two_threads(_available(network_parallel, _MEMO, args, ("two",) + key)):
+        try:
+            bad = network_parallel(*args)
+        finally:
+            _PARALLEL.release()
+    else:
+        bad = network_steps(*(args[:-2] + (fx(points, counts, True), args[-1])))
     if bad > 0:
         raise overflow_error(head.dtype, f"BiLSTM {bad}")
     if bad < 0:
@@ -118,10 +167,8 @@ class Network:
         return run(model, points, counts, batch, normalized, two)
 
 
-#: ``arange(k)`` by ``k``: the feature order of a head in the file's order
-_IDENTITY: dict = {}
 #: :func:`network_steps`' ``feats`` when it computes them
 _NO_FEATURES = {np.dtype(t): np.empty((0, 0), dtype=t) for t in (np.float32, np.float64)}
 
 
-__all__ = ["network_steps", "fusable", "run", "Network"]
+__all__ = ["network_steps", "network_parallel", "fusable", "run", "Network"]
