@@ -164,7 +164,9 @@ def sizes(rounds: int, block: float) -> dict:
     and warnings included: world-unit input, as a user calls ``tpnet_ref.predict``) against
     onnxruntime on that size's own export (``tpnet export onnx``: world units in and out), in
     one run: B = 1 on a ring of the scene and on random points, B = 8, an 80-frame rollout
-    against onnxruntime looping its graph, and what the input checks cost of the ring's call."""
+    against onnxruntime looping its graph, and what the input checks cost of the ring's call.
+    onnxruntime runs at its default threads and at one thread; each round's ratio is against
+    the faster of the two (``--threads N``: that count only)."""
     from tpnet_ref.conformance.onnx_peer import onnx_session
     ring = np.asarray(tpnet_ref.example_window(), dtype=np.float32)           # (4, 30, 2)
     rng = np.random.default_rng(0)
@@ -176,34 +178,47 @@ def sizes(rounds: int, block: float) -> dict:
     for size in ("full", "half", "quarter"):
         model = tpnet_ref.load(size=size)
         model.threads = THREADS
-        sess = onnx_session(model, n_points=None, threads=THREADS, world_units=True)
-
-        def ort(x, sess=sess):
-            return sess.run(None, {"window": x})[0]
-
-        def ort_loop(sess=sess):
-            win = ring[None].copy()
-            for _ in range(80):
-                win = np.concatenate([win[:, 1:], ort(win)[:, None]], axis=1)
-
-        fns = {"ring": lambda m=model: m.predict(ring), "ring ort": lambda: ort(ring[None]),
-               "random": lambda m=model: m.predict(rand), "random ort": lambda: ort(rand[None]),
-               "b8": lambda m=model: m.predict_batch(b8), "b8 ort": lambda: ort(b8),
+        # onnxruntime at its own default threads and, unless --threads fixes them, at one: on a
+        # 2-core VM its two threads are now faster, now twice as slow as one (by process, for
+        # minutes); each round compares with the faster of the two
+        sessions = {"": onnx_session(model, n_points=None, threads=THREADS, world_units=True)}
+        if THREADS is None:
+            sessions[" 1t"] = onnx_session(model, n_points=None, threads=1, world_units=True)
+        fns = {"ring": lambda m=model: m.predict(ring),
+               "random": lambda m=model: m.predict(rand),
+               "b8": lambda m=model: m.predict_batch(b8),
                "checks": lambda m=model: m.screen(m, ring, True, False)
                if m.screen is not None else None}
+        rolls = {"roll": lambda m=model: m.rollout(ring, 80)}
+        for tag, sess in sessions.items():
+            def ort(x, sess=sess):
+                return sess.run(None, {"window": x})[0]
+
+            def ort_loop(ort=ort):
+                win = ring[None].copy()
+                for _ in range(80):
+                    win = np.concatenate([win[:, 1:], ort(win)[:, None]], axis=1)
+            fns.update({f"ring ort{tag}": lambda ort=ort: ort(ring[None]),
+                        f"random ort{tag}": lambda ort=ort: ort(rand[None]),
+                        f"b8 ort{tag}": lambda ort=ort: ort(b8)})
+            rolls[f"roll ort{tag}"] = ort_loop
         t = alternate(fns, rounds, block, 3)
-        roll = alternate({"roll": lambda m=model: m.rollout(ring, 80), "roll ort": ort_loop},
-                         rounds, block, 2)
-        t.update(roll)
+        t.update(alternate(rolls, rounds, block, 2))
+        for k in ("ring", "random", "b8", "roll"):
+            if f"{k} ort 1t" in t:
+                t[f"{k} ort default"] = t[f"{k} ort"]
+                t[f"{k} ort"] = list(np.minimum(t[f"{k} ort"], t[f"{k} ort 1t"]))
         med = {k: float(np.median(v)) for k, v in t.items()}
         row = {"params": int(model.num_params), **{k: v * 1e6 for k, v in med.items()},
                **{f"{k} ratio": paired(t, k, f"{k} ort") for k in ("ring", "random", "b8", "roll")}}
         row["checks share"] = med["checks"] / med["ring"]
         out[size] = row
+        ort_note = (f"  (onnxruntime B = 1 ring: default threads {row['ring ort default']:.0f} us, "
+                    f"one thread {row['ring ort 1t']:.0f} us)" if "ring ort 1t" in row else "")
         print(f"{size:8s} {row['params'] / 1e6:6.2f}M  {row['ring']:6.0f} vs {row['ring ort']:6.0f} us "
               f"{row['ring ratio']:5.2f}  {row['random ratio']:10.2f}  {row['b8 ratio']:6.2f}  "
               f"{row['roll'] / 80:6.0f} vs {row['roll ort'] / 80:4.0f} us {row['roll ratio']:4.2f}  "
-              f"{row['checks']:5.1f} us {100 * row['checks share']:3.0f} %")
+              f"{row['checks']:5.1f} us {100 * row['checks share']:3.0f} %{ort_note}")
     print("\ntargets: B = 1 ratio " + ", ".join(f"{k} <= {v}" for k, v in SIZE_TARGETS.items())
           + "; the quarter's call <= 120 us, its checks <= 15 % of it; rollout ratio <= 0.5")
     for size, v in SIZE_TARGETS.items():
