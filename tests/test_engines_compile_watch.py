@@ -44,7 +44,7 @@ def test_watch_announces_once_and_times_only_compilations():
 
 def test_a_missing_two_thread_kernel_is_found_missing_not_compiled(monkeypatch):
     from tpnet_ref.engines import compile_watch
-    from tpnet_ref.engines import numba_engine as EN
+    from tpnet_ref.engines import two_thread_gate as G
 
     @numba.njit(parallel=True)
     def two(x):
@@ -54,13 +54,13 @@ def test_a_missing_two_thread_kernel_is_found_missing_not_compiled(monkeypatch):
     memo: dict = {}
     monkeypatch.setattr(compile_watch, "TWO_THREAD_KERNELS_ON_DEMAND", False)
     with CompileWatch() as w:
-        assert EN._available(two, memo, args) is False          # not compiled, not cached
+        assert G.available(two, memo, args) is False          # not compiled, not cached
     assert w.count == 0 and not two.signatures and memo == {two: False}
-    assert "two" in EN.two_thread_kernels_skipped()
+    assert "two" in G.two_thread_kernels_skipped()
     two(*args)                                                  # compiled: available now
-    assert EN._available(two, {}, args) is True
+    assert G.available(two, {}, args) is True
     monkeypatch.setattr(compile_watch, "TWO_THREAD_KERNELS_ON_DEMAND", True)
-    assert EN._available(two, {two: False}, args) is True       # the library's default
+    assert G.available(two, {two: False}, args) is True       # the library's default
 
 
 def _tpnet(args: list[str], cache: Path, cwd: Path,

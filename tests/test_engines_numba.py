@@ -469,16 +469,17 @@ def test_two_threads_only_beside_a_one_thread_blas():
     """The two-thread kernels run only inside blas.one_thread() (beside a multi-threaded BLAS,
     whose threads spin between calls, numba's second thread waits for a core), one call at a
     time."""
-    assert not EN._two_threads(True)
+    from tpnet_ref.engines.two_thread_gate import LOCK, take
+    assert not take(True)
     with blas.one_thread():
-        assert not EN._two_threads(False)
-        assert EN._two_threads(True)            # takes the lock ...
+        assert not take(False)
+        assert take(True)                       # takes the lock ...
         try:
-            assert not EN._two_threads(True)    # ... so a second caller runs serially
+            assert not take(True)               # ... so a second caller runs serially
         finally:
-            EN._PARALLEL.release()
-        assert EN._two_threads(True)
-        EN._PARALLEL.release()
+            LOCK.release()
+        assert take(True)
+        LOCK.release()
 
 
 @pytest.mark.parametrize("dtype,rtol", [("float32", 1e-5), ("float64", 1e-13)])

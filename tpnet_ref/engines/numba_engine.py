@@ -35,7 +35,7 @@ What it does that NumPy cannot:
   one by one anyway);
 - the gates are vectorised (a branch-free ``exp``, :func:`tpnet_ref.engines.numba_lstm._exp_neg`, within 1.5 ulp);
 - with ``parallel``, the two directions of a layer on two threads (``prange``), only beside a
-  one-thread BLAS (:func:`_two_threads`), and only for batches whose weight reads are large
+  one-thread BLAS (:func:`~tpnet_ref.engines.two_thread_gate.take`), and only for batches whose weight reads are large
   enough to pay for it (:data:`NETWORK_APART_BYTES`).
 
 Determinism: each output number is one chain of fused multiply-adds (``llvm.fma``, explicit,
@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from .two_thread_gate import _PARALLEL, _available, _two_threads, two_thread_kernels_skipped
+from .two_thread_gate import LOCK, available, take, two_thread_kernels_skipped
 from .thread_policy import two_threads
 from ..checks import overflow_error
 from ..weights.quantize import SCHEMES, codes_of, wide_names
@@ -92,7 +92,7 @@ class NumbaFeatures:
         self.ws, self.bs = tuple(ws[1:-1]), tuple(bs[1:-1])
         self.gw, self.gb = ws[-1], bs[-1]
         self.k = int(config.global_features)
-        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
+        self._loaded: dict[Any, bool] = {}        # available's answers for this layout
 
     @staticmethod
     def supports(config: Any) -> bool:
@@ -100,20 +100,20 @@ class NumbaFeatures:
 
     def __call__(self, points: np.ndarray, counts: np.ndarray, parallel: bool = False) -> np.ndarray:
         """Global feature of every frame (see the class); ``parallel``: on two threads if
-        :func:`_two_threads` allows."""
+        :func:`~tpnet_ref.engines.two_thread_gate.take` allows."""
         pts = np.ascontiguousarray(points, dtype=self.dtype)
         counts = np.ascontiguousarray(counts, dtype=np.intp)
         starts = np.zeros(counts.shape[0], dtype=np.intp)
         np.cumsum(counts[:-1], out=starts[1:])
         out = np.empty((counts.shape[0], self.gw.shape[1]), dtype=self.dtype)
         weights = (self.w0, self.b0, self.ws, self.bs, self.gw, self.gb, self.dtype.type(0))
-        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and _two_threads(
-                parallel and _available(features_parallel, self._loaded,
+        if (counts.shape[0] > 1 or counts[0] >= 2 * GROUP_ROWS) and take(
+                parallel and available(features_parallel, self._loaded,
                                         (pts, starts, counts, *weights, out))):
             try:
                 features_parallel(pts, starts, counts, *weights, out)
             finally:
-                _PARALLEL.release()
+                LOCK.release()
         else:       # called directly: a wrapper would be one more level to compile
             frame_range(pts, starts, counts, 0, counts.shape[0], *weights, out)
         return out if out.shape[1] == self.k else np.ascontiguousarray(out[:, :self.k])
@@ -213,7 +213,7 @@ class NumbaHead:
         self.out_shape = (config.n_out, config.dim)
         self.one, self.eps = t(1.0), t(config.layer_norm_eps)
         self.limit = t(np.sqrt(np.finfo(dt).max) / 4)
-        self._loaded: dict[Any, bool] = {}        # _available's answers for this layout
+        self._loaded: dict[Any, bool] = {}        # available's answers for this layout
         #: the bytes of the float weights one direction's products read at one window (codes
         #: of fewer bits counted at the model's float size: see :data:`NETWORK_APART_BYTES`)
         self.direction_bytes = sum(int(a[0].size) for a in (*self.kernels, *self.recs)) * dt.itemsize
@@ -247,7 +247,7 @@ class NumbaHead:
     def project_rows(self, x: np.ndarray, parallel: bool = False, batch: int = 1) -> np.ndarray:
         """BiLSTM 1's input projection (with bias) of feature rows ``(R, k)`` -> ``(R, 2, N)``
         (each direction's gates i, f, c, o, then zero padding up to ``N``, whole vectors).
-        ``parallel``: the two directions on two threads if :func:`_two_threads` allows.
+        ``parallel``: the two directions on two threads if :func:`~tpnet_ref.engines.two_thread_gate.take` allows.
         ``batch``: the rows are ``R / batch`` steps of ``batch`` windows, time-major (only
         groups the rows that share weight reads; the result is the same whatever it is)."""
         k = self.kernels[0]
@@ -257,13 +257,13 @@ class NumbaHead:
             x = x[:, self.feature_order]
         x = np.ascontiguousarray(x, dtype=self.dtype)
         steps, bsz = (rows // batch, batch) if batch > 0 and rows % batch == 0 else (rows, 1)
-        if _two_threads(parallel and _available(project_parallel, self._loaded,
+        if take(parallel and available(project_parallel, self._loaded,
                                                 (x, k, self.kscs[0], self.csts[0], out, steps,
                                                  bsz))):
             try:
                 project_parallel(x, k, self.kscs[0], self.csts[0], out, steps, bsz)
             finally:
-                _PARALLEL.release()
+                LOCK.release()
         else:
             project_serial(x, k, self.kscs[0], self.csts[0], out, steps, bsz)
         return out
@@ -273,16 +273,16 @@ class NumbaHead:
         """The network from BiLSTM 1's projection ``xp1`` (:meth:`project_rows`' rows, time-major,
         ``T*B`` of them, any shape with ``2N`` numbers per row) -> ``(y (B, n_out*dim) in
         [0, 1], bad)``, ``bad`` = 1-based layer that overflowed, or 0. ``parallel``: each
-        layer's two directions on two threads if :func:`_two_threads` allows."""
+        layer's two directions on two threads if :func:`~tpnet_ref.engines.two_thread_gate.take` allows."""
         xp1 = np.ascontiguousarray(xp1, dtype=self.dtype).reshape(steps * batch, 2, -1)
         args = (xp1, self.kernels, self.recs, self.kscs, self.rscs, self.gks, self.csts, self.units, self.gammas,
                 self.betas, self.head_w, self.head_b, steps, batch, self.relu, self.one,
                 self.eps, self.limit)
-        if _two_threads(parallel and _available(head_parallel, self._loaded, args)):
+        if take(parallel and available(head_parallel, self._loaded, args)):
             try:
                 return head_parallel(*args)
             finally:
-                _PARALLEL.release()
+                LOCK.release()
         return head_serial(*args)
 
 

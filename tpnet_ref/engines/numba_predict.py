@@ -22,7 +22,7 @@ from ..checks import overflow_error
 from .compile_watch import may_compile
 from .numba_features import frame_range
 from .numba_lstm import head_serial, project_serial
-from .two_thread_gate import _PARALLEL, _available, _two_threads
+from .two_thread_gate import LOCK, available, take
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -145,11 +145,11 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: b
         return None
     if not two:
         bad = network_steps(*args)
-    elif _two_threads(_available(network_parallel, _MEMO, args, ("two",) + key)):
+    elif take(available(network_parallel, _MEMO, args, ("two",) + key)):
         try:
             bad = network_parallel(*args)
         finally:
-            _PARALLEL.release()
+            LOCK.release()
     else:
         bad = network_steps(*(args[:-2] + (fx(points, counts, True), args[-1])))
     if bad > 0:

@@ -10,10 +10,10 @@ from . import compile_watch
 from .blas import in_one_thread
 
 #: one parallel call at a time (another thread asking meanwhile runs the serial kernel)
-_PARALLEL = threading.Lock()
+LOCK = threading.Lock()
 
 
-def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...],
+def available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...],
                key: Any = None) -> bool:
     """Whether the two-thread ``kernel`` may run on ``args``: always where two-thread kernels
     are compiled on demand (:data:`tpnet_ref.engines.compile_watch.TWO_THREAD_KERNELS_ON_DEMAND`, the
@@ -29,23 +29,23 @@ def _available(kernel: Any, memo: dict[Any, bool], args: tuple[Any, ...],
     return got
 
 
-#: the two-thread kernels that :func:`_available` found missing in this process
+#: the two-thread kernels that :func:`available` found missing in this process
 _SKIPPED: set[str] = set()
 
 
 def two_thread_kernels_skipped() -> tuple[str, ...]:
     """The two-thread kernels that ran on one thread in this process because numba did not have
-    them and they are not compiled on demand (:func:`_available`), sorted."""
+    them and they are not compiled on demand (:func:`available`), sorted."""
     return tuple(sorted(_SKIPPED))
 
 
-def _two_threads(parallel: bool) -> bool:
+def take(parallel: bool) -> bool:
     """Whether a call asked to run ``parallel`` takes the two-thread kernels now: only inside a
     :func:`tpnet_ref.engines.blas.one_thread` block (a one-thread BLAS), and one such call at a time.
     Beside a multi-threaded BLAS, whose threads spin between calls, numba's second thread waits
     for a core and costs several times what it saves; beside a one-thread BLAS it pays
-    (docs/performance.md)."""
-    return parallel and in_one_thread() and _PARALLEL.acquire(blocking=False)
+    (docs/performance.md). True holds :data:`LOCK`: the caller releases it."""
+    return parallel and in_one_thread() and LOCK.acquire(blocking=False)
 
 
-__all__ = ["two_thread_kernels_skipped"]
+__all__ = ["LOCK", "available", "take", "two_thread_kernels_skipped"]
