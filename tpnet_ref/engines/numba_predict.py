@@ -25,6 +25,15 @@ from .numba_lstm import head_serial, project_serial
 from .two_thread_gate import LOCK, available, take
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _frame_starts(counts, nf):
+    """Each of the ``nf`` frames' first point in the points, from their ``counts``."""
+    starts = np.zeros(nf, dtype=np.intp)
+    for f in range(1, nf):
+        starts[f] = starts[f - 1] + counts[f - 1]
+    return starts
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def network_steps(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, csts, units,
                   gammas, betas, head_w, head_b, relu, one, eps, limit, w0, b0, ws, bs, gw, gb,
@@ -41,9 +50,7 @@ def network_steps(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, 
     k = order.shape[0]
     g = feats
     if feats.shape[0] == 0:
-        starts = np.zeros(nf, dtype=np.intp)
-        for f in range(1, nf):
-            starts[f] = starts[f - 1] + counts[f - 1]
+        starts = _frame_starts(counts, nf)
         g = np.empty((nf, gw.shape[1]), dtype=out.dtype)
         frame_range(pts, starts, counts, 0, nf, w0, b0, ws, bs, gw, gb, zero, g)
     x = np.empty((nf, k), dtype=out.dtype)              # time-major rows, the head's order
@@ -75,9 +82,7 @@ def network_parallel(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gk
     computed on two threads, the frames in two halves (each by :func:`frame_range`, as the
     one-thread call computes it), then the rest on one: the same bits."""
     nf = batch * m
-    starts = np.zeros(nf, dtype=np.intp)
-    for f in range(1, nf):
-        starts[f] = starts[f - 1] + counts[f - 1]
+    starts = _frame_starts(counts, nf)
     g = np.empty((nf, gw.shape[1]), dtype=out.dtype)
     half = (nf + 1) // 2
     for h in prange(2):
