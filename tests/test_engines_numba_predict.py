@@ -239,3 +239,47 @@ def test_an_overflow_in_the_two_thread_kernel_is_the_one_thread_error(monkeypatc
             model.predict(w)
         errors.append(str(got.value))
     assert errors[0] == errors[1] and "overflowed in float32" in errors[0]
+
+
+def test_the_kernels_compiled_code_called_directly_gives_the_dispatchers_bits(monkeypatch):
+    """From the second call of one head on arguments of the same types, ``run`` calls numba's
+    compiled code without the dispatcher; arrays whose flags change the numba type (read-only,
+    unaligned) and a ``normalized`` given as an int get code of their own types, never another's."""
+    model = tpnet_ref.load(size="quarter")
+    monkeypatch.setenv("TPNET_THREADS", "1")
+    w = _windows(1)[0]
+    pts, counts = model.canonical_points(np.asarray(w, dtype=np.float32).reshape(-1, 30, 2))
+    want = NP.network_steps                                  # through the dispatcher
+    ro = pts.copy()
+    ro.flags.writeable = False
+    raw = np.empty(pts.nbytes + 1, dtype=np.uint8)[1:].view(np.float32).reshape(pts.shape)
+    raw[...] = pts                                           # an unaligned copy
+    assert not raw.flags.aligned
+    got = {}
+    for name, p, normalized in [("plain", pts, False), ("again", pts, False), ("ro", ro, False),
+                                ("unaligned", raw, False), ("int", pts, 1), ("int again", pts, 1)]:
+        got[name] = NP.run(model, p, counts, 1, normalized).tobytes()
+    head = model.head_for(1)
+    calls = NP._CONSTANTS[head][3]
+    direct = [fn for fn in calls.values() if fn is not want]
+    assert len(calls) == 4 and len(direct) == 4              # normalized=1: True's code
+    assert len({got[k] for k in ("plain", "again", "ro", "unaligned")}) == 1
+    assert got["int"] == got["int again"]
+    args = NP._constants(head, model.engine_features, model.dtype)[1]
+    out = np.empty((1, 60), dtype=np.float32)
+    assert want(pts, counts, 4, 1, *args, False, model._lo, model._scale,
+                np.empty((0, 0), np.float32), out) == 0
+    assert out.tobytes() == got["plain"]
+
+
+def test_entry_point_is_none_for_types_numba_has_not_compiled():
+    from numba import njit
+
+    @njit
+    def twice(x):
+        return 2 * x
+    assert CW.entry_point(twice, (1.0,)) is None
+    assert twice(1.0) == 2.0
+    assert CW.entry_point(twice, (1.0,))(3.0) == 6.0
+    assert CW.entry_point(twice, (1,)) is None               # int64: not compiled
+    assert CW.entry_point(lambda x: x, (1,)) is None         # not a numba dispatcher

@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 import sys
 import threading
+import time
 from typing import Any
 
 #: OpenBLAS multiplies a product of M*N*K <= 1e6 multiply-adds without packing its operands
@@ -41,12 +42,23 @@ _STATE: dict[str, Any] = {"controllers": None, "modules": 0, "depth": 0, "saved"
                           "calls": {}}
 
 
+#: :func:`cpu_count`: seconds its answer is kept (the affinity rarely changes; reading it is
+#: half a microsecond, a share of a small network's call)
+CPU_COUNT_KEEP_S = 1.0
+_CPUS = [-CPU_COUNT_KEEP_S, 1]               # when last read (time.monotonic), the count
+
+
 def cpu_count() -> int:
-    """Cores this process may run on."""
+    """Cores this process may run on (read at most every :data:`CPU_COUNT_KEEP_S` seconds)."""
+    now = time.monotonic()
+    if now - _CPUS[0] < CPU_COUNT_KEEP_S:
+        return _CPUS[1]
     try:
-        return len(os.sched_getaffinity(0))
+        n = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
-        return os.cpu_count() or 1
+        n = os.cpu_count() or 1
+    _CPUS[:] = [now, n]
+    return n
 
 
 def _controllers() -> list[Any]:

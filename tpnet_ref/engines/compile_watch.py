@@ -121,6 +121,19 @@ def compiled_or_cached(kernel: Any, args: tuple[Any, ...]) -> bool:
         return False
 
 
+def entry_point(kernel: Any, args: tuple[Any, ...]) -> Callable[..., Any] | None:
+    """The code numba compiled for ``args``' types, to be called on arguments of those very types
+    without the dispatcher, which types every argument again on each call (3 us a call for the
+    Numba engine's network, whose arguments are tuples of arrays); None where numba has no version
+    for them (call ``kernel`` first) or where its internals differ from those of numba 0.68 that
+    this reads (the caller then calls ``kernel``)."""
+    try:
+        cres = kernel.overloads.get(tuple(kernel.typeof_pyval(a) for a in args))
+        return None if cres is None else cres.entry_point
+    except Exception:                   # noqa: BLE001 -- numba's internals changed: the dispatcher
+        return None
+
+
 def may_compile(kernel, key, memo: dict, args: tuple) -> bool:
     """Whether the optional ``kernel`` (the same results exist without it) may run on ``args``:
     always where the library compiles such kernels on demand
@@ -136,4 +149,5 @@ def may_compile(kernel, key, memo: dict, args: tuple) -> bool:
     return got
 
 
-__all__ = ["CompileWatch", "COMPILING", "EVENT", "TWO_THREAD_KERNELS_ON_DEMAND", "compiled_or_cached", "may_compile"]
+__all__ = ["CompileWatch", "COMPILING", "EVENT", "TWO_THREAD_KERNELS_ON_DEMAND", "compiled_or_cached",
+           "entry_point", "may_compile"]

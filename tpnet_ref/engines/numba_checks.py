@@ -46,9 +46,6 @@ _REL = 1e-9
 #: the same for the free-fall tests' second differences (about 1e-5 world units; their rounding
 #: is about 1e-14)
 _FALL_BAND = 1e-11
-#: adjacent angles closer than this (radians) leave the outline's order undecided (the checks'
-#: sort may put them either way)
-_ANGLE_BAND = 1e-12
 
 #: what :func:`screen` found: nothing to say; undecided (a frame not clearly one body, a value at
 #: a threshold, a refused value: the checks then run); or the one warning
@@ -165,9 +162,26 @@ def _world(x, f, i, k, normalized, norm_lo, scale):
 
 
 @njit(cache=True, nogil=True)
+def _pseudo_angle(ex, ey):
+    """A number in [0, 4) that grows with the angle of ``(ex, ey)`` from the x axis over a turn
+    (the "diamond angle": one division, not an arctangent)."""
+    r = abs(ex) + abs(ey)
+    if r == 0.0:
+        return 0.0
+    if ey >= 0.0:
+        return ey / r if ex >= 0.0 else 1.0 - ex / r
+    return 2.0 - ey / r if ex < 0.0 else 3.0 + ex / r
+
+
+@njit(cache=True, nogil=True)
 def _outline(x, f, normalized, norm_lo, scale, ang, idx):
     """Frame ``f`` against the one-body shortcut: 1 one linked outline within reach of its
-    centre, -1 clearly not, 0 undecided."""
+    centre, -1 clearly not, 0 undecided. The points go in the order of their angle about the
+    centre, by :func:`_pseudo_angle` (the checks sort by ``arctan2``; two points at nearly one
+    angle may come in the other order): any closed path through every point whose steps are
+    all shorter than ``BODY_LINK_MIN`` proves one linked group, whatever the order that found
+    it, so 1 is what the checks conclude too (their shortcut, or their pairwise test after
+    it), and -1 only sends the frame on to the stray-point test or to the checks."""
     n = x.shape[1]
     lo0 = hi0 = _world(x, f, 0, 0, normalized, norm_lo, scale)
     lo1 = hi1 = _world(x, f, 0, 1, normalized, norm_lo, scale)
@@ -184,7 +198,7 @@ def _outline(x, f, normalized, norm_lo, scale, ang, idx):
         if s > 0:
             return -1
         undecided |= s == 0
-        ang[i] = math.atan2(ey, ex)
+        ang[i] = _pseudo_angle(ex, ey)
         idx[i] = i
     for i in range(1, n):                       # the points in the order of their angle
         a, k = ang[i], idx[i]
@@ -196,8 +210,6 @@ def _outline(x, f, normalized, norm_lo, scale, ang, idx):
     worst = 0.0
     for i in range(n):
         p, q = idx[i], idx[i - 1]              # i - 1 = -1: the step closing the outline
-        if i > 0 and ang[i] - ang[i - 1] <= _ANGLE_BAND:
-            undecided = True                   # a tie: the checks' order may differ
         dx = _world(x, f, p, 0, normalized, norm_lo, scale) - _world(x, f, q, 0, normalized, norm_lo, scale)
         dy = _world(x, f, p, 1, normalized, norm_lo, scale) - _world(x, f, q, 1, normalized, norm_lo, scale)
         worst = max(worst, dx * dx + dy * dy)

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..checks import overflow_error
-from .compile_watch import may_compile
+from .compile_watch import entry_point, may_compile
 from .numba_features import frame_range
 from .numba_lstm import head_serial, project_serial
 from .two_thread_gate import LOCK, available, take
@@ -103,7 +103,8 @@ def fusable(model, batch: int) -> bool:
 #: (the two-thread kernel's keys begin with "two")
 _MEMO: dict = {}
 #: per head: ``(feature extractor, the kernels' arguments that do not change between calls,
-#: may_compile's key without the points' dimension)``
+#: may_compile's key without the points' dimension, the kernels' compiled code by the types of
+#: the arguments that do change (:func:`_call`))``
 _CONSTANTS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
@@ -119,8 +120,21 @@ def _constants(head, fx, dt) -> tuple:
                  head.one, head.eps, head.limit, fx.w0, fx.b0, fx.ws, fx.bs, fx.gw, fx.gb,
                  dt.type(0))
         got = _CONSTANTS[head] = (fx, const, (dt, head.recs[0].dtype, len(head.recs),
-                                              len(fx.ws)))
+                                              len(fx.ws)), {})
     return got
+
+
+def _call(calls: dict, kernel, types: tuple, args: tuple) -> int:
+    """``kernel(*args)``: from the second call on arguments of the same ``types`` (what tells
+    apart the numba types of the arguments that change between calls of one head), numba's
+    compiled code for them, called directly (:func:`~tpnet_ref.engines.compile_watch.entry_point`:
+    3 us less a call); ``calls``: that code by kernel and types."""
+    fn = calls.get((kernel, types))
+    if fn is not None:
+        return fn(*args)
+    bad = kernel(*args)
+    calls[(kernel, types)] = entry_point(kernel, args) or kernel
+    return bad
 
 
 def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
@@ -137,22 +151,28 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: b
     if head.name != "numba" or fx is None or (two and head.apart(batch)):
         return None
     dt = model.dtype
-    fx, const, key = _constants(head, fx, dt)
+    fx, const, key, calls = _constants(head, fx, dt)
     out = np.empty((batch, c.n_out, c.dim), dtype=dt)
-    if points.dtype != dt or not points.flags.c_contiguous:
+    pf, cf = points.flags, counts.flags
+    if points.dtype != dt or not pf.c_contiguous:
         points = np.ascontiguousarray(points, dtype=dt)
-    if counts.dtype != np.intp or not counts.flags.c_contiguous:
+        pf = points.flags
+    if counts.dtype != np.intp or not cf.c_contiguous:
         counts = np.ascontiguousarray(counts, dtype=np.intp)
-    args = (points, counts, c.m, batch, *const, normalized, model._lo, model._scale,
+        cf = counts.flags
+    normalized = bool(normalized)
+    args = (points, counts, c.m, int(batch), *const, normalized, model._lo, model._scale,
             _NO_FEATURES[dt], out.reshape(batch, -1))
     key = key + (points.shape[1],)
     if not may_compile(network_steps, key, _MEMO, args):
         return None
+    # the numba types of the arguments that change (the rest: the head's, the model's, fixed)
+    types = (normalized, pf.writeable, pf.aligned, cf.writeable, cf.aligned)
     if not two:
-        bad = network_steps(*args)
+        bad = _call(calls, network_steps, types, args)
     elif take(available(network_parallel, _MEMO, args, ("two",) + key)):
         try:
-            bad = network_parallel(*args)
+            bad = _call(calls, network_parallel, types, args)
         finally:
             LOCK.release()
     else:
