@@ -49,7 +49,7 @@ def test_the_compiled_steps_are_the_step_by_step_bits(size, dtype, calls, monkey
     for x, steps in ((_windows(1)[0], 30), (_windows(3), 12), (_windows(8), 9)):
         one, two = _both(model, x, steps, monkeypatch)
         assert one.tobytes() == two.tobytes()
-    assert calls == [ER.STEPS_FIRST] * 3                  # fused once a rollout, after 8 steps
+    assert calls == [0] * 3                               # one thread fixed: every step fused
 
 
 def test_a_network_without_a_unit_order_and_short_rollouts(released_random64, calls,
@@ -60,7 +60,36 @@ def test_a_network_without_a_unit_order_and_short_rollouts(released_random64, ca
     for steps in (1, ER.STEPS_FIRST, ER.STEPS_FIRST + 1, 20):
         one, two = _both(model, w, steps, monkeypatch)
         assert one.tobytes() == two.tobytes() and one.shape == (steps, 30, 2)
-    assert calls == [ER.STEPS_FIRST] * 2                  # never for 8 steps or fewer
+    assert calls == [0] * 4                               # one thread fixed: from the start
+
+
+def test_a_settled_plan_hands_over_at_the_first_step_and_refreshes_its_measure(
+        released_random64, calls, monkeypatch):
+    """Where the policy's latencies say one thread (by ``FUSED_GAIN``), a rollout runs every
+    step in the compiled call, except every ``REFRESH_EVERY``-th, which runs its first steps
+    one by one (the policy measures them); before any latency, the first steps too."""
+    from tpnet_ref.engines import rollout as R
+
+    class Settled:
+        measured = False
+
+        def one_thread_plan(self, kind, held=False, margin=None):
+            return self.measured
+
+        def preferred(self, kind):
+            return 1 if self.measured else None
+    policy = Settled()
+    monkeypatch.setattr(R, "adaptive", policy)
+    monkeypatch.setattr(R, "_ROLLOUTS", {})
+    monkeypatch.delenv("TPNET_THREADS", raising=False)
+    model = released_random64.astype("float32").with_engine("numba")
+    w = _windows(1)[0]
+    want = model.rollout(w, 12)                           # nothing measured: one by one
+    assert calls == []
+    policy.measured = True
+    for _ in range(R.REFRESH_EVERY + 1):
+        assert model.rollout(w, 12).tobytes() == want.tobytes()
+    assert calls == [ER.STEPS_FIRST] + [0] * (R.REFRESH_EVERY - 1) + [ER.STEPS_FIRST]
 
 
 def test_only_the_numba_engines_own_batches_are_fused(released_random64, calls, monkeypatch):
@@ -71,7 +100,7 @@ def test_only_the_numba_engines_own_batches_are_fused(released_random64, calls, 
     assert calls == []
     model.rollout_batch(_windows(8), 10)
     model.rollout_batch(_windows(9), 10)                   # its extractor serves every batch
-    assert calls == [ER.STEPS_FIRST, ER.STEPS_FIRST]
+    assert calls == [0, 0]                                # one thread fixed: from the start
 
 
 def test_an_overflow_in_the_compiled_steps_is_the_step_by_step_error(released_random64,
@@ -126,3 +155,20 @@ def test_the_one_thread_plan_reads_the_policy_without_changing_it(monkeypatch):
     r = TP.ThreadPolicy(monitor=Taken())
     monkeypatch.setattr(TP, "cpu_count", lambda: 2)
     assert r.one_thread_plan("k")
+    assert r.one_thread_plan("k", margin=0.15)
+
+
+def test_with_a_margin_the_one_thread_plan_holds_unless_two_threads_win_by_it(monkeypatch):
+    """The rollout's gate of its one-thread compiled rest (``rollout.FUSED_GAIN``): two threads
+    10 % faster by the policy still leave it to one thread; 20 % faster, not."""
+    monkeypatch.delenv("TPNET_THREADS", raising=False)
+    monkeypatch.delenv("TPNET_BLAS_THREADS", raising=False)
+    monkeypatch.setattr(TP, "cpu_count", lambda: 2)
+    for two, want in ((0.9, True), (0.8, False), (1.2, True)):
+        p = TP.ThreadPolicy(monitor=None)
+        assert not p.one_thread_plan("k", margin=0.15)    # nothing measured: not settled
+        for _ in range(40):
+            choice = p.choose("k")
+            p.record("k", choice, 1.0 if choice == 1 else two)
+        assert p.one_thread_plan("k", margin=0.15) is want
+        assert p.one_thread_plan("k") is (two > 1)

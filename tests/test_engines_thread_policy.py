@@ -71,6 +71,21 @@ def test_a_small_win_of_the_blas_threads_keeps_one_thread_and_their_probes_get_r
     assert p.preferred("k") == 1
 
 
+def test_a_gain_between_the_two_margins_keeps_whichever_plan_runs():
+    """Hysteresis: two threads 5 % faster (between HOLD_MARGIN and MARGIN) are not taken from
+    one thread, and are kept once taken; plans within HOLD_MARGIN go back to one thread."""
+    assert thread_policy.HOLD_MARGIN < 0.05 < thread_policy.MARGIN
+    p = thread_policy.ThreadPolicy(probe_every=8, keep=4)
+    _run(p, "k", {1: 5.0, 0: 4.75}, 400)
+    assert p.preferred("k") == 1
+    _run(p, "k", {1: 5.0, 0: 4.0}, 400)                   # a clear win: taken
+    assert p.preferred("k") == 0
+    kept = _run(p, "k", {1: 5.0, 0: 4.75}, 400)           # 5 %: kept, one-thread probes only
+    assert p.preferred("k") == 0 and kept[-80:].count(1) == 10
+    _run(p, "k", {1: 5.0, 0: 4.9}, 40)                    # 2 %: back to one thread
+    assert p.preferred("k") == 1
+
+
 def test_every_plan_runs_a_one_thread_blas_and_restores_the_threads(monkeypatch):
     # the machine's load must not decide the plans here (a busy machine gets one thread only):
     # the load monitor's part is tested with fakes below

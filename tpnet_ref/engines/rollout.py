@@ -17,6 +17,21 @@ from .blas import in_one_thread, one_thread
 from .thread_policy import adaptive
 
 
+#: the steps after :data:`~tpnet_ref.engines.numba_rollout.STEPS_FIRST` go to the one-thread
+#: compiled call (faster than one-thread steps one by one: AMD EPYC VM, Zen 4, us a step, the
+#: quarter 53 against 89, the half 142 against 175, the full size 468 against 512) unless two
+#: threads took the steps one by one at least this much faster than one thread (the full size's
+#: 342 against 512); below, the call of the rest wins
+FUSED_GAIN = 0.15
+#: a rollout whose plan is settled (the policy's latencies of this model's rollout steps say one
+#: thread, by :data:`FUSED_GAIN`) runs every step in the compiled call, but every this many
+#: rollouts of one model and batch runs its first steps one by one, so the policy's latencies
+#: stay current
+REFRESH_EVERY = 8
+#: rollouts so far, by the policy's kind of their steps
+_ROLLOUTS: dict = {}
+
+
 def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, normalized: bool,
             steps: Any) -> np.ndarray:
     """``model.canonical_points``' ``points`` and ``counts`` of ``batch`` windows' frames (checked,
@@ -51,8 +66,9 @@ def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, norm
             from . import numba_rollout               # the Numba engine's: numba is installed
             fused = numba_rollout if numba_rollout.fusable(model, batch) else None
         kind = (id(model), "rollout step", batch, c.n_out)   # model._threads' kind of a step
+        handover = _handover(fused, kind, held)
         for s in range(steps):
-            if (fused is not None and s == fused.STEPS_FIRST and adaptive.one_thread_plan(kind, held)
+            if (s == handover and (s == 0 or adaptive.one_thread_plan(kind, held, FUSED_GAIN))
                     and fused.run_rest(model, feats, buf, first, s, steps, batch, out)):
                 break       # one thread from here on: the rest of the steps in one compiled call
             with model._threads("rollout step", batch, c.n_out, held):   # follows the load
@@ -68,6 +84,23 @@ def rollout(model: Any, points: np.ndarray, counts: np.ndarray, batch: int, norm
                     first += 1
                     buf[first + m - 1] = model.project_frames(feats[:, m + s], batch)
     return out if normalized else model.denormalize(out)
+
+
+def _handover(fused: Any, kind: Any, held: bool) -> int:
+    """The step at which a rollout may hand the rest to the compiled call: 0 where the plan of
+    its steps is one thread (fixed, or measured so by :data:`FUSED_GAIN`; of a measured plan,
+    not every :data:`REFRESH_EVERY`-th rollout of the kind), else ``fused.STEPS_FIRST`` (the
+    policy measures the steps before it); -1: never."""
+    if fused is None:
+        return -1
+    if not adaptive.one_thread_plan(kind, held, FUSED_GAIN):
+        return fused.STEPS_FIRST
+    if adaptive.preferred(kind) is None:        # one thread fixed: nothing to measure
+        return 0
+    if len(_ROLLOUTS) >= 256 and kind not in _ROLLOUTS:
+        _ROLLOUTS.clear()
+    n = _ROLLOUTS[kind] = _ROLLOUTS.get(kind, -1) + 1
+    return fused.STEPS_FIRST if n % REFRESH_EVERY == 0 else 0
 
 
 __all__ = ["rollout"]

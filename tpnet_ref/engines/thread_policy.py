@@ -23,9 +23,12 @@ from .load_monitor import CoreMonitor
 PROBE_EVERY = 8
 #: :class:`ThreadPolicy`: latencies kept per choice (their median decides)
 KEEP = 4
-#: :class:`ThreadPolicy`: the two-thread plan runs only when its median latency is this much
-#: below one thread's (beside a busy core a second thread can take twice as long or more)
-MARGIN = 0.1
+#: :class:`ThreadPolicy`: the two-thread plan is taken only when its median latency is this much
+#: below one thread's (beside a busy core a second thread can take twice as long or more) ...
+MARGIN = 0.07
+#: ... and kept while it stays this much below (a choice that moves only on a change larger
+#: than the noise: plans within a few percent of each other do not swap call by call)
+HOLD_MARGIN = 0.03
 
 _LOCAL = threading.local()
 
@@ -68,8 +71,8 @@ class ThreadPolicy:
     (:func:`one_thread`): the policy changes speed, never a result.
 
     Per kind (any hashable, e.g. ``("predict", dtype, points)``) it keeps the last :data:`KEEP`
-    latencies of each choice; it runs two threads when their median is at least :data:`MARGIN`
-    below one thread's, else one thread, and every :data:`PROBE_EVERY` calls the other choice
+    latencies of each choice; it takes two threads when their median is at least :data:`MARGIN`
+    below one thread's and keeps them while it stays :data:`HOLD_MARGIN` below, else one thread, and every :data:`PROBE_EVERY` calls the other choice
     (probes of two threads less often while they do not win by the margin; each such probe is
     two calls, the first, which wakes the second thread, not measured), so a change of load
     (another process taking a core, then leaving) moves the choice. Nested inside another
@@ -84,11 +87,13 @@ class ThreadPolicy:
     """
 
     def __init__(self, probe_every: int = PROBE_EVERY, keep: int = KEEP,
-                 margin: float = MARGIN, monitor: CoreMonitor | None = None) -> None:
-        self.probe_every, self.keep, self.margin = probe_every, keep, margin
+                 margin: float = MARGIN, monitor: CoreMonitor | None = None,
+                 hold: float = HOLD_MARGIN) -> None:
+        self.probe_every, self.keep, self.margin, self.hold = probe_every, keep, margin, hold
         self.monitor = monitor
         # per kind: the latencies of each choice, [calls, calls between probes, probing now,
-        # a two-thread probe's call due after its warm-up, this call is a warm-up]
+        # a two-thread probe's call due after its warm-up, this call is a warm-up, the choice
+        # the latencies favoured last (:meth:`_best`)]
         self._kinds: dict[Hashable, tuple[dict[int, deque], list[int]]] = {}
         self._lock = threading.Lock()
         self._generation = 0
@@ -97,8 +102,10 @@ class ThreadPolicy:
     def _median(t: deque) -> float:
         return sorted(t)[len(t) // 2]
 
-    def _best(self, times: dict[int, deque]) -> int:
-        return 0 if self._median(times[0]) < (1 - self.margin) * self._median(times[1]) else 1
+    def _best(self, times: dict[int, deque], held: int) -> int:
+        """0 (two threads) or 1 from the medians; ``held``: the choice favoured until now."""
+        margin = self.hold if held == 0 else self.margin
+        return 0 if self._median(times[0]) < (1 - margin) * self._median(times[1]) else 1
 
     def choose(self, kind: Hashable) -> int:
         """1 (one thread) or 0 (a second thread) for the next call of ``kind``."""
@@ -112,11 +119,14 @@ class ThreadPolicy:
                 self._kinds.clear()                 # the machine changed: measure afresh
             if taken:
                 return 1
-            if kind not in self._kinds and len(self._kinds) >= 256:
-                self._kinds.clear()                 # many kinds (ragged windows): start over
-            times, st = self._kinds.setdefault(
-                kind, ({1: deque(maxlen=self.keep), 0: deque(maxlen=self.keep)},
-                       [0, self.probe_every, 0, 0, 0]))
+            got = self._kinds.get(kind)
+            if got is None:
+                if len(self._kinds) >= 256:
+                    self._kinds.clear()             # many kinds (ragged windows): start over
+                got = self._kinds[kind] = ({1: deque(maxlen=self.keep),
+                                            0: deque(maxlen=self.keep)},
+                                           [0, self.probe_every, 0, 0, 0, 1])
+            times, st = got
             for c in (1, 0):                        # first fill both with a few samples
                 if len(times[c]) < 2:
                     return c
@@ -124,7 +134,7 @@ class ThreadPolicy:
             if st[3]:                               # the probe after its warm-up call
                 st[2:5] = [1, 0, 0]
                 return 0
-            best = self._best(times)
+            best = st[5] = self._best(times, st[5])
             st[2] = int(st[0] % st[1] == 0)
             if st[2] and best == 1:
                 # a probe of two threads after a run of one-thread calls: the second thread's
@@ -154,11 +164,13 @@ class ThreadPolicy:
                 st[2] = 0
             times[choice].append(seconds)
 
-    def one_thread_plan(self, kind: Hashable, held: bool = False) -> bool:
+    def one_thread_plan(self, kind: Hashable, held: bool = False,
+                        margin: float | None = None) -> bool:
         """Whether calls of ``kind`` run on one thread now, with no change of plan in sight:
         nested in another :func:`one_thread` block (unless ``held``, as for :meth:`__call__`),
         one core, ``TPNET_THREADS=1``, the other core taken (the monitor), or one thread
-        measured faster (:meth:`preferred`). Changes nothing."""
+        measured faster (:meth:`preferred`; with ``margin``: unless two threads measure that
+        much faster, whichever runs now). Changes nothing."""
         if (in_one_thread() and not held) or cpu_count() < 2:
             return True
         fixed = _fixed_choice()
@@ -166,17 +178,22 @@ class ThreadPolicy:
             return fixed == 1
         if self.monitor is not None and self.monitor.taken():
             return True
-        return self.preferred(kind) == 1
+        if margin is None:
+            return self.preferred(kind) == 1
+        with self._lock:
+            times = self._kinds.get(kind, ({1: (), 0: ()},))[0]
+            return bool(times[0] and times[1]) and not (
+                self._median(times[0]) < (1 - margin) * self._median(times[1]))
 
     def preferred(self, kind: Hashable) -> int | None:
         """The choice (1 or 0) the recent calls of ``kind`` measured faster; None before any."""
         with self._lock:
             if kind not in self._kinds:
                 return None
-            times = self._kinds[kind][0]
+            times, st = self._kinds[kind]
             if not (times[0] and times[1]):
                 return None
-            return self._best(times)
+            return self._best(times, st[5])
 
     def __call__(self, kind: Hashable, held: bool = False,
                  blas_free: bool = False) -> "_Block":
@@ -230,4 +247,4 @@ class _Block:
 adaptive = ThreadPolicy(monitor=CoreMonitor())
 
 
-__all__ = ["PROBE_EVERY", "KEEP", "MARGIN", "two_threads", "ThreadPolicy", "adaptive"]
+__all__ = ["PROBE_EVERY", "KEEP", "MARGIN", "HOLD_MARGIN", "two_threads", "ThreadPolicy", "adaptive"]
