@@ -6,7 +6,10 @@ A script run as ``python bench/NAME.py`` has ``bench/`` on its path, so ``import
 from __future__ import annotations
 
 import os
+import pickle
 import platform
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -83,3 +86,106 @@ def best_of(fn: Callable, repeats: int) -> tuple[float, object]:
         out = fn()
         best = min(best, time.perf_counter() - t)
     return best, out
+
+
+#: :class:`PeerProcess`'s child: onnxruntime sessions of the shipped sizes' exports, timed on
+#: request (pickles over its stdin / stdout; the parent is this bench, nothing else talks to it)
+_PEER_CHILD = r"""
+import pickle, sys, time
+import numpy as np
+import tpnet_ref
+from tpnet_ref.conformance.onnx_peer import onnx_session
+inp, out = sys.stdin.buffer, sys.stdout.buffer
+sessions = {}
+
+
+def timeit(fn, min_time, min_reps, settle):
+    start = time.perf_counter()
+    fn()
+    while time.perf_counter() - start < settle:
+        fn()
+    times = []
+    start = time.perf_counter()
+    while len(times) < min_reps or time.perf_counter() - start < min_time:
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+while True:
+    cmd, *a = pickle.load(inp)
+    if cmd == "quit":
+        break
+    if cmd == "session":
+        name, size, threads = a
+        sessions[name] = onnx_session(tpnet_ref.load(size=size), n_points=None, threads=threads,
+                                      world_units=True)
+        res = None
+    else:
+        name, x, steps, min_time, min_reps, settle = a
+        s = sessions[name]
+        if steps:
+            def fn():
+                win = x
+                for _ in range(steps):
+                    win = np.concatenate([win[:, 1:], s.run(None, {"window": win})[0][:, None]],
+                                         axis=1)
+                return win
+        else:
+            def fn():
+                return s.run(None, {"window": x})[0]
+        res = fn() if cmd == "run" else timeit(fn, min_time, min_reps, settle)
+    pickle.dump(res, out)
+    out.flush()
+"""
+
+
+class PeerProcess:
+    """onnxruntime in a process of its own, as a deployment runs it: sessions of the shipped
+    sizes' exports (``tpnet export onnx``, world units in and out), each timed there on request
+    in blocks (:meth:`timer`). In one process with this engine, each runtime's idle threads
+    (onnxruntime's spinning pool, numba's) take the core the other's second thread wants: on a
+    2-core VM that made onnxruntime's two threads twice as slow as one, by process, and this
+    engine's two-thread plan stall for milliseconds at a time."""
+
+    def __init__(self) -> None:
+        self._proc = subprocess.Popen([sys.executable, "-c", _PEER_CHILD],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+
+    def _ask(self, *msg):
+        pickle.dump(msg, self._proc.stdin)
+        self._proc.stdin.flush()
+        return pickle.load(self._proc.stdout)
+
+    def session(self, name: str, size: str, threads: int | None) -> None:
+        """A session ``name`` of the shipped ``size``'s export, ``threads`` intra-op threads
+        (None: onnxruntime's default)."""
+        self._ask("session", name, size, threads)
+
+    def run(self, name: str, x: np.ndarray, steps: int = 0) -> np.ndarray:
+        """Session ``name``'s output on ``x``, or its window after ``steps`` predictions fed
+        back (a rollout)."""
+        return self._ask("run", name, x, steps, 0.0, 0, 0.0)
+
+    def timer(self, name: str, x: np.ndarray, steps: int = 0) -> "RemoteTimer":
+        return RemoteTimer(self, name, x, steps)
+
+    def close(self) -> None:
+        try:
+            self._ask("quit")
+        except (EOFError, BrokenPipeError):
+            pass
+        self._proc.wait()
+
+
+class RemoteTimer:
+    """A peer's call timed in its own process (:meth:`PeerProcess.timer`): :meth:`time` gives
+    the median seconds of calls over ``min_time`` seconds (and ``min_reps`` calls), after calls
+    not timed for ``settle`` seconds (at least one)."""
+
+    def __init__(self, peer: PeerProcess, name: str, x: np.ndarray, steps: int) -> None:
+        self.peer, self.name, self.x, self.steps = peer, name, x, steps
+
+    def time(self, min_time: float, min_reps: int, settle: float = 0.0) -> float:
+        return self.peer._ask("time", self.name, self.x, self.steps, min_time, min_reps, settle)

@@ -56,7 +56,8 @@ THREADS = _pin_env()
 import numpy as np  # noqa: E402
 
 import tpnet_ref  # noqa: E402
-from _common import TEST_CASE_B1, load_average, machine, scene_windows  # noqa: E402
+from _common import (TEST_CASE_B1, PeerProcess, RemoteTimer, load_average, machine,  # noqa: E402
+                     scene_windows)
 from tpnet_ref.engines.thread_policy import adaptive  # noqa: E402
 from tpnet_ref.checks import OutsideTrainingRangeWarning  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
@@ -65,9 +66,16 @@ from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: 
 BUSY_ROUNDS = 6
 
 
-def timeit(fn, min_time: float, min_reps: int = 3) -> float:
-    """Median seconds per call of ``fn`` over at least ``min_time`` seconds."""
+def timeit(fn, min_time: float, min_reps: int = 3, settle: float = 0.0) -> float:
+    """Median seconds per call of ``fn`` over at least ``min_time`` seconds, after calls not
+    timed for ``settle`` seconds (at least one); a :class:`_common.RemoteTimer`: the same in its
+    own process."""
+    if isinstance(fn, RemoteTimer):
+        return fn.time(min_time, min_reps, settle)
+    start = time.perf_counter()
     fn()
+    while time.perf_counter() - start < settle:
+        fn()
     times: list[float] = []
     start = time.perf_counter()
     while len(times) < min_reps or time.perf_counter() - start < min_time:
@@ -77,16 +85,17 @@ def timeit(fn, min_time: float, min_reps: int = 3) -> float:
     return float(np.median(times))
 
 
-def alternate(fns: dict, rounds: int, block: float, min_reps: int) -> dict:
+def alternate(fns: dict, rounds: int, block: float, min_reps: int, settle: float = 0.0) -> dict:
     """Each of ``fns`` (label -> callable) timed in turn, ``rounds`` times, for ``block`` seconds
-    (and ``min_reps`` calls) each time: ``{label: [median seconds per call in each round]}``.
+    (and ``min_reps`` calls, after ``settle`` seconds of calls not timed) each time:
+    ``{label: [median seconds per call in each round]}``.
     Every peer sees the same minutes of a VM whose speed drifts; whole blocks rather than single
     calls, so that each peer runs with its own weights in cache, as it would alone (call by
     call, two 28 MB models evict each other from the shared cache)."""
     out: dict = {k: [] for k in fns}
     for _ in range(rounds):
         for k, fn in fns.items():
-            out[k].append(timeit(fn, block, min_reps))
+            out[k].append(timeit(fn, block, min_reps, settle))
     return out
 
 
@@ -156,6 +165,9 @@ def cold_start(weights: Path, runs: int = 3, engine: str = "numpy",
 
 #: the per-size section's targets (ratio of the default engine to onnxruntime on that size's own
 #: export, B = 1): a size made to be fast must be fast at one window
+#: ``--sizes``: seconds of calls not timed before each block (three samples of the load monitor,
+#: ``tpnet_ref.engines.load_monitor.SAMPLE_S``), the peers in their own processes alike
+SETTLE_S = 0.15
 SIZE_TARGETS = {"full": 0.6, "half": 0.75, "quarter": 0.5}
 
 
@@ -167,7 +179,6 @@ def sizes(rounds: int, block: float) -> dict:
     against onnxruntime looping its graph, and what the input checks cost of the ring's call.
     onnxruntime runs at its default threads and at one thread; each round's ratio is against
     the faster of the two (``--threads N``: that count only)."""
-    from tpnet_ref.conformance.onnx_peer import onnx_session
     ring = np.asarray(tpnet_ref.example_window(), dtype=np.float32)           # (4, 30, 2)
     rng = np.random.default_rng(0)
     rand = (1.1438 + 42.7124 * rng.uniform(0.1, 0.9, (4, 30, 2))).astype(np.float32)
@@ -179,31 +190,32 @@ def sizes(rounds: int, block: float) -> dict:
         model = tpnet_ref.load(size=size)
         model.threads = THREADS
         # onnxruntime at its own default threads and, unless --threads fixes them, at one: on a
-        # 2-core VM its two threads are now faster, now twice as slow as one (by process, for
-        # minutes); each round compares with the faster of the two
-        sessions = {"": onnx_session(model, n_points=None, threads=THREADS, world_units=True)}
-        if THREADS is None:
-            sessions[" 1t"] = onnx_session(model, n_points=None, threads=1, world_units=True)
+        # 2-core VM its two threads have been, by process, now faster, now twice as slow as one;
+        # each round compares with the faster of the two
+        tags = {"": THREADS} if THREADS is not None else {"": None, " 1t": 1}
+        # each session in a process of its own, as deployed (PeerProcess)
+        peers = {tag: PeerProcess() for tag in tags}
+        for tag, threads in tags.items():
+            peers[tag].session(size, size, threads)
+        got = peers[""].run(size, ring[None])
+        assert np.abs(got - model.predict(ring)[None]).max() < 1e-3, "the export disagrees"
         fns = {"ring": lambda m=model: m.predict(ring),
                "random": lambda m=model: m.predict(rand),
                "b8": lambda m=model: m.predict_batch(b8),
                "checks": lambda m=model: m.screen(m, ring, True, False)
                if m.screen is not None else None}
         rolls = {"roll": lambda m=model: m.rollout(ring, 80)}
-        for tag, sess in sessions.items():
-            def ort(x, sess=sess):
-                return sess.run(None, {"window": x})[0]
-
-            def ort_loop(ort=ort):
-                win = ring[None].copy()
-                for _ in range(80):
-                    win = np.concatenate([win[:, 1:], ort(win)[:, None]], axis=1)
-            fns.update({f"ring ort{tag}": lambda ort=ort: ort(ring[None]),
-                        f"random ort{tag}": lambda ort=ort: ort(rand[None]),
-                        f"b8 ort{tag}": lambda ort=ort: ort(b8)})
-            rolls[f"roll ort{tag}"] = ort_loop
-        t = alternate(fns, rounds, block, 3)
-        t.update(alternate(rolls, rounds, block, 2))
+        for tag, peer in peers.items():
+            fns.update({f"ring ort{tag}": peer.timer(size, ring[None]),
+                        f"random ort{tag}": peer.timer(size, rand[None]),
+                        f"b8 ort{tag}": peer.timer(size, b8)})
+            rolls[f"roll ort{tag}"] = peer.timer(size, ring[None], steps=80)
+        # each block after SETTLE_S of calls not timed: the thread policy's load monitor sees
+        # the peer's process of the block before as a busy core for a sample or two
+        t = alternate(fns, rounds, block, 3, SETTLE_S)
+        t.update(alternate(rolls, rounds, block, 2, SETTLE_S))
+        for peer in peers.values():
+            peer.close()
         for k in ("ring", "random", "b8", "roll"):
             if f"{k} ort 1t" in t:
                 t[f"{k} ort default"] = t[f"{k} ort"]
