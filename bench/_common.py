@@ -66,12 +66,16 @@ def scene_windows(model) -> tuple[np.ndarray, np.ndarray]:
 
 
 def alternate(calls: dict, inputs: list, reps: int) -> dict:
-    """Median seconds of each of ``calls`` (key -> fn(input)), alternating call by call: every
-    callable sees the same minutes of a machine whose speed drifts. No warm-up."""
+    """Median seconds of each of ``calls`` (key -> fn(input), or a :class:`RemoteCall`),
+    alternating call by call: every callable sees the same minutes of a machine whose speed
+    drifts. No warm-up."""
     t: dict = {k: [] for k in calls}
     for _ in range(reps):
         for x in inputs:
             for k, f in calls.items():
+                if isinstance(f, RemoteCall):        # timed in its own process
+                    t[k].append(f.timed(x))
+                    continue
                 t0 = time.perf_counter()
                 f(x)
                 t[k].append(time.perf_counter() - t0)
@@ -118,9 +122,10 @@ while True:
     if cmd == "quit":
         break
     if cmd == "session":
-        name, size, threads = a
-        sessions[name] = onnx_session(tpnet_ref.load(size=size), n_points=None, threads=threads,
-                                      world_units=True)
+        name, size, path, threads, world = a
+        model = tpnet_ref.load(path) if path else tpnet_ref.load(size=size)
+        sessions[name] = onnx_session(model.astype("float32"), n_points=None, threads=threads,
+                                      world_units=world)
         res = None
     else:
         name, x, steps, min_time, min_reps, settle = a
@@ -135,16 +140,23 @@ while True:
         else:
             def fn():
                 return s.run(None, {"window": x})[0]
-        res = fn() if cmd == "run" else timeit(fn, min_time, min_reps, settle)
+        if cmd == "run":
+            res = fn()
+        elif cmd == "once":                      # one call, no warm-up: its seconds
+            t = time.perf_counter()
+            fn()
+            res = time.perf_counter() - t
+        else:
+            res = timeit(fn, min_time, min_reps, settle)
     pickle.dump(res, out)
     out.flush()
 """
 
 
 class PeerProcess:
-    """onnxruntime in a process of its own, as a deployment runs it: sessions of the shipped
-    sizes' exports (``tpnet export onnx``, world units in and out), each timed there on request
-    in blocks (:meth:`timer`). In one process with this engine, each runtime's idle threads
+    """onnxruntime in a process of its own, as a deployment runs it: sessions of weights files'
+    exports (``tpnet export onnx``), each timed there on request, in blocks (:meth:`timer`) or
+    call by call (:meth:`call`). In one process with this engine, each runtime's idle threads
     (onnxruntime's spinning pool, numba's) take the core the other's second thread wants: on a
     2-core VM that made onnxruntime's two threads twice as slow as one, by process, and this
     engine's two-thread plan stall for milliseconds at a time."""
@@ -158,10 +170,12 @@ class PeerProcess:
         self._proc.stdin.flush()
         return pickle.load(self._proc.stdout)
 
-    def session(self, name: str, size: str, threads: int | None) -> None:
-        """A session ``name`` of the shipped ``size``'s export, ``threads`` intra-op threads
-        (None: onnxruntime's default)."""
-        self._ask("session", name, size, threads)
+    def session(self, name: str, size: str | None, threads: int | None, path: str | None = None,
+                world_units: bool = True) -> None:
+        """A session ``name`` of the export of the shipped ``size`` (or of the weights file
+        ``path``), float32, ``threads`` intra-op threads (None: onnxruntime's default), world
+        units in and out (else model units)."""
+        self._ask("session", name, size, path, threads, world_units)
 
     def run(self, name: str, x: np.ndarray, steps: int = 0) -> np.ndarray:
         """Session ``name``'s output on ``x``, or its window after ``steps`` predictions fed
@@ -170,6 +184,9 @@ class PeerProcess:
 
     def timer(self, name: str, x: np.ndarray, steps: int = 0) -> "RemoteTimer":
         return RemoteTimer(self, name, x, steps)
+
+    def call(self, name: str) -> "RemoteCall":
+        return RemoteCall(self, name)
 
     def close(self) -> None:
         try:
@@ -189,3 +206,18 @@ class RemoteTimer:
 
     def time(self, min_time: float, min_reps: int, settle: float = 0.0) -> float:
         return self.peer._ask("time", self.name, self.x, self.steps, min_time, min_reps, settle)
+
+
+class RemoteCall:
+    """Session ``name`` of a :class:`PeerProcess` on one window ``w (m, N, dim)``: called, its
+    output; :meth:`timed`, the seconds of one call as its own process measured it (the pipe's
+    time not counted), which :func:`alternate` takes instead of timing the call itself."""
+
+    def __init__(self, peer: PeerProcess, name: str) -> None:
+        self.peer, self.name = peer, name
+
+    def __call__(self, w: np.ndarray) -> np.ndarray:
+        return self.peer.run(self.name, w[None])
+
+    def timed(self, w: np.ndarray) -> float:
+        return self.peer._ask("once", self.name, w[None], 0, 0.0, 0, 0.0)

@@ -8,7 +8,8 @@ file size, E_p / E_s at 40 and 80 predictions in the squared reading (the paper 
 recursive predictions, ``tpnet eval``'s protocol), and the B = 1 latency of one prediction on
 both engines (``engine="numpy"`` and ``engine="numba"``; median over the 64 scene windows
 ``x256[::4]`` of ``_common.scene_windows``, engines alternating call by call, float32), beside
-onnxruntime running each size's exported graph when it is installed.
+onnxruntime running each size's exported graph when it is installed (each session in a process
+of its own, ``_common.PeerProcess``).
 
 The Pareto front (which sizes are worth shipping) is chosen WITHOUT the test cases: with
 ``--data`` (a ``tpnet data generate`` file), the same protocol runs on its validation
@@ -31,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import tpnet_ref
-from _common import alternate, scene_windows
+from _common import PeerProcess, alternate, scene_windows
 from tpnet_ref import evaluation as E
 from tpnet_ref.evaluation.report import cell
 from tpnet_ref.sim.cases import TEST_CASES
@@ -46,27 +47,32 @@ def n_params(model) -> int:
 ORT = "onnxruntime"
 
 
-def latency_b1(models: dict[str, dict[str, object]], x: np.ndarray, reps: int) -> dict:
+def latency_b1(models: dict[str, dict[str, object]], x: np.ndarray, reps: int,
+               paths: dict[str, str]) -> dict:
     """Median seconds of one ``predict_batch`` of one window, per (label, engine), alternating
     label by label and engine by engine within each round; with onnxruntime installed, also
-    (label, :data:`ORT`): onnxruntime running that size's exported graph (model units in and
-    out, like the calls it is timed beside), at its default threads and at one thread, whichever
-    is faster (on a 2-core VM its two threads are, by process, now faster and now twice as slow
-    as one)."""
+    (label, :data:`ORT`): onnxruntime running the exported graph of that label's weights file
+    (``paths``; model units in and out, like the calls it is timed beside), each session in a
+    process of its own (``_common.PeerProcess``), at its default threads and at one thread,
+    whichever is faster (on a 2-core VM its two threads are, by the minute, now faster and now
+    twice as slow as one)."""
     calls = {(k, e): (lambda w, mo=mo: mo.predict_batch(w[None], normalized=True))
              for k in models for e, mo in models[k].items()}
+    peers = []
     try:
-        from tpnet_ref.conformance.onnx_peer import onnx_session
+        import onnxruntime  # noqa: F401
         for k in models:
             for key, threads in ((ORT, None), (ORT + " 1t", 1)):
-                sess = onnx_session(models[k]["numpy"].astype("float32"), n_points=None,
-                                    threads=threads)
-                calls[(k, key)] = lambda w, s=sess: s.run(None, {"window": w[None]})[0]
+                peers.append(PeerProcess())           # each session in a process of its own
+                peers[-1].session(k, None, threads, path=paths[k], world_units=False)
+                calls[(k, key)] = peers[-1].call(k)
     except ImportError as exc:
         print(f"onnxruntime skipped ({exc})")
     for f in calls.values():                           # warm up (compile, caches)
         f(x[0])
     got = alternate(calls, list(x), reps)
+    for peer in peers:
+        peer.close()
     for k in models:
         if (k, ORT) in got:
             got[(k, ORT)] = min(got[(k, ORT)], got.pop((k, ORT + " 1t")))
@@ -170,14 +176,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average {load0:.1f}, {os.cpu_count()} CPUs")
     lines: list[str] = []
     emit = lines.append
-    models = {}
+    models, paths = {}, {}
     for w in args.weights:
         label = Path(w).stem
         models[label] = {e: tpnet_ref.load(w, engine=e) for e in ("numpy", "numba")}
+        paths[label] = str(w)
         if models[label]["numpy"].config.m != 4:
             raise SystemExit(f"{w}: m = {models[label]['numpy'].config.m}, this table is m = 4")
     _, x256 = scene_windows(models[next(iter(models))]["numpy"])
-    lat = latency_b1(models, x256[::4], args.reps)
+    lat = latency_b1(models, x256[::4], args.reps, paths)
 
     frames = E.simulate_cases(np.asarray(TEST_CASES), rows=4 * (4 + max(HORIZONS)), workers=0)
     test = errors_on(E.normalize(frames), {k: v["numpy"] for k, v in models.items()})
@@ -258,7 +265,8 @@ def main(argv: list[str] | None = None) -> int:
                 "frames 0..3 in, 80 recursive predictions. Latency: one prediction of one window "
                 "(B = 1), float32, median over 64 scene windows, the two engines and "
                 "onnxruntime on each size's exported graph (`tpnet export onnx`, here in model "
-                "units like the engines' calls) alternating call by call, so each call "
+                "units like the engines' calls; each session in a process of its own, the "
+                "faster of its default threads and one) alternating call by call, so each call "
                 "finds its weights evicted by the others' (cold caches; one model called "
                 "again and again, as `python bench/bench_inference.py --sizes` times it, "
                 "runs faster, each peer likewise). "
