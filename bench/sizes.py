@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
                 "frames 0..3 in, 80 recursive predictions. Latency: one prediction of one window "
                 "(B = 1), float32, median over 64 scene windows, the two engines and "
                 "onnxruntime on each size's exported graph (`tpnet export onnx`, here in model "
-                "units like the engines' calls; each session in a process of its own, the "
+                "units like the engines' calls; each graph run in a process of its own, the "
                 "faster of its default threads and one) alternating call by call, so each call "
                 "finds its weights evicted by the others' (cold caches; one model called "
                 "again and again, as `python bench/bench_inference.py --sizes` times it, "
