@@ -92,6 +92,23 @@ def best_of(fn: Callable, repeats: int) -> tuple[float, object]:
     return best, out
 
 
+def median_seconds(fn: Callable, min_time: float, min_reps: int = 3,
+                   settle: float = 0.0) -> float:
+    """Median seconds per call of ``fn`` over at least ``min_time`` seconds and ``min_reps``
+    calls, after calls not timed for ``settle`` seconds (at least one)."""
+    start = time.perf_counter()
+    fn()
+    while time.perf_counter() - start < settle:
+        fn()
+    times: list[float] = []
+    start = time.perf_counter()
+    while len(times) < min_reps or time.perf_counter() - start < min_time:
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
 #: :class:`PeerProcess`'s child: onnxruntime sessions of the shipped sizes' exports, timed on
 #: request (pickles over its stdin / stdout; the parent is this bench, nothing else talks to it)
 _PEER_CHILD = r"""
@@ -99,22 +116,10 @@ import pickle, sys, time
 import numpy as np
 import tpnet_ref
 from tpnet_ref.conformance.onnx_peer import onnx_session
+sys.path.insert(0, sys.argv[1])                  # bench/
+from _common import median_seconds
 inp, out = sys.stdin.buffer, sys.stdout.buffer
 sessions = {}
-
-
-def timeit(fn, min_time, min_reps, settle):
-    start = time.perf_counter()
-    fn()
-    while time.perf_counter() - start < settle:
-        fn()
-    times = []
-    start = time.perf_counter()
-    while len(times) < min_reps or time.perf_counter() - start < min_time:
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 while True:
@@ -147,7 +152,7 @@ while True:
             fn()
             res = time.perf_counter() - t
         else:
-            res = timeit(fn, min_time, min_reps, settle)
+            res = median_seconds(fn, min_time, min_reps, settle)
     pickle.dump(res, out)
     out.flush()
 """
@@ -162,7 +167,8 @@ class PeerProcess:
     engine's two-thread plan stall for milliseconds at a time."""
 
     def __init__(self) -> None:
-        self._proc = subprocess.Popen([sys.executable, "-c", _PEER_CHILD],
+        self._proc = subprocess.Popen([sys.executable, "-c", _PEER_CHILD,
+                                       str(Path(__file__).resolve().parent)],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE)
 
     def _ask(self, *msg):

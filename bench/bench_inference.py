@@ -57,7 +57,7 @@ import numpy as np  # noqa: E402
 
 import tpnet_ref  # noqa: E402
 from _common import (TEST_CASE_B1, PeerProcess, RemoteTimer, load_average, machine,  # noqa: E402
-                     scene_windows)
+                     median_seconds, scene_windows)
 from tpnet_ref.engines.thread_policy import adaptive  # noqa: E402
 from tpnet_ref.checks import OutsideTrainingRangeWarning  # noqa: E402
 from tpnet_ref.model import ENGINE_MAX_BATCH, TPNetConfig, init_random  # noqa: E402
@@ -67,22 +67,11 @@ BUSY_ROUNDS = 6
 
 
 def timeit(fn, min_time: float, min_reps: int = 3, settle: float = 0.0) -> float:
-    """Median seconds per call of ``fn`` over at least ``min_time`` seconds, after calls not
-    timed for ``settle`` seconds (at least one); a :class:`_common.RemoteTimer`: the same in its
+    """:func:`_common.median_seconds` of ``fn``; a :class:`_common.RemoteTimer`: the same in its
     own process."""
     if isinstance(fn, RemoteTimer):
         return fn.time(min_time, min_reps, settle)
-    start = time.perf_counter()
-    fn()
-    while time.perf_counter() - start < settle:
-        fn()
-    times: list[float] = []
-    start = time.perf_counter()
-    while len(times) < min_reps or time.perf_counter() - start < min_time:
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
+    return median_seconds(fn, min_time, min_reps, settle)
 
 
 def alternate(fns: dict, rounds: int, block: float, min_reps: int, settle: float = 0.0) -> dict:
