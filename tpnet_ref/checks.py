@@ -577,12 +577,15 @@ def step_problem(step: float) -> str:
             "(tpnet_ref.observe.frames_at_model_rate picks frames at the model's rate)")
 
 
+#: the package's folder (:func:`_caller_level`)
+_PACKAGE = os.path.dirname(os.path.abspath(__file__))
+
+
 def _caller_level() -> int:
     """The ``stacklevel`` that points a warning raised by this module's caller at the first
     frame outside the package (the user's line, however deep the call came from)."""
-    package = os.path.dirname(os.path.abspath(__file__))
     frame, level = sys._getframe(2), 2
-    while frame is not None and frame.f_code.co_filename.startswith(package):
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
         frame, level = frame.f_back, level + 1
     return level
 
