@@ -116,8 +116,7 @@ import pickle, sys, time
 import numpy as np
 import tpnet_ref
 from tpnet_ref.conformance.onnx_peer import onnx_session
-sys.path.insert(0, sys.argv[1])                  # bench/
-from _common import median_seconds
+from _common import median_seconds               # bench/ on PYTHONPATH (PeerProcess)
 inp, out = sys.stdin.buffer, sys.stdout.buffer
 sessions = {}
 
@@ -167,8 +166,10 @@ class PeerProcess:
     engine's two-thread plan stall for milliseconds at a time."""
 
     def __init__(self) -> None:
-        self._proc = subprocess.Popen([sys.executable, "-c", _PEER_CHILD,
-                                       str(Path(__file__).resolve().parent)],
+        here = str(Path(__file__).resolve().parent)
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [here] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+        self._proc = subprocess.Popen([sys.executable, "-c", _PEER_CHILD], env=env,
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE)
 
     def _ask(self, *msg):

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+_PACKAGE = os.path.dirname(os.path.abspath(__file__))     # the package (:func:`_caller_level`)
+
 
 class NonFiniteResultError(ArithmeticError):
     """Raised when finite input would give a non-finite result (for example float32 overflow)."""
@@ -575,10 +577,6 @@ def step_problem(step: float) -> str:
     return (f"the body's centroid moves {step:.3g} world units per frame on average; the training "
             f"windows move {lo:g}..{hi:g} (frames 4/45 s apart): {why}? "
             "(tpnet_ref.observe.frames_at_model_rate picks frames at the model's rate)")
-
-
-#: the package's folder (:func:`_caller_level`)
-_PACKAGE = os.path.dirname(os.path.abspath(__file__))
 
 
 def _caller_level() -> int:
