@@ -72,10 +72,11 @@ class ThreadPolicy:
 
     Per kind (any hashable, e.g. ``("predict", dtype, points)``) it keeps the last :data:`KEEP`
     latencies of each choice; it takes two threads when their median is at least :data:`MARGIN`
-    below one thread's and keeps them while it stays :data:`HOLD_MARGIN` below, else one thread, and every :data:`PROBE_EVERY` calls the other choice
-    (probes of two threads less often while they do not win by the margin; each such probe is
-    two calls, the first, which wakes the second thread, not measured), so a change of load
-    (another process taking a core, then leaving) moves the choice. Nested inside another
+    below one thread's and keeps them while it stays :data:`HOLD_MARGIN` below, else one thread,
+    and every :data:`PROBE_EVERY` calls the other choice (probes of two threads less often while
+    they do not win by the margin; each such probe is two calls, the first, which wakes the
+    second thread, not measured), so a change of load (another process taking a core, then
+    leaving) moves the choice. Nested inside another
     :func:`one_thread` block (a chunk of a split batch, a caller's block) or on one core it runs
     one thread and measures nothing. ``TPNET_THREADS=1`` or ``=2`` fixes the choice.
 
@@ -102,10 +103,13 @@ class ThreadPolicy:
     def _median(t: deque) -> float:
         return sorted(t)[len(t) // 2]
 
+    def _wins(self, times: dict[int, deque], margin: float) -> bool:
+        """Whether two threads' median latency is at least ``margin`` below one thread's."""
+        return self._median(times[0]) < (1 - margin) * self._median(times[1])
+
     def _best(self, times: dict[int, deque], held: int) -> int:
         """0 (two threads) or 1 from the medians; ``held``: the choice favoured until now."""
-        margin = self.hold if held == 0 else self.margin
-        return 0 if self._median(times[0]) < (1 - margin) * self._median(times[1]) else 1
+        return 0 if self._wins(times, self.hold if held == 0 else self.margin) else 1
 
     def choose(self, kind: Hashable) -> int:
         """1 (one thread) or 0 (a second thread) for the next call of ``kind``."""
@@ -182,8 +186,7 @@ class ThreadPolicy:
             return self.preferred(kind) == 1
         with self._lock:
             times = self._kinds.get(kind, ({1: (), 0: ()},))[0]
-            return bool(times[0] and times[1]) and not (
-                self._median(times[0]) < (1 - margin) * self._median(times[1]))
+            return bool(times[0] and times[1]) and not self._wins(times, margin)
 
     def preferred(self, kind: Hashable) -> int | None:
         """The choice (1 or 0) the recent calls of ``kind`` measured faster; None before any."""
@@ -247,4 +250,5 @@ class _Block:
 adaptive = ThreadPolicy(monitor=CoreMonitor())
 
 
-__all__ = ["PROBE_EVERY", "KEEP", "MARGIN", "HOLD_MARGIN", "two_threads", "ThreadPolicy", "adaptive"]
+__all__ = ["PROBE_EVERY", "KEEP", "MARGIN", "HOLD_MARGIN", "two_threads", "ThreadPolicy",
+           "adaptive"]
