@@ -11,6 +11,7 @@ dynamic int8 (``onnxruntime.quantization.quantize_dynamic``, ``QuantType.QInt8``
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --layers   # error per layer only
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --rollout  # 600-step rollouts only
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --wide-choice data/grid-m4.h5
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --noise --sizes full   # E_p's spread
 
 Per row: B = 1 latency (median over 64 windows of the scene, every peer called in turn, window
 by window: this VM's speed drifts), B = 256 throughput (one call on 256 windows, peers in turn),
@@ -292,6 +293,45 @@ def wide_choice(data: str, size: str = "full") -> None:
               f"{np.median(per):.4f} (world units, 256 validation windows)")
 
 
+def noise(size: str, seeds: int = 3) -> None:
+    """``--noise``: how far E_p@40 / @80 on the 60 test cases moves when every BiLSTM matrix is
+    multiplied by ``1 + eps * N(0, 1)`` (eps 1e-5, 1e-4, 1e-3; ``seeds`` draws each), beside
+    bf16's and int8's own change of those matrices (RMS of the change over RMS of the weights).
+    A quantization moves the weights by about 1e-3 (bf16) to 1e-2 (int8): this is the spread of
+    E_p that weight changes of that size give with no rounding scheme at all."""
+    from tpnet_ref.evaluation import HEADLINE, TEST_CASES, ModelSpec, evaluate, simulate_cases
+    from tpnet_ref.model import TPNet
+    from tpnet_ref.weights.shipped import shipped_weights_path
+    src = shipped_weights_path(4, size)
+    base = tpnet_ref.load(src, engine="numba")
+    lstm = [k for k in base.params if k.startswith("lstm") and not k.endswith(".bias")]
+    for s in SCHEMES[1:]:
+        q = tpnet_ref.load(src, engine="numpy", weights=s).params
+        rel = [float(np.sqrt(np.mean((q[k] - base.params[k]) ** 2) / np.mean(base.params[k] ** 2)))
+               for k in lstm]
+        print(f"{size} {s}: the BiLSTM matrices' relative RMS change {min(rel):.1e} to {max(rel):.1e}")
+    models = {"float32": base}
+    for eps in (1e-5, 1e-4, 1e-3):
+        for seed in range(seeds):
+            rng = np.random.default_rng(seed)
+            p = {k: (v * (1 + eps * rng.standard_normal(v.shape))).astype(v.dtype)
+                 if k in lstm else v for k, v in base.params.items()}
+            models[f"eps {eps:g} seed {seed}"] = TPNet(base.config, p, base.dtype, base.meta,
+                                                      "numba", unit_order=base.unit_order)
+    frames = simulate_cases(TEST_CASES, workers=1)
+    curves = evaluate(frames, [ModelSpec(k, m) for k, m in models.items()],
+                      orderings=("given",), horizon=80)
+    err = {c.name: c.err[f"Ep_{HEADLINE}"] for c in curves if c.name in models}
+    ref = err["float32"]
+    print(f"{'weights':20s} {'E_p@40':>7s} {'E_p@80':>7s} {'/ f32 @40':>9s} {'@80':>6s} "
+          f"{'largest case move @80':>22s}")
+    for k, e in err.items():
+        d = np.abs(e[:, 79] - ref[:, 79])
+        print(f"{k:20s} {e[:, 39].mean():7.4f} {e[:, 79].mean():7.4f} "
+              f"{e[:, 39].mean() / ref[:, 39].mean():9.2f} {e[:, 79].mean() / ref[:, 79].mean():6.2f}"
+              f" {d.max():12.3f} (case {d.argmax()})")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="full,half,quarter",
@@ -307,6 +347,9 @@ def main(argv=None) -> int:
     ap.add_argument("--wide-choice", default=None, metavar="DATA",
                     help="only bf16's move from float32 on DATA's validation windows with each "
                          "choice of two-plane matrices (the choice's evidence)")
+    ap.add_argument("--noise", action="store_true",
+                    help="only E_p@40 / @80 under random relative changes of the BiLSTM "
+                         "matrices (1e-5, 1e-4, 1e-3): E_p's spread at a quantization's size")
     ap.add_argument("--json", default=None, metavar="FILE",
                     help="also write every row to this JSON file")
     ap.add_argument("--plot", default=None, metavar="PNG",
@@ -325,9 +368,9 @@ def main(argv=None) -> int:
         for size in args.sizes.split(","):
             wide_choice(args.wide_choice, size)
         return 0
-    if args.layers or args.rollout:
+    if args.layers or args.rollout or args.noise:
         for size in args.sizes.split(","):
-            (layers if args.layers else rollouts)(size)
+            (layers if args.layers else noise if args.noise else rollouts)(size)
         return 0
     every = {}
     with tempfile.TemporaryDirectory() as d:
