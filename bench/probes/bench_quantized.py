@@ -94,18 +94,20 @@ def _engines(size: str, tmp: Path, calibrate: str | None = None) -> dict:
     return out
 
 
-def _errors(models: dict) -> dict:
-    """Mean E_p at 40 and 80 frames on the 60 test cases (headline reading, points as given)."""
+def _case_errors(models: dict) -> dict:
+    """E_p of each of the 60 test cases over 80 predictions, ``{label: (60, 80) array}``
+    (headline reading, points as given)."""
     from tpnet_ref.evaluation import HEADLINE, TEST_CASES, ModelSpec, evaluate, simulate_cases
     frames = simulate_cases(TEST_CASES, workers=1)
     specs = [ModelSpec(k, m) for k, m in models.items()]
     curves = evaluate(frames, specs, orderings=("given",), horizon=80)
-    got = {}
-    for c in curves:
-        if c.name in models:
-            e = c.err[f"Ep_{HEADLINE}"]
-            got[c.name] = (float(e[:, 39].mean()), float(e[:, 79].mean()))
-    return got
+    return {c.name: c.err[f"Ep_{HEADLINE}"] for c in curves if c.name in models}
+
+
+def _errors(models: dict) -> dict:
+    """Mean E_p at 40 and 80 frames on the 60 test cases (headline reading, points as given)."""
+    return {k: (float(e[:, 39].mean()), float(e[:, 79].mean()))
+            for k, e in _case_errors(models).items()}
 
 
 def run_size(size: str, rounds: int, threads, errors: bool, tmp: Path,
@@ -299,7 +301,6 @@ def noise(size: str, seeds: int = 3) -> None:
     bf16's and int8's own change of those matrices (RMS of the change over RMS of the weights).
     A quantization moves the weights by about 1e-3 (bf16) to 1e-2 (int8): this is the spread of
     E_p that weight changes of that size give with no rounding scheme at all."""
-    from tpnet_ref.evaluation import HEADLINE, TEST_CASES, ModelSpec, evaluate, simulate_cases
     from tpnet_ref.model import TPNet
     from tpnet_ref.weights.shipped import shipped_weights_path
     src = shipped_weights_path(4, size)
@@ -318,10 +319,7 @@ def noise(size: str, seeds: int = 3) -> None:
                  if k in lstm else v for k, v in base.params.items()}
             models[f"eps {eps:g} seed {seed}"] = TPNet(base.config, p, base.dtype, base.meta,
                                                       "numba", unit_order=base.unit_order)
-    frames = simulate_cases(TEST_CASES, workers=1)
-    curves = evaluate(frames, [ModelSpec(k, m) for k, m in models.items()],
-                      orderings=("given",), horizon=80)
-    err = {c.name: c.err[f"Ep_{HEADLINE}"] for c in curves if c.name in models}
+    err = _case_errors(models)
     ref = err["float32"]
     print(f"{'weights':20s} {'E_p@40':>7s} {'E_p@80':>7s} {'/ f32 @40':>9s} {'@80':>6s} "
           f"{'largest case move @80':>22s}")
