@@ -149,7 +149,8 @@ def plot(rows: list[dict], proj: dict | None, path: str) -> None:
         ax.set_title(f"E_p after {h} recursive predictions")
         ax.grid(True, which="both", alpha=0.3)
     axes[1].legend(fontsize=7, loc="lower left")
-    fig.savefig(path, dpi=110)
+    from tpnet_ref.evaluation.plots import save_png
+    save_png(fig, path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -155,7 +155,8 @@ def plot(rows: list[dict], front: list[str], path: str) -> None:
     fig.suptitle("TP-Net sizes (m = 4); * = on the Pareto front chosen on validation trajectories",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from tpnet_ref.evaluation.plots import save_png
+    save_png(fig, path, dpi=110)
     plt.close(fig)
 
 

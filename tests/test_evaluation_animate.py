@@ -21,6 +21,10 @@ def test_animate_writes_a_gif_with_every_input_frame(weights_file, tmp_path, cap
     assert f"wrote {gif} (8 frames" in out and "E_p (squared)" in out
     with Image.open(gif) as im:
         assert im.format == "GIF" and im.n_frames == 8
+        assert im.info["duration"] == 80 and im.info["loop"] == 0   # 12 fps in GIF hundredths
+        first = im.convert("RGB").tobytes()
+        im.seek(7)
+        assert im.convert("RGB").tobytes() != first                  # the body moved
 
 
 def test_animate_names_a_bad_last_frame(weights_file, tmp_path, capsys):

@@ -415,12 +415,15 @@ def test_the_warnings_that_carry_over_to_the_3d_scene():
     assert NORM_LO < w.min() and w.max() < NORM_HI
 
 
-def test_the_shipped_3d_quarter_loads_as_a_3d_model_and_rolls_out_a_ball():
-    """``weights/tpnet3d-m4-quarter.h5`` (weights/MODEL_CARD.md, "The 3-D quarter"): a 3-D
-    network of 42 points whose rollout of a resting ball stays a ball of about its size."""
-    model = load(str(REPO_WEIGHTS_DIR / "tpnet3d-m4-quarter.h5"))
+@pytest.mark.parametrize("name, units", [("tpnet3d-m4-quarter.h5", (128, 64, 64)),
+                                         ("tpnet3d-m4-half.h5", (256, 128, 128))])
+def test_the_shipped_3d_sizes_load_as_3d_models_and_roll_out_a_ball(name, units):
+    """``weights/tpnet3d-m4-quarter.h5`` and ``-half.h5`` (weights/MODEL_CARD.md, "The 3-D
+    quarter", "The 3-D half"): 3-D networks of 42 points whose rollout of a resting ball stays
+    a ball of about its size."""
+    model = load(str(REPO_WEIGHTS_DIR / name))
     assert (model.config.dim, model.config.n_out, model.config.m) == (3, 42, 4)
-    assert model.config.lstm_units == (128, 64, 64)
+    assert model.config.lstm_units == units
     rng = np.random.default_rng(0)
     ball = rng.standard_normal((42, 3))
     ball = 2.0 * ball / np.linalg.norm(ball, axis=1, keepdims=True) + np.array([22.5, 22.5, 2.2])

@@ -142,7 +142,8 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
     fig.suptitle("From scratch: validation trajectories (356), 80 recursive predictions; dead "
                  "units on 1,024 validation windows")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from tpnet_ref.evaluation.plots import save_png
+    save_png(fig, path, dpi=110)
     from PIL import Image                   # matplotlib's own dependency
     # 64 colours: a third of the bytes of the RGBA file, the same picture (docs/ has a budget)
     Image.open(path).convert("RGB").quantize(colors=64, method=Image.Quantize.MEDIANCUT).save(

@@ -261,7 +261,8 @@ def plot(rows: dict, path: str) -> None:
     handles += [plt.Line2D([], [], ls="", marker=m, color="k", label=k) for k, m in marks.items()]
     axes[1].legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    from tpnet_ref.evaluation.plots import save_png
+    save_png(fig, path, dpi=90)
     print(f"wrote {path}")
 
 

@@ -125,7 +125,8 @@ def main(argv=None) -> int:
                  "observe extracted (blue circles) and the true particle centres (white dots)",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(args.output)
+    from tpnet_ref.evaluation.plots import save_png
+    save_png(fig, args.output)
     print(f"wrote {args.output}")
     return 0
 

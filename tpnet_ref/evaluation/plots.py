@@ -29,6 +29,27 @@ def pyplot() -> Any:
     return plt
 
 
+def save_png(fig: Any, path: str | os.PathLike, dpi: float | None = None) -> Path:
+    """Write ``fig`` to ``path``: a PNG of at most 256 colours (one palette, taken from the
+    figure, no dithering: flat colours stay flat), about a third of the bytes of matplotlib's
+    own RGBA PNG and alike to the eye on line plots; another suffix (``.pdf``, ``.svg``) as
+    matplotlib writes it."""
+    import io
+    out = Path(path)
+    if out.suffix.lower() != ".png":
+        fig.savefig(out, dpi=dpi)
+        return out
+    from PIL import Image
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    buf.seek(0)
+    with Image.open(buf) as im:
+        rgb = im.convert("RGB")
+    rgb.quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+        out, format="PNG", optimize=True)
+    return out
+
+
 def _fit(text: str, width_in: float, fontsize: float) -> str:
     """``text`` wrapped to lines that fit ``width_in`` inches at ``fontsize`` points (an average
     character of the default font is about 0.55 em wide)."""
@@ -73,7 +94,7 @@ def plot_models(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     fig.suptitle(_fit("Rollout error on the held-out cases (mean over cases, normalised "
                       "coordinates)", 4.6 * len(ms), 12))
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_png(fig, path, dpi=90)
     plt.close(fig)
     return Path(path)
 
@@ -137,7 +158,7 @@ def plot_spread(curves: Sequence[Curve], path: str | os.PathLike) -> Path:
     fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8, frameon=False)
     fig.suptitle("Per-case position error on the held-out cases", fontsize=11)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
-    fig.savefig(path, dpi=90)
+    save_png(fig, path, dpi=90)
     plt.close(fig)
     return Path(path)
 
@@ -178,7 +199,7 @@ def plot_groups(groups: dict[str, Sequence[Curve]], path: str | os.PathLike) -> 
     fig.legend(list(handles.values()), list(handles.keys()), loc="lower center",
                ncol=min(len(handles), 5), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.1 if len(handles) <= 5 else 0.15, 1, 1))
-    fig.savefig(path, dpi=90)
+    save_png(fig, path, dpi=90)
     plt.close(fig)
     return Path(path)
 
@@ -222,7 +243,7 @@ def plot_timing(rows: Sequence[TimingRow], path: str | os.PathLike) -> Path:
                  fontsize=11)
     ax.grid(True, which="both", alpha=0.3)
     fig.legend(handles=handles, loc="outside right upper", fontsize=8, frameon=False)
-    fig.savefig(path, dpi=90)
+    save_png(fig, path, dpi=90)
     plt.close(fig)
     return Path(path)
 
@@ -277,7 +298,7 @@ def plot_gallery(path: str | os.PathLike, truth: np.ndarray, preds: dict[str, np
     fig.suptitle("Simulated (dots) and predicted (crosses) rings on held-out cases; each panel "
                  "zoomed on its own, equal aspect, walls in grey", fontsize=10)
     fig.tight_layout(rect=(0, 0.35 / (2.6 * C), 1, 1))
-    fig.savefig(path, dpi=90)
+    save_png(fig, path, dpi=90)
     plt.close(fig)
     return Path(path)
 
@@ -377,10 +398,10 @@ def plot_demo(path: str | os.PathLike, truth: np.ndarray, pred: np.ndarray, m: i
     if suptitle:
         fig.suptitle(_fit(suptitle, 13.5, 12), fontsize=12)
     fig.subplots_adjust(left=0.05, right=0.98, top=0.84, bottom=0.1)
-    fig.savefig(path, dpi=100)
+    save_png(fig, path, dpi=100)
     plt.close(fig)
     return Path(path)
 
 
-__all__ = ["pyplot", "draw_walls", "plot_models", "plot_spread", "plot_groups", "plot_timing",
+__all__ = ["pyplot", "save_png", "draw_walls", "plot_models", "plot_spread", "plot_groups", "plot_timing",
            "plot_gallery", "plot_demo"]

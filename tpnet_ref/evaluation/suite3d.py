@@ -123,7 +123,8 @@ def _plot_front(rows: list[dict[str, Any]], curves: list[Curve], path: Path) -> 
     ax.set_ylabel("E_p (squared, normalised)")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from .plots import save_png
+    save_png(fig, path, dpi=110)
     plt.close(fig)
     return path
 
