@@ -12,6 +12,7 @@ dynamic int8 (``onnxruntime.quantization.quantize_dynamic``, ``QuantType.QInt8``
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --rollout  # 600-step rollouts only
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --wide-choice data/grid-m4.h5
     PYTHONPATH=.:bench python bench/probes/bench_quantized.py --noise --sizes full   # E_p's spread
+    PYTHONPATH=.:bench python bench/probes/bench_quantized.py --blocks --sizes full  # one-plane int8
 
 Per row: B = 1 latency (median over 64 windows of the scene, every peer called in turn, window
 by window: this VM's speed drifts), B = 256 throughput (one call on 256 windows, peers in turn),
@@ -331,6 +332,40 @@ def noise(size: str, seeds: int = 3) -> None:
               f" {d.max():12.3f} (case {d.argmax()})")
 
 
+def blocks(size: str) -> None:
+    """``--blocks``: the largest and median move of one prediction (world units, the 256 windows
+    of the scene, the NumPy engine in float32) when every BiLSTM matrix is int8 in one plane,
+    symmetric, with a scale per column (the shipped scheme's grid, one plane) or per block of
+    128, 64, 32 or 16 rows of a column: whether finer scales (outliers) or the grid's step
+    keep one plane from 0.05 world units."""
+    from tpnet_ref.model import TPNet
+    base = tpnet_ref.load(size=size, engine="numpy")
+    cfg = base.config
+    _, x256 = _common.scene_windows(base)
+    want = base.predict_batch(x256, normalized=True)
+    lstm = [k for k in base.params if k.startswith("lstm") and not k.endswith(".bias")]
+
+    def one_plane(w: np.ndarray, rows: int) -> np.ndarray:
+        out = np.empty_like(w)
+        for r in range(0, w.shape[0], rows):
+            s = np.abs(w[r:r + rows]).max(axis=0) / 127
+            s[s == 0] = 1
+            out[r:r + rows] = np.clip(np.rint(w[r:r + rows] / s), -127, 127) * s
+        return out
+
+    for rows in (None, 128, 64, 32, 16):
+        p = {k: one_plane(v, rows or v.shape[0]) if k in lstm else v
+             for k, v in base.params.items()}
+        got = TPNet(cfg, p, base.dtype, base.meta, "numpy",
+                    unit_order=base.unit_order).predict_batch(x256, normalized=True)
+        move = np.abs(got - want).max(axis=(1, 2)) * (cfg.norm_hi - cfg.norm_lo)
+        rel = max(float(np.sqrt(np.mean((p[k] - base.params[k]) ** 2)
+                                / np.mean(base.params[k] ** 2))) for k in lstm)
+        print(f"{size} int8 one plane, a scale per {f'{rows} rows' if rows else 'column':9s}: "
+              f"largest move {move.max():.4f}, median {np.median(move):.4f} (world units); "
+              f"relative RMS change up to {rel:.1e}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="full,half,quarter",
@@ -349,6 +384,9 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", action="store_true",
                     help="only E_p@40 / @80 under random relative changes of the BiLSTM "
                          "matrices (1e-5, 1e-4, 1e-3): E_p's spread at a quantization's size")
+    ap.add_argument("--blocks", action="store_true",
+                    help="only one prediction's move with one-plane int8 BiLSTM matrices, a "
+                         "scale per column or per block of 128 .. 16 rows")
     ap.add_argument("--json", default=None, metavar="FILE",
                     help="also write every row to this JSON file")
     ap.add_argument("--plot", default=None, metavar="PNG",
@@ -367,9 +405,10 @@ def main(argv=None) -> int:
         for size in args.sizes.split(","):
             wide_choice(args.wide_choice, size)
         return 0
-    if args.layers or args.rollout or args.noise:
+    if args.layers or args.rollout or args.noise or args.blocks:
         for size in args.sizes.split(","):
-            (layers if args.layers else noise if args.noise else rollouts)(size)
+            (layers if args.layers else noise if args.noise else blocks if args.blocks
+             else rollouts)(size)
         return 0
     every = {}
     with tempfile.TemporaryDirectory() as d:
