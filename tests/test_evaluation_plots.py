@@ -183,6 +183,8 @@ def test_save_png_writes_few_colours_alike_to_matplotlibs_own(tmp_path):
     assert pa.shape == pb.shape
     assert np.abs(pa - pb).mean() < 1.0 and (np.abs(pa - pb).max(axis=2) > 64).mean() < 1e-3
     assert ours.stat().st_size < theirs.stat().st_size
+    with Image.open(P.save_png(fig, tmp_path / "d.png", dpi=90, colours=16)) as d:
+        assert d.mode == "P" and len(d.getcolors(256)) <= 16
     svg = P.save_png(fig, tmp_path / "c.svg")
     assert svg.read_text().lstrip().startswith("<?xml")
     plt.close(fig)

@@ -143,11 +143,8 @@ def plot(rows: list[dict], copy_last: dict | None, logs: dict[str, dict[int, dic
                  "units on 1,024 validation windows")
     fig.tight_layout()
     from tpnet_ref.evaluation.plots import save_png
-    save_png(fig, path, dpi=110)
-    from PIL import Image                   # matplotlib's own dependency
     # 64 colours: a third of the bytes of the RGBA file, the same picture (docs/ has a budget)
-    Image.open(path).convert("RGB").quantize(colors=64, method=Image.Quantize.MEDIANCUT).save(
-        path, optimize=True)
+    save_png(fig, path, dpi=110, colours=64)
 
 
 def _num(v) -> float:

@@ -55,7 +55,8 @@ def write_gif(fig: Any, draw: Callable[[int], Any], m: int, last: int, every: in
     included), into the GIF ``path``; close ``fig``. Every frame shares one palette of at most 256
     colours, taken from the frames themselves (no dithering: flat colours stay flat), so Pillow
     stores each frame as what changed since the one before: under half the bytes of
-    matplotlib's Pillow writer (a palette a frame, every frame whole). Returns what :func:`animate` returns."""
+    matplotlib's Pillow writer (a palette a frame, every frame whole). Returns what
+    :func:`animate` returns."""
     from PIL import Image
     shown = list(range(m)) + list(range(m, last + 1, every))
     if shown[-1] != last:

@@ -29,11 +29,12 @@ def pyplot() -> Any:
     return plt
 
 
-def save_png(fig: Any, path: str | os.PathLike, dpi: float | None = None) -> Path:
-    """Write ``fig`` to ``path``: a PNG of at most 256 colours (one palette, taken from the
-    figure, no dithering: flat colours stay flat), about a third of the bytes of matplotlib's
-    own RGBA PNG and alike to the eye on line plots; another suffix (``.pdf``, ``.svg``) as
-    matplotlib writes it."""
+def save_png(fig: Any, path: str | os.PathLike, dpi: float | None = None,
+             colours: int = 256) -> Path:
+    """Write ``fig`` to ``path``: a PNG of at most ``colours`` colours (one palette, taken from
+    the figure, no dithering: flat colours stay flat), about a third of the bytes of
+    matplotlib's own RGBA PNG and alike to the eye on line plots; another suffix (``.pdf``,
+    ``.svg``) as matplotlib writes it."""
     import io
     out = Path(path)
     if out.suffix.lower() != ".png":
@@ -45,7 +46,7 @@ def save_png(fig: Any, path: str | os.PathLike, dpi: float | None = None) -> Pat
     buf.seek(0)
     with Image.open(buf) as im:
         rgb = im.convert("RGB")
-    rgb.quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+    rgb.quantize(colours, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
         out, format="PNG", optimize=True)
     return out
 

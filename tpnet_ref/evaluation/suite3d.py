@@ -94,7 +94,7 @@ def _front_md(rows: list[dict[str, Any]], curves: list[Curve]) -> str:
 
 def _plot_front(rows: list[dict[str, Any]], curves: list[Curve], path: Path) -> Path | None:
     try:
-        from .plots import pyplot
+        from .plots import pyplot, save_png
         plt = pyplot()
     except ImportError:
         return None
@@ -123,7 +123,6 @@ def _plot_front(rows: list[dict[str, Any]], curves: list[Curve], path: Path) -> 
     ax.set_ylabel("E_p (squared, normalised)")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    from .plots import save_png
     save_png(fig, path, dpi=110)
     plt.close(fig)
     return path
