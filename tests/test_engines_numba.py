@@ -211,6 +211,7 @@ def test_numpy_engine_imports_no_numba(tmp_path):
 from tpnet_ref.engines import numba_engine as EN  # noqa: E402
 from tpnet_ref.engines import numba_lstm as NL  # noqa: E402
 from tpnet_ref.engines import numba_products as NP  # noqa: E402
+from tpnet_ref.engines import numba_tiles as NT  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -389,7 +390,7 @@ def test_product_reads_only_non_zero_inputs_and_rows_are_independent(dtype, rows
     x = x.astype(dtype)
     bsz = rows // steps
     out = np.empty((rows, 2, kern.shape[1]), dtype=dtype)
-    NP.project_dir(x, kern, out[:, 1], steps, bsz)
+    NT.project_dir(x, kern, out[:, 1], steps, bsz)
     got = out[:, 1]
     tol = 1e-4 if dtype == np.float32 else 1e-12
     np.testing.assert_allclose(got[:, :n], x.astype(float) @ w.astype(dtype).astype(float),
@@ -398,14 +399,14 @@ def test_product_reads_only_non_zero_inputs_and_rows_are_independent(dtype, rows
     assert np.all(got[rows // 2] == 0) and not np.signbit(got[rows // 2]).any()
     for r in range(rows):
         alone = np.empty((1, 2, kern.shape[1]), dtype=dtype)
-        NP.project_dir(x[r:r + 1], kern, alone[:, 1], 1, 1)
+        NT.project_dir(x[r:r + 1], kern, alone[:, 1], 1, 1)
         assert np.array_equal(alone[0, 1], got[r]), r
     other = np.empty_like(out)                          # grouped as one window of R steps
-    NP.project_dir(x, kern, other[:, 1], rows, 1)
+    NT.project_dir(x, kern, other[:, 1], rows, 1)
     assert np.array_equal(other[:, 1], got)
     poisoned = x.copy()
     poisoned[0, 3] = np.nan
-    NP.project_dir(poisoned, kern, other[:, 1], steps, bsz)
+    NT.project_dir(poisoned, kern, other[:, 1], steps, bsz)
     assert np.isnan(other[0, 1]).any()
     assert np.array_equal(other[1:, 1], got[1:])
 
@@ -609,20 +610,23 @@ def test_product_kernel_columns_do_not_depend_on_the_others_or_the_grouping(dtyp
 
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
 @pytest.mark.parametrize("vectors", [1, 2, 3, 4, 5, 7, 8])
-def test_tiled_product_gives_product_s_bits_in_every_tile(dtype, vectors):
-    """``numba_products.tiled_product`` (the feature extractor's tiles, sums held in registers):
-    every row and column the bits of ``product`` (one chain over the non-zero inputs in order),
-    dense tiles (one to three vectors) and sparse ones (four or more, each 4-row tile reading
-    only its non-zero inputs) alike, for any number of rows (the last tile's rows past them are
-    computed and ignored), whatever the neighbouring rows hold (NaN and inf included)."""
+@pytest.mark.parametrize("narrow", [False, True], ids=["wide", "narrow"])
+def test_tiled_product_gives_product_s_bits_in_every_tile(dtype, vectors, narrow):
+    """``numba_tiles.tiled_plan`` (the feature extractor's tiles, sums held in registers), in
+    both register plans: every row and column the bits of ``product`` (one chain over the
+    non-zero inputs in order), dense tiles (one to three vectors) and sparse ones (four or more,
+    each 4-row tile reading only its non-zero inputs) alike, for any number of rows (the last
+    tile's rows past them are computed and ignored), whatever the neighbouring rows hold (NaN
+    and inf included)."""
     lanes = 64 // np.dtype(dtype).itemsize
     n, c = vectors * lanes, 37
     rng = np.random.default_rng(100 + vectors)
     w = rng.standard_normal((c, n)).astype(dtype)
     for rows in (1, 3, 4, 7, 8, 13):
-        x = np.zeros((-(-rows // NP.TILE_ROWS) * NP.TILE_ROWS, c), dtype=dtype)
+        x = np.zeros((-(-rows // NT.TILE_ROWS) * NT.TILE_ROWS, c), dtype=dtype)
         x[:rows] = rng.standard_normal((rows, c))
         x[:rows][rng.random((rows, c)) < 0.5] = 0                   # ReLU-like zeros
+        x[:rows][rng.random((rows, c)) < 0.05] = -0.0               # signed zeros are skipped too
         want = np.empty((rows, n), dtype=dtype)
         grp = np.array([[r, 1, 1] for r in range(rows)], dtype=np.intp)
         act, ns = np.empty((rows, c), dtype=np.intp), np.empty(rows, dtype=np.intp)
@@ -632,15 +636,26 @@ def test_tiled_product_gives_product_s_bits_in_every_tile(dtype, vectors):
             xt = x.copy()
             xt[rows:] = fill                                             # rows past the last
             out = np.full((xt.shape[0], n), 7.0, dtype=dtype)
-            NP.tiled_product(xt, w, rows, np.empty(c, dtype=np.intp), out)
+            NT.tiled_plan(xt, w, rows, np.empty(c, dtype=np.intp), out, narrow)
             np.testing.assert_array_equal(out[:rows].view(np.uint8), want.view(np.uint8))
 
 
+def test_the_tile_plan_follows_the_cpus_vector_registers():
+    """The wide plan only where the target has AVX-512's 32 registers; ``tiled_product`` and
+    ``product_rows`` take it (the other plan is tested above for the same bits)."""
+    from tpnet_ref.engines import numba_codegen as CG
+    flags = {"+avx512f"} <= set(__import__("llvmlite.binding", fromlist=["x"])
+                                .get_host_cpu_features().flatten().split(","))
+    assert CG.TILE_PLAN == ("wide" if flags else "narrow")
+    assert CG.NARROW == (CG.TILE_PLAN == "narrow")
+
+
 @pytest.mark.parametrize("codes", ["float32", "float64", "int8", "bf16", "bf16 planes"])
-def test_product_rows_gives_product_s_bits_for_every_row_count(codes):
-    """``numba_products.product_rows`` (the prediction network's tiles for batches): whole 4-row
-    tiles and the rows left over give, row by row, the bits of ``product`` on the same weights,
-    float or codes (int8, bf16 in one plane or two), for 1 to 9 rows."""
+@pytest.mark.parametrize("narrow", [False, True], ids=["wide", "narrow"])
+def test_product_rows_gives_product_s_bits_for_every_row_count(codes, narrow):
+    """``numba_tiles.rows_plan`` (the prediction network's tiles for batches), in both register
+    plans: whole 4-row tiles and the rows left over give, row by row, the bits of ``product`` on
+    the same weights, float or codes (int8, bf16 in one plane or two), for 1 to 9 rows."""
     dtype = "float64" if codes == "float64" else "float32"
     lanes = 64 // np.dtype(dtype).itemsize
     rng = np.random.default_rng(len(codes))
@@ -661,8 +676,11 @@ def test_product_rows_gives_product_s_bits_for_every_row_count(codes):
         want = np.empty((rows, n), dtype=dtype)
         NP.product(x, w, grp, act, ns, want)
         got = np.full((rows, n), 7.0, dtype=dtype)
-        NP.product_rows(x, w, np.empty(c, dtype=np.intp), got)
+        NT.rows_plan(x, w, np.empty(c, dtype=np.intp), got, narrow)
         np.testing.assert_array_equal(got.view(np.uint8), want.view(np.uint8))
+        got2 = np.full((rows, n), 7.0, dtype=dtype)
+        NT.product_rows(x, w, np.empty(c, dtype=np.intp), got2)
+        np.testing.assert_array_equal(got2.view(np.uint8), want.view(np.uint8))
 
 
 def test_a_window_gets_the_same_bits_alone_and_in_a_batch_of_any_size(shipped):

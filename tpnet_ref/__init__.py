@@ -145,7 +145,7 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "heads": ("engines.interface",),
     "fast_numpy": ("engines.numpy_engine",),
     "engine_numba": ("engines.numba_engine", "engines.numba_lstm", "engines.numba_features",
-                     "engines.numba_products"),
+                     "engines.numba_products", "engines.numba_tiles", "engines.numba_codegen"),
     "specialize": ("engines.specialised",),
     "unit_order": ("engines.unit_order",),
     "blas": ("engines.blas", "engines.thread_policy", "engines.load_monitor",

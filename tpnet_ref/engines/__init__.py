@@ -6,7 +6,8 @@
                         against; :mod:`.layers`, the layers as NumPy functions it is built from
 * :mod:`.numpy_engine`  the NumPy engine: the feature extractor every engine uses, the NumPy head
 * :mod:`.numba_engine`  the Numba engine (``engine="numba"``; the ``metrics`` extra), its kernels
-                        by stage: :mod:`.numba_products` (the product), :mod:`.numba_lstm` (the
+                        by stage: :mod:`.numba_products` and :mod:`.numba_tiles` (the products,
+                        built of :mod:`.numba_codegen`'s IR), :mod:`.numba_lstm` (the
                         prediction network), :mod:`.numba_features` (the feature extractor); its
                         first pass over a window (:mod:`.numba_checks`: the input checks' verdict,
                         the canonical order), a rollout's steps in one call (:mod:`.numba_rollout`)

@@ -26,9 +26,11 @@ What it does that NumPy cannot:
   them into up to :data:`GROUP_ROWS` accumulator rows (a window's m steps share their
   non-zero inputs, so at B = 1 each needed weight row is read once per layer and direction);
 - the feature extractor's per-point layers and its global layer run in tiles of points whose
-  sums stay in registers over the whole chain (:func:`tpnet_ref.engines.numba_products.tiled_product`:
+  sums stay in registers over the whole chain (:func:`tpnet_ref.engines.numba_tiles.tiled_product`:
   each weight vector and input read once per tile, not once per chain of rows; 1.5-2.5x on the
-  extractor), the same chain of multiply-adds, so the same bits;
+  extractor), the same chain of multiply-adds, so the same bits; the tiles' shape follows the
+  CPU's vector registers (:data:`tpnet_ref.engines.numba_codegen.TILE_PLAN`: AVX-512's 32 or
+  AVX2's 16), the sums the same;
 - the weights are laid out at load, each matrix row-major with its gate columns padded to
   whole 64-byte vectors, in the model's unit order when given one (:mod:`tpnet_ref.engines.unit_order`:
   the rows a window needs lie closer together; a few percent here, as the rows are streamed

@@ -1,5 +1,5 @@
 """The Numba engine's feature extractor: each frame's points through the per-point MLP (the
-products by :func:`tpnet_ref.engines.numba_products.tiled_product`), their max, the global layer;
+products by :func:`tpnet_ref.engines.numba_tiles.tiled_product`), their max, the global layer;
 :class:`tpnet_ref.engines.numba_engine.NumbaFeatures` calls them.
 
 Argument names (every kernel below)::
@@ -29,11 +29,11 @@ from ..extras import require
 numba = require("numba", "metrics", "the Numba inference engine (engine='numba')")
 from numba import njit, prange  # noqa: E402
 
-from .numba_products import TILE_ROWS, tiled_product  # noqa: E402
+from .numba_tiles import TILE_ROWS, tiled_product  # noqa: E402
 
 #: points of a frame that go through the per-point layers together (their activations stay in
 #: cache; a frame's max is taken over its chunks, exact whatever the cut); a multiple of
-#: :data:`tpnet_ref.engines.numba_products.TILE_ROWS`
+#: :data:`tpnet_ref.engines.numba_tiles.TILE_ROWS`
 FEATURE_CHUNK = 64
 assert FEATURE_CHUNK % TILE_ROWS == 0
 

@@ -48,8 +48,8 @@ from llvmlite import ir  # noqa: E402
 from numba import njit, prange, types  # noqa: E402
 from numba.extending import intrinsic, overload  # noqa: E402
 
-from .numba_products import (GROUP_ROWS, TILE_BATCH, active, groups, product,  # noqa: E402
-                              product_rows, project_dir)
+from .numba_products import GROUP_ROWS, active, groups, product  # noqa: E402
+from .numba_tiles import TILE_BATCH, product_rows, project_dir  # noqa: E402
 
 @intrinsic
 def _pow2_of(typingctx, k):
