@@ -36,7 +36,8 @@ def wide_registers() -> bool:
 #: and 8 x 2 tiles) with AVX-512's 32 registers, ``"narrow"`` (32-byte vectors; 4 x 2 tiles)
 #: with AVX2's 16, where the wide tiles spill their sums to the stack. Either plan gives every
 #: sum the same chain of multiply-adds, so the same bits (``tests/test_engines_numba.py``); the
-#: narrow one is 1.3-2.6x faster on an AVX2 CPU (``bench/probes/tile_plans.py``)
+#: narrow one runs the per-point layers 1.1-2.7x faster on an AVX2 CPU
+#: (``bench/probes/tile_plans.py``)
 TILE_PLAN = "wide" if wide_registers() else "narrow"
 NARROW = TILE_PLAN == "narrow"
 
