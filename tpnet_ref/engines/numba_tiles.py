@@ -181,12 +181,19 @@ def _nonzero4(x, r0, act):
 @njit(cache=True, nogil=True)
 def tiled_product(x, w, rows, act, out):
     """:func:`tiled_plan` in this CPU's plan
-    (:data:`tpnet_ref.engines.numba_codegen.TILE_PLAN`)."""
-    tiled_plan(x, w, rows, act, out, NARROW)
+    (:data:`tpnet_ref.engines.numba_codegen.TILE_PLAN`; the other plan's tiles are not
+    compiled here: ``NARROW`` is a constant)."""
+    _tiled(x, w, rows, act, out, NARROW)
 
 
 @njit(cache=True, nogil=True)
 def tiled_plan(x, w, rows, act, out, narrow):
+    """:func:`tiled_product` in the plan ``narrow`` says (either, for the tests)."""
+    _tiled(x, w, rows, act, out, narrow)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tiled(x, w, rows, act, out, narrow):
     """``out[r] = x[r] @ w`` for the rows ``r < rows`` rounded up to :data:`TILE_ROWS` (``x``
     and ``out`` must have them; rows past ``rows`` are computed from whatever they hold and
     mean nothing), ``w (C, N)`` C-contiguous, N whole 64-byte vectors; ``act``: work array of
@@ -224,12 +231,18 @@ TILE_BATCH = 2
 
 @njit(cache=True, nogil=True)
 def product_rows(x, w, act, out):
-    """:func:`rows_plan` in this CPU's plan."""
-    rows_plan(x, w, act, out, NARROW)
+    """:func:`rows_plan` in this CPU's plan (only its tiles compiled, as :func:`tiled_product`)."""
+    _rows(x, w, act, out, NARROW)
 
 
 @njit(cache=True, nogil=True)
 def rows_plan(x, w, act, out, narrow):
+    """:func:`product_rows` in the plan ``narrow`` says (either, for the tests)."""
+    _rows(x, w, act, out, narrow)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rows(x, w, act, out, narrow):
     """``out[r] = x[r] @ w`` for every row of ``x (R, C)``: whole 4-row tiles by
     :func:`_tile_kernel` (each reading only the weight rows of its rows' non-zero inputs, the
     sums in registers), the last ``R % 4`` rows by :func:`product`; every sum the chain
