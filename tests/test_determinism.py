@@ -1,7 +1,7 @@
 """Same bits on every call, under every OpenBLAS kernel this CPU runs and any thread count.
 
-Each kernel runs ``tests/determinism_probe.py`` in two fresh processes, one with one BLAS and
-numba thread and one with two, both with the thread policy switching plans on every call. The
+Each kernel runs ``tests/determinism_probe.py`` in two fresh processes side by side, one with one
+BLAS and numba thread and one with two, both with the thread policy switching plans on every call. The
 probe checks, for both engines and dtypes, that repeated calls give one output and that
 per-frame permutations give that output (predict, predict_batch small and split, rollout,
 rollout_batch); here the two processes' outputs must also be identical. The kernels' outputs may
@@ -9,6 +9,8 @@ differ from each other by rounding (``python tests/determinism_probe.py --sweep`
 much); a kernel this CPU cannot run is skipped with the flag it lacks.
 """
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -27,8 +29,12 @@ def test_same_bits_on_cpu_kernel_with_one_or_two_threads(kernel, tmp_path_factor
     if _RUNNABLE[kernel]:
         pytest.skip(f"OpenBLAS kernel {kernel}: {_RUNNABLE[kernel]}")
     save = tmp_path_factory.mktemp(f"probe-{kernel}")
-    runs = {t: probe.run_child(kernel, t, calls=10, save=save if t == 1 else None)
-            for t in (1, 2)}
+    # the two processes side by side (each its own thread counts; a busy core changes the plans
+    # the policy takes, never the bits: the probe checks them)
+    with ThreadPoolExecutor(2) as pool:
+        futures = {t: pool.submit(probe.run_child, kernel, t, calls=10,
+                                  save=save if t == 1 else None) for t in (1, 2)}
+        runs = {t: f.result() for t, f in futures.items()}
     for t, r in runs.items():
         assert r["kernel"] is not None, "no OpenBLAS under NumPy: nothing to probe"
         if r["kernel"] != kernel:
