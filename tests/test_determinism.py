@@ -1,8 +1,8 @@
 """Same bits on every call, under every OpenBLAS kernel this CPU runs and any thread count.
 
-Each kernel runs ``tests/determinism_probe.py`` in two fresh processes side by side, one with one
-BLAS and numba thread and one with two, both with the thread policy switching plans on every call. The
-probe checks, for both engines and dtypes, that repeated calls give one output and that
+Each kernel runs ``tests/determinism_probe.py`` in two fresh processes side by side, one with
+one BLAS and numba thread and one with two, both with the thread policy switching plans on every
+call. The probe checks, for both engines and dtypes, that repeated calls give one output and that
 per-frame permutations give that output (predict, predict_batch small and split, rollout,
 rollout_batch); here the two processes' outputs must also be identical. The kernels' outputs may
 differ from each other by rounding (``python tests/determinism_probe.py --sweep`` prints by how

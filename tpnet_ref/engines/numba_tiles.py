@@ -137,9 +137,10 @@ _N41, _N42 = (_tile_kernel(4, v, 32) for v in (1, 2))
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _tile_row_narrow(x, r0, w, out, act, n):
-    """:func:`_tile_kernel`'s 4-row tiles of 32-byte vectors across every column of ``w``."""
-    nv = w.shape[1] * x.itemsize // 32
+def _tile_row_narrow(x, r0, w, nvec, out, act, n):
+    """:func:`_tile_kernel`'s 4-row tiles of 32-byte vectors across all ``nvec`` 64-byte
+    vectors of columns."""
+    nv = 2 * nvec
     c = 0
     while c + 2 <= nv:
         _N42(x, r0, w, c, out, act, n)
@@ -162,6 +163,16 @@ def _tile_row(x, r0, w, nvec, out, act, n):
         _T42(x, r0, w, c, out, act, n)
     elif rem == 1:
         _T41(x, r0, w, c, out, act, n)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tile_row_in(x, r0, w, nvec, out, act, n, narrow):
+    """The 4-row tiles of the plan ``narrow`` says (:func:`_tile_row_narrow`, else
+    :func:`_tile_row`)."""
+    if narrow:
+        _tile_row_narrow(x, r0, w, nvec, out, act, n)
+    else:
+        _tile_row(x, r0, w, nvec, out, act, n)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -207,12 +218,7 @@ def _tiled(x, w, rows, act, out, narrow):
     if nvec < TILE_SPARSE_FROM:
         for k in range(c):
             act[k] = k
-    if narrow:
-        for r0 in range(0, top, 4):
-            n = _nonzero4(x, r0, act) if nvec >= TILE_SPARSE_FROM else c
-            _tile_row_narrow(x, r0, w, out, act, n)
-        return
-    if nvec == 1 or nvec == 2:
+    if not narrow and (nvec == 1 or nvec == 2):   # the wide plan's 8-row tiles
         for r0 in range(0, top, 8):
             if nvec == 1:
                 _T81(x, r0, w, 0, out, act, c)
@@ -221,7 +227,7 @@ def _tiled(x, w, rows, act, out, narrow):
         return
     for r0 in range(0, top, 4):
         n = _nonzero4(x, r0, act) if nvec >= TILE_SPARSE_FROM else c
-        _tile_row(x, r0, w, nvec, out, act, n)
+        _tile_row_in(x, r0, w, nvec, out, act, n, narrow)
 
 
 #: batches of at least this many windows take :func:`product_rows` in the prediction network
@@ -253,11 +259,7 @@ def _rows(x, w, act, out, narrow):
     nvec = w.shape[1] * x.itemsize // VECTOR_BYTES
     full = rows - rows % 4
     for r0 in range(0, full, 4):
-        n = _nonzero4(x, r0, act)
-        if narrow:
-            _tile_row_narrow(x, r0, w, out, act, n)
-        else:
-            _tile_row(x, r0, w, nvec, out, act, n)
+        _tile_row_in(x, r0, w, nvec, out, act, _nonzero4(x, r0, act), narrow)
     if full < rows:
         grp = np.empty((1, 3), dtype=np.intp)
         grp[0, 0], grp[0, 1], grp[0, 2] = full, 1, rows - full
