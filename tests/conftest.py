@@ -1,4 +1,4 @@
-"""Suite-wide settings: bounded hypothesis runs and a memory guard.
+"""Suite-wide settings: bounded hypothesis runs, a memory guard, and the order of the work.
 
 - hypothesis: no example database written into the checkout, one bug reported per test (it then
   keeps one failing example, not one per distinct failure), and a deadline off (the first call of
@@ -8,16 +8,25 @@
   exit status 3 -- a runaway test fails with that line instead of taking the machine down (a
   hypothesis test that built a new 170 MB model per example kept every failing example's
   traceback, and with it the model, while shrinking: 15 GB in 50 s).
+- Early jobs (``tests/background.py``): the work of tests that only wait for child processes
+  starts when collection ends, in a background thread, beside the in-process tests.
+- Late tests (``@pytest.mark.late``): tests whose child processes load the kernels this process
+  compiled run last, when numba's on-disk cache holds them; before, each child compiled them again.
 """
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
+
+import background
 
 settings.register_profile("tpnet", database=None, report_multiple_bugs=False, deadline=None)
 settings.load_profile("tpnet")
@@ -69,6 +78,47 @@ def _release_freed_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):               # not glibc: nothing to trim
         pass
+
+
+def pytest_collection_modifyitems(config, items):
+    """The tests marked ``late`` after all others, each group in its own order."""
+    items[:] = ([i for i in items if i.get_closest_marker("late") is None]
+                + [i for i in items if i.get_closest_marker("late") is not None])
+
+
+_EARLY_FOLDER: list = []
+
+
+def pytest_collection_finish(session):
+    if session.config.option.collectonly or not session.items:
+        return
+    names: dict[str, int] = {}
+
+    def folder_for(nodeid: str) -> Path:
+        if not _EARLY_FOLDER:
+            _EARLY_FOLDER.append(Path(tempfile.mkdtemp(prefix="tpnet-early-jobs-")))
+        name = nodeid.rsplit("::", 1)[-1][:40]
+        names[name] = names.get(name, 0) + 1
+        d = _EARLY_FOLDER[0] / f"{name}-{names[name]}"
+        d.mkdir()
+        return d
+    background.start(session.items, folder_for)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    background.stop()
+    if exitstatus == 0:                 # a failed job's folder stays for a look
+        for base in _EARLY_FOLDER:
+            shutil.rmtree(base, ignore_errors=True)
+
+
+@pytest.fixture
+def early_result(request):
+    """The return value of this test's early job (``tests/background.py``), once it ended."""
+    future = background.FUTURES.get(request.node.nodeid)
+    if future is None:
+        pytest.fail("no early job started for this test (mark it with background.early)")
+    return future.result()
 
 
 def pytest_runtest_protocol(item, nextitem):

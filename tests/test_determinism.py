@@ -18,6 +18,8 @@ import pytest
 import determinism_probe as probe
 from tolerance_bounds import BOUNDS, gaps
 
+#: last in the session: the probes load the kernels the suite compiled from numba's cache
+pytestmark = pytest.mark.late
 _RUNNABLE = probe.runnable_kernels()
 #: kernel -> the folder its one-thread probe saved its outputs in (for the last test)
 _SAVED: dict = {}

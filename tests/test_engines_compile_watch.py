@@ -16,6 +16,7 @@ pytest.importorskip("h5py")
 
 from tpnet_ref.engines.compile_watch import COMPILING, CompileWatch  # noqa: E402
 from evaluation_helpers import small_model  # noqa: E402
+from background import early  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -76,12 +77,8 @@ def _tpnet(args: list[str], cache: Path, cwd: Path,
     return r
 
 
-@pytest.mark.slow
-def test_first_run_says_it_compiles_and_gives_the_bits_of_a_later_run(tmp_path):
-    """An empty NUMBA_CACHE_DIR is a first run after install: ``tpnet predict`` on the Numba
-    engine announces the compilation and times it, and writes the bits that the next run, which
-    loads the kernels from that cache, writes; ``tpnet demo`` prints its first line before the
-    compilation starts and the compile time as a line of its report."""
+def _first_and_later_runs(tmp_path: Path) -> None:
+    """The test below, in processes of their own with an empty cache of their own."""
     weights = tmp_path / "w.h5"
     small_model(4, seed=3, dtype="float32").save(str(weights))
     window = tmp_path / "window.npy"
@@ -121,3 +118,12 @@ def test_first_run_says_it_compiles_and_gives_the_bits_of_a_later_run(tmp_path):
         "Numba kernels: none compiled (loaded from numba's cache, or not used)"]
     rows = [[ln for ln in out if ln.strip()[:1].isdigit()] for out in (first, later)]
     assert rows[0] and rows[0] == rows[1]                   # the same errors printed
+
+
+@pytest.mark.slow
+@early(_first_and_later_runs)
+def test_first_run_says_it_compiles_and_gives_the_bits_of_a_later_run(early_result):
+    """An empty NUMBA_CACHE_DIR is a first run after install: ``tpnet predict`` on the Numba
+    engine announces the compilation and times it, and writes the bits that the next run, which
+    loads the kernels from that cache, writes; ``tpnet demo`` prints its first line before the
+    compilation starts and the compile time as a line of its report (``_first_and_later_runs``)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from tpnet_ref import model as M  # noqa: E402
 from tpnet_ref.config import TPNetConfig  # noqa: E402
 from tpnet_ref.extras import MissingExtraError  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
+from background import early  # noqa: E402
 
 SMALL = TPNetConfig(m=3, n_out=5, mlp1=(8, 8), mlp2=(8, 16), global_features=12,
                     lstm_units=(6, 5, 7), input_tnet_mlp=(4, 6), input_tnet_fc=(5,),
@@ -442,7 +444,7 @@ def test_vectorised_exp_and_sigmoid_are_within_a_few_ulp(dtype):
     assert np.isnan(e[0]) and np.isnan(s[0])
 
 
-def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(tmp_path):
+def _serial_then_parallel(tmp_path: Path) -> None:
     """The serial and parallel kernels are separate functions: numba's cache keeps one compiled
     version per function and signature whatever its ``parallel`` flag, so one function compiled
     both ways would load the serial version for the parallel call. Fresh cache, serial call
@@ -464,6 +466,11 @@ def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(tmp_path)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() in ("omp", "tbb", "workqueue")
+
+
+@early(_serial_then_parallel)            # a child process compiling in a cache of its own
+def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(early_result):
+    """The serial and parallel kernels cached apart (``_serial_then_parallel``)."""
 
 
 def test_two_threads_only_beside_a_one_thread_blas():
@@ -551,12 +558,8 @@ print(out[0])
 """
 
 
-def test_numbas_cache_serves_networks_of_any_depth_in_later_processes(tmp_path):
-    """Numba caches each compiled kernel on disk. A cached kernel that called a parallel one
-    crashed the next process (numba issues 4807, 10128) once networks of two depths had been
-    compiled: here a three-layer network, then a two-layer one, then the two-layer one again
-    from the cache (it was a segmentation fault), each in a new process and each on one and
-    on two threads; all give what the same networks give in this process."""
+def _three_processes(tmp_path: Path) -> list[str]:
+    """The three processes of the test below, one after another in one empty cache."""
     import os
 
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
@@ -566,6 +569,17 @@ def test_numbas_cache_serves_networks_of_any_depth_in_later_processes(tmp_path):
                            capture_output=True, text=True, timeout=600)
         assert r.returncode == 0, f"{units}: exit {r.returncode}: {r.stderr[-800:]}"
         got.append(r.stdout.strip())
+    return got
+
+
+@early(_three_processes)
+def test_numbas_cache_serves_networks_of_any_depth_in_later_processes(early_result):
+    """Numba caches each compiled kernel on disk. A cached kernel that called a parallel one
+    crashed the next process (numba issues 4807, 10128) once networks of two depths had been
+    compiled: here a three-layer network, then a two-layer one, then the two-layer one again
+    from the cache (it was a segmentation fault), each in a new process and each on one and
+    on two threads; all give what the same networks give in this process."""
+    got = early_result
     assert got[1] == got[2]
     for units, hexed in zip(("6,5,7", "6,5"), got[:2]):
         cfg = TPNetConfig(lstm_units=tuple(int(u) for u in units.split(",")), n_out=7,

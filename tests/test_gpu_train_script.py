@@ -6,6 +6,9 @@ starts a run with the step traced by TorchDynamo (``--compile eager``: the captu
 returns (at most 8 files of 16 MiB); ``collect`` puts those files into a fresh ``.gpu/NAME``
 (the machine went back: nothing of call 1 is left but what came back) and exports the weights;
 call 2 resumes from those parts and finishes.
+
+The script's runs are early jobs (tests/background.py): they start with the session, beside the
+in-process tests, each with a Numba cache of its own.
 """
 from __future__ import annotations
 
@@ -22,13 +25,14 @@ pytest.importorskip("torch")
 pytest.importorskip("pymunk")
 
 import tpnet_ref  # noqa: E402
+from background import early, private_cache  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPT = REPO / "tools" / "gpu_train.sh"
 
 
 def _call(work: Path, *args: str, **env: str) -> str:
-    e = {**os.environ, "WORK": str(work), "PY": sys.executable, "NAME": "ci", "M": "4",
+    e = {**private_cache(work.parent), "WORK": str(work), "PY": sys.executable, "NAME": "ci", "M": "4",
          "SIZE": "tiny", "INIT": "", "BUDGET": "", "BATCH": "8", "LR": "3e-3", "MATCH": "4",
          "WORKERS": "1", "THREADS": "1", "COMPILE": "eager", "OPTIM": "none",
          "DATA_ARGS": "--forces 1.3 --angles 200 245 --positions 2 --steps 100 --whole 0",
@@ -47,7 +51,7 @@ def _returned(out: Path) -> list[Path]:
     return files
 
 
-def test_two_calls_resume_from_the_parts_that_came_back(tmp_path):
+def _two_calls(tmp_path: Path) -> Path:
     work = tmp_path / "repo"
     work.mkdir()
     out1 = _call(work, OUT=str(tmp_path / "out1"), STOP_STEP="6")
@@ -58,8 +62,7 @@ def test_two_calls_resume_from_the_parts_that_came_back(tmp_path):
     assert {"checkpoint.json", "log.jsonl", "checkpoint.pt.000"} <= names
     shutil.rmtree(work / ".gpu")                        # a fresh machine: only the parts remain
     _call(work, "collect", str(back))
-    first = tpnet_ref.load(work / "runs" / "gpu-ci.h5")
-    assert first.meta["training_steps"] == 6 and first.config.lstm_units == (8, 8, 8)
+    shutil.copy(work / "runs" / "gpu-ci.h5", tmp_path / "first.h5")   # the weights of call 1
 
     out2 = _call(work, OUT=str(tmp_path / "out2"))       # the next call, data kept (warm)
     assert "step 14/14" in out2 and "done" in out2
@@ -70,11 +73,16 @@ def test_two_calls_resume_from_the_parts_that_came_back(tmp_path):
     assert [c["mode"] for c in state["compile"]] == ["eager", "eager"]
     steps = [json.loads(s)["step"] for s in (work / ".gpu" / "ci" / "log.jsonl").open()]
     assert steps[0] == 0 and steps[-1] == 14 and steps == sorted(steps)
+    return tmp_path / "first.h5"
 
 
-def test_the_released_preset_starts_from_scratch_on_released_windows(tmp_path):
-    """PRESET=released: the grid made with --windows released, a new run with the authors'
-    recipe (Keras initialisation, constant rate, no clipping) whose Adam state comes back."""
+@early(_two_calls)
+def test_two_calls_resume_from_the_parts_that_came_back(early_result):
+    first = tpnet_ref.load(early_result)                 # what `collect` exported after call 1
+    assert first.meta["training_steps"] == 6 and first.config.lstm_units == (8, 8, 8)
+
+
+def _released_preset(tmp_path: Path) -> None:
     work = tmp_path / "repo"
     work.mkdir()
     out = _call(work, OUT=str(tmp_path / "out"), PRESET="released", OPTIM="full", MATCH="0",
@@ -94,6 +102,12 @@ def test_the_released_preset_starts_from_scratch_on_released_windows(tmp_path):
     assert len(_returned(tmp_path / "out")) >= 3
 
 
+@early(_released_preset)
+def test_the_released_preset_starts_from_scratch_on_released_windows(early_result):
+    """PRESET=released: the grid made with --windows released, a new run with the authors'
+    recipe (Keras initialisation, constant rate, no clipping) whose Adam state comes back."""
+
+
 def test_unknown_subcommand_is_refused(tmp_path):
     r = subprocess.run(["bash", str(SCRIPT), "bogus"], env={**os.environ, "WORK": str(tmp_path)},
                        capture_output=True, text=True)
@@ -111,7 +125,7 @@ def test_the_cli_lists_the_loops_compile_modes():
         precision.resolve_compile("fast", "cpu")
 
 
-def test_a_state_over_the_devices_limits_goes_back_and_up_in_pieces(tmp_path):
+def _in_pieces(tmp_path: Path) -> None:
     """The full network's state with Adam's (85 MB) is more than one call may bring back (64
     MiB) or carry up (64 MiB with the tree): `rest` calls return what a call could not, `collect`
     takes them all and refuses an incomplete set, `stage` cuts the state in bundles, `receive`
@@ -133,7 +147,7 @@ def test_a_state_over_the_devices_limits_goes_back_and_up_in_pieces(tmp_path):
     assert len(backs) >= 2
     state = json.loads((work / ".gpu" / "ci" / "checkpoint.json").read_text())
     shutil.rmtree(work / ".gpu")                        # the machine went back
-    e = {**os.environ, "WORK": str(work), "PY": sys.executable, "NAME": "ci"}
+    e = {**private_cache(tmp_path), "WORK": str(work), "PY": sys.executable, "NAME": "ci"}
     bad = subprocess.run(["bash", str(SCRIPT), "collect", str(backs[0])], env=e,
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "did not come back" in bad.stderr
@@ -159,3 +173,8 @@ def test_a_state_over_the_devices_limits_goes_back_and_up_in_pieces(tmp_path):
     end = json.loads((fresh / ".gpu" / "ci" / "checkpoint.json").read_text())
     assert "optimizer_resets" not in end                # Adam's state came up with the model
     assert end["windows_seen"] > state["windows_seen"] and not (fresh / ".up" / "ci").exists()
+
+
+@early(_in_pieces)
+def test_a_state_over_the_devices_limits_goes_back_and_up_in_pieces(early_result):
+    """A state over a call's limits goes back in pieces and up in bundles (``_in_pieces``)."""

@@ -187,6 +187,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.late                       # its processes load the kernels the suite compiled
 def test_same_bits_in_processes_of_one_and_two_threads():
     """BLAS and Numba with one thread or two (fresh processes: both read their thread counts
     when imported), and this process: the same digests."""

@@ -375,6 +375,7 @@ print(h.hexdigest())
 
 
 @pytest.mark.slow
+@pytest.mark.late                       # its processes load the kernels the suite compiled
 def test_same_bits_under_every_openblas_kernel_and_thread_count():
     """The quantized engines' predictions, a batch and a rollout hashed in fresh processes under
     each OpenBLAS kernel this CPU runs, with one and two BLAS / numba threads: one digest."""
