@@ -90,8 +90,8 @@ _EARLY_FOLDER: list = []
 
 
 def pytest_collection_finish(session):
-    if session.config.option.collectonly or not session.items:
-        return
+    if session.config.option.collectonly or not session.items or session.testsfailed:
+        return                          # nothing will run (a collection error stops the run)
     names: dict[str, int] = {}
 
     def folder_for(nodeid: str) -> Path:
