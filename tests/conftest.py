@@ -82,8 +82,7 @@ def _release_freed_memory() -> None:
 
 def pytest_collection_modifyitems(config, items):
     """The tests marked ``late`` after all others, each group in its own order."""
-    items[:] = ([i for i in items if i.get_closest_marker("late") is None]
-                + [i for i in items if i.get_closest_marker("late") is not None])
+    items.sort(key=lambda item: item.get_closest_marker("late") is not None)   # a stable sort
 
 
 _EARLY_FOLDER: list = []
@@ -92,16 +91,11 @@ _EARLY_FOLDER: list = []
 def pytest_collection_finish(session):
     if session.config.option.collectonly or not session.items or session.testsfailed:
         return                          # nothing will run (a collection error stops the run)
-    names: dict[str, int] = {}
-
     def folder_for(nodeid: str) -> Path:
         if not _EARLY_FOLDER:
             _EARLY_FOLDER.append(Path(tempfile.mkdtemp(prefix="tpnet-early-jobs-")))
         name = nodeid.rsplit("::", 1)[-1][:40]
-        names[name] = names.get(name, 0) + 1
-        d = _EARLY_FOLDER[0] / f"{name}-{names[name]}"
-        d.mkdir()
-        return d
+        return Path(tempfile.mkdtemp(prefix=f"{name}-", dir=_EARLY_FOLDER[0]))
     background.start(session.items, folder_for)
 
 

@@ -18,7 +18,7 @@ from tpnet_ref import model as M  # noqa: E402
 from tpnet_ref.config import TPNetConfig  # noqa: E402
 from tpnet_ref.extras import MissingExtraError  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
-from background import early  # noqa: E402
+from background import early, private_cache  # noqa: E402
 
 SMALL = TPNetConfig(m=3, n_out=5, mlp1=(8, 8), mlp2=(8, 16), global_features=12,
                     lstm_units=(6, 5, 7), input_tnet_mlp=(4, 6), input_tnet_fc=(5,),
@@ -462,7 +462,7 @@ def _serial_then_parallel(tmp_path: Path) -> None:
             "    b = head.run(head.project_rows(g, True), 3, 1, parallel=True)\n"
             "assert np.array_equal(a[0], b[0])\n"
             "print(numba.threading_layer())\n")
-    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    env = private_cache(tmp_path)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() in ("omp", "tbb", "workqueue")
@@ -560,9 +560,7 @@ print(out[0])
 
 def _three_processes(tmp_path: Path) -> list[str]:
     """The three processes of the test below, one after another in one empty cache."""
-    import os
-
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env = private_cache(tmp_path)
     got = []
     for units in ("6,5,7", "6,5", "6,5"):
         r = subprocess.run([sys.executable, "-c", _CACHED_RUN, units], env=env,

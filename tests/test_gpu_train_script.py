@@ -32,9 +32,9 @@ SCRIPT = REPO / "tools" / "gpu_train.sh"
 
 
 def _call(work: Path, *args: str, **env: str) -> str:
-    e = {**private_cache(work.parent), "WORK": str(work), "PY": sys.executable, "NAME": "ci", "M": "4",
-         "SIZE": "tiny", "INIT": "", "BUDGET": "", "BATCH": "8", "LR": "3e-3", "MATCH": "4",
-         "WORKERS": "1", "THREADS": "1", "COMPILE": "eager", "OPTIM": "none",
+    e = {**private_cache(work.parent), "WORK": str(work), "PY": sys.executable, "NAME": "ci",
+         "M": "4", "SIZE": "tiny", "INIT": "", "BUDGET": "", "BATCH": "8", "LR": "3e-3",
+         "MATCH": "4", "WORKERS": "1", "THREADS": "1", "COMPILE": "eager", "OPTIM": "none",
          "DATA_ARGS": "--forces 1.3 --angles 200 245 --positions 2 --steps 100 --whole 0",
          "TRAIN_ARGS": "--epochs 2 --val-fraction 0.25 --warmup-steps 2 --val-windows 0",
          **env}
