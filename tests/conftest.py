@@ -12,6 +12,11 @@
   starts when collection ends, in a background thread, beside the in-process tests.
 - Late tests (``@pytest.mark.late``): tests whose child processes load the kernels this process
   compiled run last, when numba's on-disk cache holds them; before, each child compiled them again.
+- The second lane (``tests/lane.py``): the modules marked ``lane`` run in a child pytest on the
+  second core; their results are reported here.
+- HDF5's file locks are off (``HDF5_USE_FILE_LOCKING``): a child process forked by a background
+  thread holds copies of this process's open files until it closes them, and with them the lock
+  of a file a test has just written, so the test's next open of it failed now and then (errno 11).
 """
 from __future__ import annotations
 
@@ -23,22 +28,29 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
-from hypothesis import settings
+os.environ["HDF5_USE_FILE_LOCKING"] = "FALSE"   # before h5py opens a file (see above)
 
-import background
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+import background  # noqa: E402
+import lane  # noqa: E402
 
 settings.register_profile("tpnet", database=None, report_multiple_bugs=False, deadline=None)
 settings.load_profile("tpnet")
 
 _LIMIT_GB = float(os.environ.get("TPNET_TEST_MAX_RSS_GB", "4"))
 _CURRENT = {"test": "(collection)"}
-_PEAK = {"bytes": 0}
+_PEAK = {"bytes": 0, "together": 0}
+_LANE: list[lane.Lane] = []
 
 
-def _rss_bytes() -> int:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+def _rss_bytes(pid: int | str = "self") -> int:
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, IndexError):                   # the child ended
+        return 0
 
 
 def _guard() -> None:
@@ -46,6 +58,9 @@ def _guard() -> None:
     while True:
         rss = _rss_bytes()
         _PEAK["bytes"] = max(_PEAK["bytes"], rss)
+        child = _LANE[0].proc if _LANE else None
+        if child is not None and child.poll() is None:
+            _PEAK["together"] = max(_PEAK["together"], rss + _rss_bytes(child.pid))
         if rss > limit:
             sys.stderr.write(f"\nmemory guard: the test process reached {rss / 2**30:.1f} GB "
                              f"(limit {_LIMIT_GB:g} GB, TPNET_TEST_MAX_RSS_GB) while running "
@@ -81,8 +96,17 @@ def _release_freed_memory() -> None:
 
 
 def pytest_collection_modifyitems(config, items):
-    """The tests marked ``late`` after all others, each group in its own order."""
-    items.sort(key=lambda item: item.get_closest_marker("late") is not None)   # a stable sort
+    """The tests marked ``late`` after all others, each group in its own order; with a second
+    lane, its tests before the late ones (in the child: only the tests it was given)."""
+    if lane.in_child():
+        lane.keep_listed(config, items)
+    use_lane = lane.wanted(items)
+
+    def rank(item) -> int:
+        if use_lane and item.get_closest_marker("lane") is not None:
+            return 1
+        return 2 if item.get_closest_marker("late") is not None else 0
+    items.sort(key=rank)                                                  # a stable sort
 
 
 _EARLY_FOLDER: list = []
@@ -96,10 +120,22 @@ def pytest_collection_finish(session):
             _EARLY_FOLDER.append(Path(tempfile.mkdtemp(prefix="tpnet-early-jobs-")))
         name = nodeid.rsplit("::", 1)[-1][:40]
         return Path(tempfile.mkdtemp(prefix=f"{name}-", dir=_EARLY_FOLDER[0]))
-    background.start(session.items, folder_for)
+    items = session.items
+    if lane.wanted(items):
+        mine = [item for item in items if item.get_closest_marker("lane") is None]
+        _LANE.append(lane.Lane([item for item in items if item not in mine],
+                               session.config.rootpath, folder_for("second-lane")))
+        items = mine
+    background.start(items, folder_for)
+    if _LANE:
+        _LANE[0].start()
 
 
 def pytest_sessionfinish(session, exitstatus):
+    if lane.in_child():
+        lane.write_peak(_PEAK["bytes"])
+    for child in _LANE:
+        child.stop()
     background.stop()
     if exitstatus == 0:                 # a failed job's folder stays for a look
         for base in _EARLY_FOLDER:
@@ -117,6 +153,24 @@ def early_result(request):
 
 def pytest_runtest_protocol(item, nextitem):
     _CURRENT["test"] = item.nodeid
+    if _LANE and item.get_closest_marker("lane") is not None:
+        reports = _LANE[0].reports_for(item.nodeid)
+        if reports:                     # else the child left it: it runs here
+            lane.replay(item, reports)
+            return True
+    return None
+
+
+def pytest_runtest_logreport(report):
+    if lane.in_child():
+        lane.write_report(_CONFIG[0], report)
+
+
+_CONFIG: list = []
+
+
+def pytest_configure(config):
+    _CONFIG.append(config)
 
 
 @pytest.hookimpl(trylast=True)        # after pytest's own teardown has ended the module's fixtures
@@ -140,3 +194,10 @@ def pytest_terminal_summary(terminalreporter):
     if _PEAK["bytes"]:
         terminalreporter.write_line(f"peak resident memory of the test process: "
                                     f"{_PEAK['bytes'] / 2**30:.2f} GB (guard at {_LIMIT_GB:g} GB)")
+    for child in _LANE:
+        ran_here = sum(not child.reports_for(nodeid) for nodeid in child.ids)
+        terminalreporter.write_line(
+            f"second lane: {len(child.ids)} tests in a child pytest (exit status {child.status}, "
+            f"peak resident memory {child.peak_bytes / 2**30:.2f} GB; both processes together "
+            f"{_PEAK['together'] / 2**30:.2f} GB)"
+            + (f"; {ran_here} of them ran here instead" if ran_here else ""))

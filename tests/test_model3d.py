@@ -38,6 +38,8 @@ from tpnet_ref.model import SPLIT_MIN_BATCH, TPNet, TPNetConfig, init_random, lo
 from tpnet_ref.weights.shipped import REPO_WEIGHTS_DIR
 from ring_helpers import thrown_ball
 
+pytestmark = pytest.mark.lane        # run in the second test process (tests/lane.py)
+
 FIX = Path(__file__).parent / "fixtures"
 #: the suite's 3-D network: a small released structure (identity transforms, so that the Numba
 #: engine runs its compiled feature extractor) with the 3-D ball's 42 points out; TRAINED adds

@@ -1,0 +1,130 @@
+"""A second lane: the test modules marked ``lane`` run in a child pytest, beside this one.
+
+The suite's test process runs on one core. Much of its time is Numba compiling kernels that only
+some modules use (bf16 and int8 weights, 3-D networks), so those modules
+(``pytestmark = pytest.mark.lane``) run in one child pytest on the second core, with a Numba cache
+of its own. ``tests/conftest.py`` starts it when collection ends, in a thread of its own that
+waits for the early jobs (``tests/background.py``) first, and puts the lane's tests after all the
+others but the late ones; when the test process reaches them it waits for the child and reports
+each test's result as the child wrote it (the reports pytest itself serialises, as pytest-xdist sends them):
+passes, failures with their tracebacks, skips and xfails appear as if run here.
+
+The child writes one report per line to the file named in ``TPNET_TEST_LANE`` and runs only the
+node ids listed in ``TPNET_TEST_LANE_IDS``. A test the child left without a report (the child
+crashed, or was stopped) runs in this process instead. ``TPNET_TEST_LANE=off`` runs everything
+here; so does a machine of one CPU, or a selection that is all lane or has no lane test.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from pathlib import Path
+
+import background
+
+REPORTS_ENV, IDS_ENV = "TPNET_TEST_LANE", "TPNET_TEST_LANE_IDS"
+#: the child's wall-clock limit (s); past it the child is stopped and its tests run here
+TIMEOUT_S = 3600
+
+
+def in_child() -> bool:
+    return os.environ.get(REPORTS_ENV, "off") != "off"
+
+
+def wanted(items) -> bool:
+    """Whether this process hands the ``lane`` tests among ``items`` to a child."""
+    if os.environ.get(REPORTS_ENV) == "off" or in_child() or len(os.sched_getaffinity(0)) < 2:
+        return False
+    marked = sum(item.get_closest_marker("lane") is not None for item in items)
+    return 0 < marked < len(items)
+
+
+def keep_listed(config, items) -> None:
+    """In the child: drop the items not listed in ``TPNET_TEST_LANE_IDS``."""
+    ids = set(Path(os.environ[IDS_ENV]).read_text().splitlines())
+    dropped = [item for item in items if item.nodeid not in ids]
+    if dropped:
+        items[:] = [item for item in items if item.nodeid in ids]
+        config.hook.pytest_deselected(items=dropped)
+
+
+def write_report(config, report) -> None:
+    """In the child: one test report, serialised, appended to the lane's file."""
+    data = config.hook.pytest_report_to_serializable(config=config, report=report)
+    with open(os.environ[REPORTS_ENV], "a") as f:
+        f.write(json.dumps(data) + "\n")
+
+
+def write_peak(peak_bytes: int) -> None:
+    with open(os.environ[REPORTS_ENV], "a") as f:
+        f.write(json.dumps({"lane_peak_bytes": peak_bytes}) + "\n")
+
+
+class Lane:
+    """The child pytest of the ``lane`` tests: started by :meth:`start`, its reports by node id
+    from :meth:`reports_for` once it ended."""
+
+    def __init__(self, items, rootdir: Path, folder: Path):
+        self.ids = [item.nodeid for item in items]
+        self.rootdir, self.folder = rootdir, folder
+        self.proc: subprocess.Popen | None = None
+        self.future: Future | None = None
+        self.status: int | None = None
+        self.peak_bytes = 0
+        self._reports: dict[str, list[dict]] = {}
+
+    def start(self) -> None:
+        pool = ThreadPoolExecutor(1, thread_name_prefix="lane")
+        self.future = pool.submit(self._run, list(background.FUTURES.values()))
+        pool.shutdown(wait=False)
+
+    def _run(self, early: list[Future]) -> None:
+        wait(early)                     # the early jobs first: their tests come sooner
+        ids, out = self.folder / "ids.txt", self.folder / "reports.jsonl"
+        ids.write_text("\n".join(self.ids) + "\n")
+        env = background.private_cache(self.folder, {**os.environ, REPORTS_ENV: str(out),
+                                                     IDS_ENV: str(ids)})
+        files = sorted({nodeid.split("::")[0] for nodeid in self.ids})
+        cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *files]
+        with open(self.folder / "output.txt", "w") as log:
+            self.proc = subprocess.Popen(cmd, cwd=self.rootdir, env=env, stdout=log,
+                                         stderr=subprocess.STDOUT)
+            try:
+                self.status = self.proc.wait(timeout=TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.status = self.proc.wait()
+        if out.exists():
+            for line in out.read_text().splitlines():
+                data = json.loads(line)
+                if "lane_peak_bytes" in data:
+                    self.peak_bytes = data["lane_peak_bytes"]
+                else:
+                    self._reports.setdefault(data["nodeid"], []).append(data)
+
+    def reports_for(self, nodeid: str) -> list[dict]:
+        """The child's reports of one test (setup, call, teardown), after the child ended;
+        empty when it left the test without a teardown's report."""
+        self.future.result()
+        reports = self._reports.get(nodeid, [])
+        return reports if any(r.get("when") == "teardown" for r in reports) else []
+
+    def stop(self) -> None:
+        """End the child if it still runs (this process stopped first)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+
+
+def replay(item, reports: list[dict]) -> None:
+    """Report ``item``'s results as the child serialised them, through this session's hooks."""
+    hook, ihook = item.config.hook, item.ihook
+    ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
+    for data in reports:
+        if isinstance(data.get("longrepr"), list):     # a skip's (path, line, reason): JSON
+            data = {**data, "longrepr": tuple(data["longrepr"])}    # gave a list back
+        ihook.pytest_runtest_logreport(
+            report=hook.pytest_report_from_serializable(config=item.config, data=data))
+    ihook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)
