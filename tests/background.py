@@ -3,9 +3,10 @@
 The suite runs in one process, on one core; a test that only waits for child processes (a
 training script end to end, kernels compiled in an empty cache) leaves the second core idle for
 minutes. Such a test hands its work to :func:`early`: ``tests/conftest.py`` starts every
-selected test's job, one after another in a background thread, as soon as collection ends, and
-the test itself waits for its job and asserts on what it returns. An exception inside the job
-(a failed ``assert`` included) fails the test with the job's traceback.
+selected test's job, one after another in a background thread, when collection ends (after the
+second lane's child, ``tests/lane.py``, where there is one), and the test itself waits for its
+job and asserts on what it returns. An exception inside the job (a failed ``assert`` included)
+fails the test with the job's traceback.
 
 A job gets a fresh folder of its own and nothing else (no fixtures: they are the main thread's).
 It must not share a Numba cache with the test process: two processes compiling different
@@ -17,7 +18,7 @@ more process tree than before.
 from __future__ import annotations
 
 import os
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import Callable
 
@@ -41,14 +42,17 @@ def private_cache(folder: Path, env: dict | None = None) -> dict:
     return {**(os.environ if env is None else env), "NUMBA_CACHE_DIR": str(folder / "numba-cache")}
 
 
-def start(items, folder_for: Callable[[str], Path]) -> int:
-    """Submit the job of every item marked :func:`early`, in the items' order; returns how many."""
+def start(items, folder_for: Callable[[str], Path], after: Future | None = None) -> int:
+    """Submit the job of every item marked :func:`early`, in the items' order, once ``after``
+    (the second lane's run, ``tests/lane.py``) ended; returns how many."""
     jobs = [(item.nodeid, m.args[0]) for item in items
             if (m := item.get_closest_marker("early")) is not None]
     if not jobs:
         return 0
     pool = ThreadPoolExecutor(1, thread_name_prefix="early-job")
     _POOL.append(pool)
+    if after is not None:
+        pool.submit(wait, [after])
     for nodeid, job in jobs:
         FUTURES[nodeid] = pool.submit(job, folder_for(nodeid))
     return len(jobs)

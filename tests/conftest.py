@@ -53,14 +53,42 @@ def _rss_bytes(pid: int | str = "self") -> int:
         return 0
 
 
+def _tree_rss_bytes() -> int:
+    """The resident memory of this process and all its descendants (the second lane, the early
+    jobs' children, the children of tests)."""
+    parent = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    parent[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):    # ended meanwhile
+                pass
+    mine, todo = set(), [os.getpid()]
+    while todo:
+        pid = todo.pop()
+        mine.add(pid)
+        todo += [p for p, pp in parent.items() if pp == pid and p not in mine]
+    return sum(_rss_bytes(pid) for pid in mine)
+
+
+_TREE_LOG = os.environ.get("TPNET_TEST_TREE_LOG")
+
+
 def _guard() -> None:
     limit = _LIMIT_GB * 2**30
+    t0, tick = time.monotonic(), 0
     while True:
         rss = _rss_bytes()
         _PEAK["bytes"] = max(_PEAK["bytes"], rss)
-        child = _LANE[0].proc if _LANE else None
-        if child is not None and child.poll() is None:
-            _PEAK["together"] = max(_PEAK["together"], rss + _rss_bytes(child.pid))
+        tick += 1
+        if tick % 5 == 0 and not lane.in_child():   # once a second: the whole process tree
+            tree = _tree_rss_bytes()
+            _PEAK["together"] = max(_PEAK["together"], tree)
+            if _TREE_LOG:
+                with open(_TREE_LOG, "a") as f:
+                    f.write(f"{time.monotonic() - t0:.0f} {rss / 2**20:.0f} {tree / 2**20:.0f} "
+                            f"{_CURRENT['test']}\n")
         if rss > limit:
             sys.stderr.write(f"\nmemory guard: the test process reached {rss / 2**30:.1f} GB "
                              f"(limit {_LIMIT_GB:g} GB, TPNET_TEST_MAX_RSS_GB) while running "
@@ -97,15 +125,18 @@ def _release_freed_memory() -> None:
 
 def pytest_collection_modifyitems(config, items):
     """The tests marked ``late`` after all others, each group in its own order; with a second
-    lane, its tests before the late ones (in the child: only the tests it was given)."""
+    lane, its tests before the late ones and the early jobs' tests before the lane's (in the
+    child: only the tests it was given)."""
     if lane.in_child():
         lane.keep_listed(config, items)
     use_lane = lane.wanted(items)
 
     def rank(item) -> int:
         if use_lane and item.get_closest_marker("lane") is not None:
-            return 1
-        return 2 if item.get_closest_marker("late") is not None else 0
+            return 2
+        if item.get_closest_marker("late") is not None:
+            return 3
+        return 1 if use_lane and item.get_closest_marker("early") is not None else 0
     items.sort(key=rank)                                                  # a stable sort
 
 
@@ -126,9 +157,9 @@ def pytest_collection_finish(session):
         _LANE.append(lane.Lane([item for item in items if item not in mine],
                                session.config.rootpath, folder_for("second-lane")))
         items = mine
-    background.start(items, folder_for)
-    if _LANE:
-        _LANE[0].start()
+    if _LANE:                           # the lane first: its child runs while this process is
+        _LANE[0].start()                # small; the early jobs after it, before their tests
+    background.start(items, folder_for, after=_LANE[0].future if _LANE else None)
 
 
 def pytest_sessionfinish(session, exitstatus):
@@ -198,6 +229,8 @@ def pytest_terminal_summary(terminalreporter):
         ran_here = sum(not child.reports_for(nodeid) for nodeid in child.ids)
         terminalreporter.write_line(
             f"second lane: {len(child.ids)} tests in a child pytest (exit status {child.status}, "
-            f"peak resident memory {child.peak_bytes / 2**30:.2f} GB; both processes together "
-            f"{_PEAK['together'] / 2**30:.2f} GB)"
-            + (f"; {ran_here} of them ran here instead" if ran_here else ""))
+            f"peak resident memory {child.peak_bytes / 2**30:.2f} GB; waited {child.waited_s:.0f} s "
+            "for it)" + (f"; {ran_here} of them ran here instead" if ran_here else ""))
+    if _PEAK["together"]:
+        terminalreporter.write_line(f"peak resident memory of the test process and its children "
+                                    f"together: {_PEAK['together'] / 2**30:.2f} GB")

@@ -3,10 +3,11 @@
 The suite's test process runs on one core. Much of its time is Numba compiling kernels that only
 some modules use (bf16 and int8 weights, 3-D networks), so those modules
 (``pytestmark = pytest.mark.lane``) run in one child pytest on the second core, with a Numba cache
-of its own. ``tests/conftest.py`` starts it when collection ends, in a thread of its own that
-waits for the early jobs (``tests/background.py``) first, and puts the lane's tests after all the
-others but the late ones; when the test process reaches them it waits for the child and reports
-each test's result as the child wrote it (the reports pytest itself serialises, as pytest-xdist sends them):
+of its own. ``tests/conftest.py`` starts it when collection ends, in a thread of its own (the
+early jobs of ``tests/background.py`` start when it ended), and puts the lane's tests after all
+the others but the late ones, and the early jobs' tests just before them; when the test process
+reaches the lane's tests it waits for the child and reports each test's result as the child
+wrote it (the reports pytest itself serialises, as pytest-xdist sends them):
 passes, failures with their tracebacks, skips and xfails appear as if run here.
 
 The child writes one report per line to the file named in ``TPNET_TEST_LANE`` and runs only the
@@ -20,7 +21,8 @@ import json
 import os
 import subprocess
 import sys
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import background
@@ -74,15 +76,15 @@ class Lane:
         self.future: Future | None = None
         self.status: int | None = None
         self.peak_bytes = 0
+        self.waited_s = 0.0             # how long this process waited for the child's end
         self._reports: dict[str, list[dict]] = {}
 
     def start(self) -> None:
         pool = ThreadPoolExecutor(1, thread_name_prefix="lane")
-        self.future = pool.submit(self._run, list(background.FUTURES.values()))
+        self.future = pool.submit(self._run)
         pool.shutdown(wait=False)
 
-    def _run(self, early: list[Future]) -> None:
-        wait(early)                     # the early jobs first: their tests come sooner
+    def _run(self) -> None:
         ids, out = self.folder / "ids.txt", self.folder / "reports.jsonl"
         ids.write_text("\n".join(self.ids) + "\n")
         env = background.private_cache(self.folder, {**os.environ, REPORTS_ENV: str(out),
@@ -108,7 +110,10 @@ class Lane:
     def reports_for(self, nodeid: str) -> list[dict]:
         """The child's reports of one test (setup, call, teardown), after the child ended;
         empty when it left the test without a teardown's report."""
-        self.future.result()
+        if not self.future.done():
+            t0 = time.perf_counter()
+            self.future.result()
+            self.waited_s += time.perf_counter() - t0
         reports = self._reports.get(nodeid, [])
         return reports if any(r.get("when") == "teardown" for r in reports) else []
 
