@@ -226,11 +226,7 @@ def pytest_terminal_summary(terminalreporter):
         terminalreporter.write_line(f"peak resident memory of the test process: "
                                     f"{_PEAK['bytes'] / 2**30:.2f} GB (guard at {_LIMIT_GB:g} GB)")
     for child in _LANE:
-        ran_here = sum(not child.reports_for(nodeid) for nodeid in child.ids)
-        terminalreporter.write_line(
-            f"second lane: {len(child.ids)} tests in a child pytest (exit status {child.status}, "
-            f"peak resident memory {child.peak_bytes / 2**30:.2f} GB; waited {child.waited_s:.0f} s "
-            "for it)" + (f"; {ran_here} of them ran here instead" if ran_here else ""))
+        terminalreporter.write_line(child.summary())
     if _PEAK["together"]:
         terminalreporter.write_line(f"peak resident memory of the test process and its children "
                                     f"together: {_PEAK['together'] / 2**30:.2f} GB")

@@ -1,19 +1,21 @@
-"""A second lane: the test modules marked ``lane`` run in a child pytest, beside this one.
+"""A second lane: the test modules marked ``lane`` run in child pytests, beside this one.
 
 The suite's test process runs on one core. Much of its time is Numba compiling kernels that only
 some modules use (bf16 and int8 weights, 3-D networks), so those modules
-(``pytestmark = pytest.mark.lane``) run in one child pytest on the second core, with a Numba cache
-of its own. ``tests/conftest.py`` starts it when collection ends, in a thread of its own (the
-early jobs of ``tests/background.py`` start when it ended), and puts the lane's tests after all
-the others but the late ones, and the early jobs' tests just before them; when the test process
-reaches the lane's tests it waits for the child and reports each test's result as the child
-wrote it (the reports pytest itself serialises, as pytest-xdist sends them):
-passes, failures with their tracebacks, skips and xfails appear as if run here.
+(``pytestmark = pytest.mark.lane("group")``) run in child pytests on the second core, one per
+group and one after another, each with a Numba cache of its own (a child holds what it compiled,
+1-1.5 GB: two at once would double that). ``tests/conftest.py`` starts them when collection
+ends, in a thread of their own (the early jobs of ``tests/background.py`` start when they
+ended). It puts the lane's tests after all the others but the late ones, and the early jobs'
+tests just before them. When the test process reaches the lane's tests it waits for the
+children and reports each test's result as its child wrote it (the reports pytest itself
+serialises, as pytest-xdist sends them): passes, failures with their tracebacks, skips and
+xfails appear as if run here.
 
-The child writes one report per line to the file named in ``TPNET_TEST_LANE`` and runs only the
-node ids listed in ``TPNET_TEST_LANE_IDS``. A test the child left without a report (the child
-crashed, or was stopped) runs in this process instead. ``TPNET_TEST_LANE=off`` runs everything
-here; so does a machine of one CPU, or a selection that is all lane or has no lane test.
+A child writes one report per line to the file named in ``TPNET_TEST_LANE`` and runs only the
+node ids listed in ``TPNET_TEST_LANE_IDS``. A test a child left without a report (it crashed, or
+was stopped) runs in this process instead. ``TPNET_TEST_LANE=off`` runs everything here; so does
+a machine of one CPU, or a selection that is all lane or has no lane test.
 """
 from __future__ import annotations
 
@@ -65,19 +67,30 @@ def write_peak(peak_bytes: int) -> None:
         f.write(json.dumps({"lane_peak_bytes": peak_bytes}) + "\n")
 
 
+def group(item) -> str:
+    """The child a ``lane`` test runs in: ``pytest.mark.lane("name")``'s name."""
+    mark = item.get_closest_marker("lane")
+    return mark.args[0] if mark.args else "lane"
+
+
 class Lane:
-    """The child pytest of the ``lane`` tests: started by :meth:`start`, its reports by node id
-    from :meth:`reports_for` once it ended."""
+    """The child pytests of the ``lane`` tests, one per group (:func:`group`), one after another
+    (so that one child's compiled kernels are held at a time): started by :meth:`start`, their
+    reports by node id from :meth:`reports_for` once the last ended."""
 
     def __init__(self, items, rootdir: Path, folder: Path):
         self.ids = [item.nodeid for item in items]
+        self.groups: dict[str, list[str]] = {}
+        for item in items:
+            self.groups.setdefault(group(item), []).append(item.nodeid)
         self.rootdir, self.folder = rootdir, folder
         self.proc: subprocess.Popen | None = None
         self.future: Future | None = None
-        self.status: int | None = None
-        self.peak_bytes = 0
-        self.waited_s = 0.0             # how long this process waited for the child's end
+        self.status: dict[str, int] = {}        # group -> its child's exit status
+        self.peak_bytes = 0                     # the largest child's peak
+        self.waited_s = 0.0             # how long this process waited for the children's end
         self._reports: dict[str, list[dict]] = {}
+        self._stopped = False
 
     def start(self) -> None:
         pool = ThreadPoolExecutor(1, thread_name_prefix="lane")
@@ -85,25 +98,32 @@ class Lane:
         pool.shutdown(wait=False)
 
     def _run(self) -> None:
-        ids, out = self.folder / "ids.txt", self.folder / "reports.jsonl"
-        ids.write_text("\n".join(self.ids) + "\n")
-        env = background.private_cache(self.folder, {**os.environ, REPORTS_ENV: str(out),
-                                                     IDS_ENV: str(ids)})
-        files = sorted({nodeid.split("::")[0] for nodeid in self.ids})
+        for name, nodeids in self.groups.items():
+            if not self._stopped:
+                self._run_child(name, nodeids)
+
+    def _run_child(self, name: str, nodeids: list[str]) -> None:
+        folder = self.folder / name
+        folder.mkdir()
+        ids, out = folder / "ids.txt", folder / "reports.jsonl"
+        ids.write_text("\n".join(nodeids) + "\n")
+        env = background.private_cache(folder, {**os.environ, REPORTS_ENV: str(out),
+                                                IDS_ENV: str(ids)})
+        files = sorted({nodeid.split("::")[0] for nodeid in nodeids})
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *files]
-        with open(self.folder / "output.txt", "w") as log:
+        with open(folder / "output.txt", "w") as log:
             self.proc = subprocess.Popen(cmd, cwd=self.rootdir, env=env, stdout=log,
                                          stderr=subprocess.STDOUT)
             try:
-                self.status = self.proc.wait(timeout=TIMEOUT_S)
+                self.status[name] = self.proc.wait(timeout=TIMEOUT_S)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
-                self.status = self.proc.wait()
+                self.status[name] = self.proc.wait()
         if out.exists():
             for line in out.read_text().splitlines():
                 data = json.loads(line)
                 if "lane_peak_bytes" in data:
-                    self.peak_bytes = data["lane_peak_bytes"]
+                    self.peak_bytes = max(self.peak_bytes, data["lane_peak_bytes"])
                 else:
                     self._reports.setdefault(data["nodeid"], []).append(data)
 
@@ -118,9 +138,19 @@ class Lane:
         return reports if any(r.get("when") == "teardown" for r in reports) else []
 
     def stop(self) -> None:
-        """End the child if it still runs (this process stopped first)."""
+        """End the children (this process stopped first)."""
+        self._stopped = True
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
+
+    def summary(self) -> str:
+        ran_here = sum(not self.reports_for(nodeid) for nodeid in self.ids)
+        return (f"second lane: {len(self.ids)} tests in child pytests one after another ("
+                + ", ".join(f"{name}: {len(ids)} tests, exit status {self.status.get(name)}"
+                            for name, ids in self.groups.items())
+                + f"; the largest child's peak resident memory {self.peak_bytes / 2**30:.2f} GB;"
+                f" this process waited {self.waited_s:.0f} s for them)"
+                + (f"; {ran_here} of them ran here instead" if ran_here else ""))
 
 
 def replay(item, reports: list[dict]) -> None:

@@ -20,7 +20,7 @@ from tpnet_ref.weights.native import seal
 from tpnet_ref.weights.shipped import shipped_weights_path
 
 pytest.importorskip("numba")
-pytestmark = pytest.mark.lane        # run in the second test process (tests/lane.py)
+pytestmark = pytest.mark.lane("fewer-bits")   # in a second test process (tests/lane.py)
 
 
 # --------------------------------------------------------------------------- the rounding

@@ -13,7 +13,7 @@ from tpnet_ref.metrics import DIMS, chamfer_loss, position_error, shape_error
 
 spatial = pytest.importorskip("scipy.spatial")
 cKDTree = spatial.cKDTree
-pytestmark = pytest.mark.lane        # run in the second test process (tests/lane.py)
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
 
 from metrics_helpers import (METHODS, VARIANTS, assert_gradient_is_central_difference,  # noqa: E402,F401
                              kd_error, ref_error, ref_sums)

@@ -38,7 +38,7 @@ from tpnet_ref.model import SPLIT_MIN_BATCH, TPNet, TPNetConfig, init_random, lo
 from tpnet_ref.weights.shipped import REPO_WEIGHTS_DIR
 from ring_helpers import thrown_ball
 
-pytestmark = pytest.mark.lane        # run in the second test process (tests/lane.py)
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
 
 FIX = Path(__file__).parent / "fixtures"
 #: the suite's 3-D network: a small released structure (identity transforms, so that the Numba

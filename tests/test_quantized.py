@@ -26,7 +26,7 @@ from tpnet_ref.weights.native import read_native, seal
 from tpnet_ref.weights.shipped import shipped_weights_path
 
 pytest.importorskip("numba")
-pytestmark = pytest.mark.lane        # run in the second test process (tests/lane.py)
+pytestmark = pytest.mark.lane("fewer-bits")   # in a second test process (tests/lane.py)
 SCHEMES = ["bf16", "int8"]
 #: the largest move of one prediction (world units) from the float32 model's that quantizing
 #: one BiLSTM's matrices alone, or all of them, may cause on the quarter size
