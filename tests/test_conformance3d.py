@@ -26,6 +26,8 @@ from tpnet_ref.conformance.vectors import Vectors, read_conformance_vectors
 from tpnet_ref.engines import reference
 from tpnet_ref.model import TPNet, TPNetConfig, init_random
 
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
+
 CONFIG3D = dataclasses.replace(QUARTER, dim=3, n_out=42)
 #: the float32 tolerance of the export against the float64 reference, world units (the box is 45
 #: wide; float32 rounds 45 to 4e-6, and the measured gaps of tpnet vectors stay below 1e-4)

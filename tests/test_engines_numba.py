@@ -664,7 +664,11 @@ def test_the_tile_plan_follows_the_cpus_vector_registers():
     assert CG.NARROW == (CG.TILE_PLAN == "narrow")
 
 
-@pytest.mark.parametrize("codes", ["float32", "float64", "int8", "bf16", "bf16 planes"])
+_FEWER_BITS = pytest.mark.lane("fewer-bits")     # their kernels compile there (tests/lane.py)
+
+
+@pytest.mark.parametrize("codes", ["float32", "float64"] + [
+    pytest.param(c, marks=_FEWER_BITS) for c in ("int8", "bf16", "bf16 planes")])
 @pytest.mark.parametrize("narrow", [False, True], ids=["wide", "narrow"])
 def test_product_rows_gives_product_s_bits_for_every_row_count(codes, narrow):
     """``numba_tiles.rows_plan`` (the prediction network's tiles for batches), in both register

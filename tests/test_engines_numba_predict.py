@@ -86,6 +86,7 @@ def test_the_compiled_call_gives_the_separate_calls_bits(size, dtype, calls, mon
     assert size != "full" or len(apart) == len(batches)              # the full size's: apart
 
 
+@pytest.mark.lane("fewer-bits")          # their kernels compile there (tests/lane.py)
 @pytest.mark.parametrize("weights", ["int8", "bf16"])
 def test_weights_of_fewer_bits_through_the_compiled_call(weights, calls, monkeypatch):
     model = tpnet_ref.load(size="quarter", weights=weights)

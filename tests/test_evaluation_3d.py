@@ -20,6 +20,8 @@ from tpnet_ref.evaluation import suite3d as S  # noqa: E402
 from tpnet_ref.evaluation.animate3d import animate3d  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
 
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
+
 TINY3D = TPNetConfig(m=4, dim=3, mlp1=(8, 8), mlp2=(8, 16, 16), global_features=8,
                      lstm_units=(8, 8, 8), n_out=42)
 

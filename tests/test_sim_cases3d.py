@@ -15,6 +15,8 @@ from tpnet_ref.sim.cases3d import (TEST_CASES3D, TRAIN_AZIMUTHS_DEG, TRAIN_ELEVA
                                    TRAIN_FORCES3D, TRAIN_POSITIONS3D)
 from tpnet_ref.sim.scene3d import SceneParams3D, check_throw
 
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
+
 FIX = Path(__file__).resolve().parent / "fixtures"
 
 

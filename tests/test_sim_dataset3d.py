@@ -17,6 +17,8 @@ from tpnet_ref.sim.cases3d import TEST_CASES3D, TRAIN_POSITIONS3D  # noqa: E402
 from tpnet_ref.sim.scene import SceneParams  # noqa: E402
 from tpnet_ref.sim.scene3d import SceneParams3D, simulate3d  # noqa: E402
 
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
+
 needs_mujoco = pytest.mark.skipif(importlib.util.find_spec("mujoco") is None,
                                   reason="the 3-D scene needs mujoco: pip install "
                                          "'tpnet-ref[sim3d]'")

@@ -15,6 +15,8 @@ from tpnet_ref.extras import MissingExtraError
 from tpnet_ref.sim import scene3d as S
 from tpnet_ref.sim.scene3d import SceneParams3D, simulate3d
 
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
+
 needs_mujoco = pytest.mark.skipif(importlib.util.find_spec("mujoco") is None,
                                   reason="the 3-D scene needs mujoco: pip install "
                                          "'tpnet-ref[sim3d]'")

@@ -22,6 +22,8 @@ from tpnet_ref import testing  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
 from tpnet_ref.testing import TOLERANCE, PropertyFailure  # noqa: E402
 
+pytestmark = pytest.mark.lane("3-D")   # in a second test process (tests/lane.py)
+
 CONFIG3D = dataclasses.replace(QUARTER, dim=3, n_out=42)
 
 
