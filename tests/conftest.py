@@ -12,8 +12,8 @@
   starts when collection ends, in a background thread, beside the in-process tests.
 - Late tests (``@pytest.mark.late``): tests whose child processes load the kernels this process
   compiled run last, when numba's on-disk cache holds them; before, each child compiled them again.
-- The second lane (``tests/lane.py``): the modules marked ``lane`` run in a child pytest on the
-  second core; their results are reported here.
+- The second lane (``tests/lane.py``): the tests marked ``lane`` run in child pytests on the
+  second core, one per group; their results are reported here.
 - HDF5's file locks are off (``HDF5_USE_FILE_LOCKING``): a child process forked by a background
   thread holds copies of this process's open files until it closes them, and with them the lock
   of a file a test has just written, so the test's next open of it failed now and then (errno 11).
@@ -153,10 +153,9 @@ def pytest_collection_finish(session):
         return Path(tempfile.mkdtemp(prefix=f"{name}-", dir=_EARLY_FOLDER[0]))
     items = session.items
     if lane.wanted(items):
-        mine = [item for item in items if item.get_closest_marker("lane") is None]
-        _LANE.append(lane.Lane([item for item in items if item not in mine],
-                               session.config.rootpath, folder_for("second-lane")))
-        items = mine
+        theirs = [item for item in items if item.get_closest_marker("lane") is not None]
+        _LANE.append(lane.Lane(theirs, session.config.rootpath, folder_for("second-lane")))
+        items = [item for item in items if item.get_closest_marker("lane") is None]
     if _LANE:                           # the lane first: its child runs while this process is
         _LANE[0].start()                # small; the early jobs after it, before their tests
     background.start(items, folder_for, after=_LANE[0].future if _LANE else None)
