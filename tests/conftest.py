@@ -64,11 +64,13 @@ def _tree_rss_bytes() -> int:
                     parent[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
             except (OSError, IndexError, ValueError):    # ended meanwhile
                 pass
-    mine, todo = set(), [os.getpid()]
+    children: dict[int, list[int]] = {}
+    for pid, ppid in parent.items():
+        children.setdefault(ppid, []).append(pid)
+    mine, todo = [], [os.getpid()]
     while todo:
-        pid = todo.pop()
-        mine.add(pid)
-        todo += [p for p, pp in parent.items() if pp == pid and p not in mine]
+        mine.append(todo.pop())
+        todo += children.get(mine[-1], [])
     return sum(_rss_bytes(pid) for pid in mine)
 
 

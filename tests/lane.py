@@ -1,14 +1,14 @@
-"""A second lane: the test modules marked ``lane`` run in child pytests, beside this one.
+"""A second lane: the tests marked ``lane`` run in child pytests, beside this one.
 
 The suite's test process runs on one core. Much of its time is Numba compiling kernels that only
-some modules use (bf16 and int8 weights, 3-D networks), so those modules
-(``pytestmark = pytest.mark.lane("group")``) run in child pytests on the second core, one per
-group and one after another, each with a Numba cache of its own (a child holds what it compiled,
-1-1.5 GB: two at once would double that). ``tests/conftest.py`` starts them when collection
-ends, in a thread of their own (the early jobs of ``tests/background.py`` start when they
-ended). It puts the lane's tests after all the others but the late ones, and the early jobs'
-tests just before them. When the test process reaches the lane's tests it waits for the
-children and reports each test's result as its child wrote it (the reports pytest itself
+some tests use (bf16 and int8 weights, 3-D networks), so those tests (a module's ``pytestmark =
+pytest.mark.lane("group")``, or a test's or a parameter's mark) run in child pytests on the
+second core, one per group and one after another, each with a Numba cache of its own (a child
+holds what it compiled, 1-1.5 GB: two at once would double that). ``tests/conftest.py`` starts
+them when collection ends, in a thread of their own (the early jobs of ``tests/background.py``
+start when they ended). It puts the lane's tests after all the others but the late ones, and the
+early jobs' tests just before them. When the test process reaches the lane's tests it waits for
+the children and reports each test's result as its child wrote it (the reports pytest itself
 serialises, as pytest-xdist sends them): passes, failures with their tracebacks, skips and
 xfails appear as if run here.
 
@@ -41,7 +41,7 @@ def in_child() -> bool:
 def wanted(items) -> bool:
     """Whether this process hands the ``lane`` tests among ``items`` to a child."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    if os.environ.get(REPORTS_ENV) == "off" or in_child() or (cpus or 1) < 2:
+    if REPORTS_ENV in os.environ or (cpus or 1) < 2:      # "off", or this is a child
         return False
     marked = sum(item.get_closest_marker("lane") is not None for item in items)
     return 0 < marked < len(items)
@@ -80,7 +80,6 @@ class Lane:
     reports by node id from :meth:`reports_for` once the last ended."""
 
     def __init__(self, items, rootdir: Path, folder: Path):
-        self.ids = [item.nodeid for item in items]
         self.groups: dict[str, list[str]] = {}
         for item in items:
             self.groups.setdefault(group(item), []).append(item.nodeid)
@@ -145,8 +144,9 @@ class Lane:
             self.proc.kill()
 
     def summary(self) -> str:
-        ran_here = sum(not self.reports_for(nodeid) for nodeid in self.ids)
-        return (f"second lane: {len(self.ids)} tests in child pytests one after another ("
+        ids = [nodeid for nodeids in self.groups.values() for nodeid in nodeids]
+        ran_here = sum(not self.reports_for(nodeid) for nodeid in ids)
+        return (f"second lane: {len(ids)} tests in child pytests one after another ("
                 + ", ".join(f"{name}: {len(ids)} tests, exit status {self.status.get(name)}"
                             for name, ids in self.groups.items())
                 + f"; the largest child's peak resident memory {self.peak_bytes / 2**30:.2f} GB;"
