@@ -12,12 +12,14 @@ A job gets a fresh folder of its own and nothing else (no fixtures: they are the
 It must not share a Numba cache with the test process: two processes compiling different
 signatures of one function into one cache can give both the same cache file name (numba's
 ``IndexDataCacheFile.save``), so a job's child processes set ``NUMBA_CACHE_DIR`` under that
-folder (:func:`private_cache`). The jobs run one at a time, so the session holds at most one
-more process tree than before.
+folder (:func:`private_cache`, or :func:`seeded_cache` to start from a copy of this
+process's). The jobs run one at a time, so the session holds at most one more process tree
+than before.
 """
 from __future__ import annotations
 
 import os
+import shutil
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import Callable
@@ -40,6 +42,42 @@ def early(job: Job):
 def private_cache(folder: Path, env: dict | None = None) -> dict:
     """``env`` (default: this process's) with ``NUMBA_CACHE_DIR`` in ``folder``."""
     return {**(os.environ if env is None else env), "NUMBA_CACHE_DIR": str(folder / "numba-cache")}
+
+
+def seeded_cache(folder: Path, env: dict | None = None) -> dict:
+    """:func:`private_cache`, holding a copy of the package's kernels in this process's Numba
+    cache as it is now: a child loads what this process compiled before it started instead of
+    compiling it again (a copy, not a share: the two then write to caches of their own)."""
+    env = private_cache(folder, env)
+    copy_numba_cache(Path(env["NUMBA_CACHE_DIR"]))
+    return env
+
+
+def copy_numba_cache(dest: Path) -> int:
+    """Copy the index and data files of this process's Numba cache for ``tpnet_ref``'s modules
+    (``NUMBA_CACHE_DIR``'s, or the package's ``__pycache__`` folders) into the cache folder
+    ``dest``, laid out as numba lays out a ``NUMBA_CACHE_DIR``; returns how many files. A file
+    written meanwhile is copied whole or not at all (numba replaces its files atomically); an
+    index naming a data file not copied makes numba compile that signature again."""
+    from numba.core.caching import UserProvidedCacheLocator
+    import tpnet_ref
+    own = os.environ.get("NUMBA_CACHE_DIR")
+    copied = 0
+    for init in Path(tpnet_ref.__file__).parent.rglob("__init__.py"):
+        sub = UserProvidedCacheLocator.get_suitable_cache_subpath(str(init))
+        src = Path(own) / sub if own else init.parent / "__pycache__"
+        if not src.is_dir():
+            continue
+        names = sorted(src.glob("*.nbi")) + sorted(src.glob("*.nbc"))   # indexes first
+        if names:
+            (dest / sub).mkdir(parents=True, exist_ok=True)
+        for path in names:
+            try:
+                shutil.copy2(path, dest / sub / path.name)
+                copied += 1
+            except FileNotFoundError:
+                pass
+    return copied
 
 
 def start(items, folder_for: Callable[[str], Path], after: Future | None = None) -> int:

@@ -3,8 +3,10 @@
 The suite's test process runs on one core. Much of its time is Numba compiling kernels that only
 some tests use (bf16 and int8 weights, 3-D networks), so those tests (a module's ``pytestmark =
 pytest.mark.lane("group")``, or a test's or a parameter's mark) run in child pytests on the
-second core, one per group and one after another, each with a Numba cache of its own (a child
-holds what it compiled, 1-1.5 GB: two at once would double that). ``tests/conftest.py`` starts
+second core, one per group and one after another (a child holds what it compiled, 1-1.5 GB:
+two at once would double that), each with a Numba cache of its own that starts as a copy of
+this process's (``background.seeded_cache``: what this process compiled before the child
+started, the child loads). ``tests/conftest.py`` starts
 them when collection ends, in a thread of their own (the early jobs of ``tests/background.py``
 start when they ended). It puts the lane's tests after all the others but the late ones, and the
 early jobs' tests just before them. When the test process reaches the lane's tests it waits for
@@ -107,7 +109,7 @@ class Lane:
         folder.mkdir()
         ids, out = folder / "ids.txt", folder / "reports.jsonl"
         ids.write_text("\n".join(nodeids) + "\n")
-        env = background.private_cache(folder, {**os.environ, REPORTS_ENV: str(out),
+        env = background.seeded_cache(folder, {**os.environ, REPORTS_ENV: str(out),
                                                 IDS_ENV: str(ids)})
         files = sorted({nodeid.split("::")[0] for nodeid in nodeids})
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *files]

@@ -20,7 +20,7 @@ from tpnet_ref.extras import MissingExtraError  # noqa: E402
 from tpnet_ref.model import init_random  # noqa: E402
 from background import early, private_cache  # noqa: E402
 
-SMALL = TPNetConfig(m=3, n_out=5, mlp1=(8, 8), mlp2=(8, 16), global_features=12,
+SMALL = TPNetConfig(m=3, n_out=5, mlp1=(8, 8), mlp2=(8, 8, 16), global_features=12,
                     lstm_units=(6, 5, 7), input_tnet_mlp=(4, 6), input_tnet_fc=(5,),
                     feature_tnet_mlp=(6,), feature_tnet_fc=(5,))
 

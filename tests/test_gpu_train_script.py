@@ -25,14 +25,14 @@ pytest.importorskip("torch")
 pytest.importorskip("pymunk")
 
 import tpnet_ref  # noqa: E402
-from background import early, private_cache  # noqa: E402
+from background import early, seeded_cache  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPT = REPO / "tools" / "gpu_train.sh"
 
 
 def _call(work: Path, *args: str, **env: str) -> str:
-    e = {**private_cache(work.parent), "WORK": str(work), "PY": sys.executable, "NAME": "ci",
+    e = {**seeded_cache(work.parent), "WORK": str(work), "PY": sys.executable, "NAME": "ci",
          "M": "4", "SIZE": "tiny", "INIT": "", "BUDGET": "", "BATCH": "8", "LR": "3e-3",
          "MATCH": "4", "WORKERS": "1", "THREADS": "1", "COMPILE": "eager", "OPTIM": "none",
          "DATA_ARGS": "--forces 1.3 --angles 200 245 --positions 2 --steps 100 --whole 0",
@@ -147,7 +147,7 @@ def _in_pieces(tmp_path: Path) -> None:
     assert len(backs) >= 2
     state = json.loads((work / ".gpu" / "ci" / "checkpoint.json").read_text())
     shutil.rmtree(work / ".gpu")                        # the machine went back
-    e = {**private_cache(tmp_path), "WORK": str(work), "PY": sys.executable, "NAME": "ci"}
+    e = {**seeded_cache(tmp_path), "WORK": str(work), "PY": sys.executable, "NAME": "ci"}
     bad = subprocess.run(["bash", str(SCRIPT), "collect", str(backs[0])], env=e,
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "did not come back" in bad.stderr

@@ -171,7 +171,9 @@ def features_parallel(pts, starts, counts, w0, b0, ws, bs, gw, gb, zero, out):
                          act)
     _max_into(pools[0, 0], pools[1, 0], cl)
     g = np.empty((TILE_ROWS, gw.shape[1]), dtype=pts.dtype)
-    _finish_frames(pools[0], 1, bs[nl - 1], gw, gb, zero, out, 0, np.empty(cl, dtype=np.intp), g)
+    # np.int64, not constants: a literal type would compile the callees once more
+    _finish_frames(pools[0], np.int64(1), bs[nl - 1], gw, gb, zero, out, np.int64(0),
+                   np.empty(cl, dtype=np.intp), g)
 
 
 __all__ = ["FEATURE_CHUNK", "frame_range", "features_parallel"]

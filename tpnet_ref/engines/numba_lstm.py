@@ -330,7 +330,9 @@ def _head_impl(parallel: bool):
     function that calls a ``parallel=True`` one is what numba cannot cache safely (numba
     issues 4807 and 10128: the caller can name the callee's code otherwise than the cached
     callee does, and a later process crashed once networks of two depths had been compiled).
-    Here no compiled function calls a parallel one."""
+    Here no compiled function calls a parallel one. The direction goes on as ``np.int64(d)``:
+    a parallel ``prange``'s index is unsigned, and the callees would be compiled once more for
+    it."""
 
     def head(xp1, kernels, recs, kscs, rscs, gks, csts, units, gammas, betas, head_w, head_b,
              steps, bsz, relu, one, eps, limit):
@@ -351,7 +353,7 @@ def _head_impl(parallel: bool):
             hs = np.empty((rows, 2 * u), dtype=dt)
             kern, gk, cst = kernels[li], gks[li], csts[li]
             for d in prange(2):                             # range where not parallel
-                _layer_dir(d, x, kern, kscs[li], gk, cst, rr, rmu, xs, rec, rscs[li], hs, u,
+                _layer_dir(np.int64(d), x, kern, kscs[li], gk, cst, rr, rmu, xs, rec, rscs[li], hs, u,
                            steps, bsz, relu, one)
             if li < nl - 1:
                 x = np.empty((rows, 2 * u), dtype=dt)
@@ -406,7 +408,7 @@ def project_serial(x, kernel, ksc, bias, out, steps, bsz):
 def project_parallel(x, kernel, ksc, bias, out, steps, bsz):
     """:func:`project_serial`, the directions on two threads."""
     for d in prange(2):
-        _project_one(d, x, kernel, ksc, bias, out, steps, bsz)
+        _project_one(np.int64(d), x, kernel, ksc, bias, out, steps, bsz)
 
 
 __all__ = ["head_serial", "head_parallel", "project_serial", "project_parallel"]

@@ -52,7 +52,8 @@ def network_steps(pts, counts, m, batch, order, kernels, recs, kscs, rscs, gks, 
     if feats.shape[0] == 0:
         starts = _frame_starts(counts, nf)
         g = np.empty((nf, gw.shape[1]), dtype=out.dtype)
-        frame_range(pts, starts, counts, 0, nf, w0, b0, ws, bs, gw, gb, zero, g)
+        # np.int64(0), not 0: a constant is a literal type, and frame_range compiled once more
+        frame_range(pts, starts, counts, np.int64(0), nf, w0, b0, ws, bs, gw, gb, zero, g)
     x = np.empty((nf, k), dtype=out.dtype)              # time-major rows, the head's order
     for t in range(m):
         for b in range(batch):
@@ -153,13 +154,10 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: b
     dt = model.dtype
     fx, const, key, calls = _constants(head, fx, dt)
     out = np.empty((batch, c.n_out, c.dim), dtype=dt)
-    pf, cf = points.flags, counts.flags
-    if points.dtype != dt or not pf.c_contiguous:
-        points = np.ascontiguousarray(points, dtype=dt)
-        pf = points.flags
-    if counts.dtype != np.intp or not cf.c_contiguous:
-        counts = np.ascontiguousarray(counts, dtype=np.intp)
-        cf = counts.flags
+    # one numba type whatever the caller's arrays: a read-only or unaligned array is copied
+    # (each of those flags would compile the kernels once more)
+    points = _plain(points, dt)
+    counts = _plain(counts, np.intp)
     normalized = bool(normalized)
     args = (points, counts, c.m, int(batch), *const, normalized, model._lo, model._scale,
             _NO_FEATURES[dt], out.reshape(batch, -1))
@@ -167,7 +165,7 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: b
     if not may_compile(network_steps, key, _MEMO, args):
         return None
     # the numba types of the arguments that change (the rest: the head's, the model's, fixed)
-    types = (normalized, pf.writeable, pf.aligned, cf.writeable, cf.aligned)
+    types = (normalized,)
     if not two:
         bad = _call(calls, network_steps, types, args)
     elif take(available(network_parallel, _MEMO, args, ("two",) + key)):
@@ -182,6 +180,14 @@ def run(model, points: np.ndarray, counts: np.ndarray, batch: int, normalized: b
     if bad < 0:
         raise overflow_error(head.dtype, "the output layer")
     return out
+
+
+def _plain(a: np.ndarray, dtype) -> np.ndarray:
+    """``a`` as a C-contiguous, writeable, aligned array of ``dtype`` (a copy where it is not)."""
+    f = a.flags
+    if a.dtype == dtype and f.c_contiguous and f.writeable and f.aligned:
+        return a
+    return np.array(a, dtype=dtype, order="C")
 
 
 class Network:

@@ -62,12 +62,13 @@ def rollout_steps(feats, buf, first, s0, steps, m, batch, order, kernels, recs, 
         if s + 1 == steps:
             break
         sort_frames(y.reshape(batch * n_out, dim), n_out, pts)
-        frame_range(pts, starts, counts, 0, batch, w0, b0, ws, bs, gw, gb, zero, g)
+        # np.int64, not a constant: a literal type would compile the callee once more
+        frame_range(pts, starts, counts, np.int64(0), batch, w0, b0, ws, bs, gw, gb, zero, g)
         for b in range(batch):
             for j in range(k):
                 feats[b, m + s, j] = g[b, j]
                 x[b, j] = g[b, order[j]]
-        project_serial(x, kern1, ksc1, cst1, proj, 1, batch)
+        project_serial(x, kern1, ksc1, cst1, proj, np.int64(1), batch)
         if first + m == buf.shape[0]:
             buf[:m - 1] = buf[first + 1:]
             first = -1
