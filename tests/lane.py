@@ -89,6 +89,7 @@ class Lane:
         self.proc: subprocess.Popen | None = None
         self.future: Future | None = None
         self.status: dict[str, int] = {}        # group -> its child's exit status
+        self.took: dict[str, float] = {}        # group -> its child's wall-clock seconds
         self.peak_bytes = 0                     # the largest child's peak
         self.waited_s = 0.0             # how long this process waited for the children's end
         self._reports: dict[str, list[dict]] = {}
@@ -113,6 +114,7 @@ class Lane:
                                                 IDS_ENV: str(ids)})
         files = sorted({nodeid.split("::")[0] for nodeid in nodeids})
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *files]
+        t0 = time.perf_counter()
         with open(folder / "output.txt", "w") as log:
             self.proc = subprocess.Popen(cmd, cwd=self.rootdir, env=env, stdout=log,
                                          stderr=subprocess.STDOUT)
@@ -121,6 +123,7 @@ class Lane:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.status[name] = self.proc.wait()
+        self.took[name] = time.perf_counter() - t0
         if out.exists():
             for line in out.read_text().splitlines():
                 data = json.loads(line)
@@ -149,8 +152,8 @@ class Lane:
         ids = [nodeid for nodeids in self.groups.values() for nodeid in nodeids]
         ran_here = sum(not self.reports_for(nodeid) for nodeid in ids)
         return (f"second lane: {len(ids)} tests in child pytests one after another ("
-                + ", ".join(f"{name}: {len(ids)} tests, exit status {self.status.get(name)}"
-                            for name, ids in self.groups.items())
+                + ", ".join(f"{name}: {len(ids)} tests in {self.took.get(name, 0):.0f} s, exit"
+                            f" status {self.status.get(name)}" for name, ids in self.groups.items())
                 + f"; the largest child's peak resident memory {self.peak_bytes / 2**30:.2f} GB;"
                 f" this process waited {self.waited_s:.0f} s for them)"
                 + (f"; {ran_here} of them ran here instead" if ran_here else ""))

@@ -19,6 +19,9 @@ import tpnet_ref
 from tpnet_ref import testing
 from tpnet_ref.testing import TOLERANCE, PropertyFailure
 
+# in a second test process (tests/lane.py), from a copy of the kernels this one compiled first
+pytestmark = pytest.mark.lane("testing kit")
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
