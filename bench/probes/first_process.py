@@ -7,7 +7,8 @@ Runs, in this process, with an empty ``NUMBA_CACHE_DIR`` of its own (a first run
 installing; the package's own cache is not touched): ``load``, three ``predict`` calls of the
 example window, one ``predict_batch`` of 8 windows and one ``rollout`` of 80 steps. Prints each
 call's seconds and how many signatures of ``tpnet_ref``'s kernels numba compiled in it (a kernel
-compiled for two argument types counts twice; ``--list`` names each with its argument types).
+compiled for two argument types counts twice; ``--list`` names each with its argument types and
+its own seconds, those of the kernels it compiled inside it left out).
 Two callers that give one kernel arguments of different numba types (a literal constant, an
 unsigned index, a read-only array) compile it twice: the list shows where.
 """
@@ -32,19 +33,24 @@ def main() -> None:
     from numba.core import event
 
     compiled: list[str] = []
+    stack: list[list[float]] = []                      # [start, seconds of nested compiles]
 
     class Listener(event.Listener):
         def on_start(self, ev):
-            pass
+            stack.append([time.perf_counter(), 0.0])
 
         def on_end(self, ev):
+            t0, inner = stack.pop()
+            took = time.perf_counter() - t0
+            if stack:
+                stack[-1][1] += took
             data = ev.data if isinstance(ev.data, dict) else {}
             fn = getattr(data.get("dispatcher"), "py_func", None)
             if fn is not None and fn.__module__.startswith("tpnet_ref"):
                 types = re.sub(r"Array\((\w+), (\d), '(\w)', (\w+), aligned=True\)",
                                lambda m: f"{m[1]}[{m[2]}{m[3]}{', readonly' * (m[4] == 'True')}]",
                                str(data.get("args")))
-                compiled.append(f"{fn.__module__}.{fn.__name__} {types}")
+                compiled.append(f"{took - inner:5.2f} s {fn.__module__}.{fn.__name__} {types}")
 
     event.register("numba:compile", Listener())
     import numpy as np
