@@ -20,7 +20,10 @@ import time
 _STACK: list[list[float]] = []
 
 
-def _install(path: str) -> None:
+def listen(on_compile) -> None:
+    """Call ``on_compile(own_s, total_s, fn, args)`` at the end of every numba compile in this
+    process: its seconds without and with the compiles it triggered inside, the Python function
+    compiled (None if numba names none) and its argument types."""
     from numba.core import event
 
     class Listener(event.Listener):
@@ -33,14 +36,21 @@ def _install(path: str) -> None:
             if _STACK:
                 _STACK[-1][1] += took
             data = ev.data if isinstance(ev.data, dict) else {}
-            fn = getattr(data.get("dispatcher"), "py_func", None)
-            row = [round(took - inner, 4), round(took, 4), getattr(fn, "__module__", "?"),
-                   getattr(fn, "__qualname__", "?"), str(data.get("args")),
-                   os.environ.get("PYTEST_CURRENT_TEST", "").rsplit(" (", 1)[0]]
-            with open(path, "a") as f:
-                f.write(json.dumps(row) + "\n")
+            on_compile(took - inner, took, getattr(data.get("dispatcher"), "py_func", None),
+                       data.get("args"))
 
     event.register("numba:compile", Listener())
+
+
+def _install(path: str) -> None:
+    def write(own, took, fn, args):
+        row = [round(own, 4), round(took, 4), getattr(fn, "__module__", "?"),
+               getattr(fn, "__qualname__", "?"), str(args),
+               os.environ.get("PYTEST_CURRENT_TEST", "").rsplit(" (", 1)[0]]
+        with open(path, "a") as f:
+            f.write(json.dumps(row) + "\n")
+
+    listen(write)
 
 
 def pytest_configure(config):

@@ -1,7 +1,7 @@
 """What a library user's first process compiles: every call of a first session, its seconds and
 the kernel signatures numba compiles for it.
 
-    python bench/probes/first_process.py [--size full|half|quarter] [--list]
+    PYTHONPATH=tools python bench/probes/first_process.py [--size full|half|quarter] [--list]
 
 Runs, in this process, with an empty ``NUMBA_CACHE_DIR`` of its own (a first run after
 installing; the package's own cache is not touched): ``load``, three ``predict`` calls of the
@@ -30,29 +30,18 @@ def main() -> None:
     cache = tempfile.TemporaryDirectory(prefix="tpnet-first-process-")
     os.environ["NUMBA_CACHE_DIR"] = cache.name          # before numba is imported
     t_start = time.perf_counter()
-    from numba.core import event
+    from numba_compile_log import listen                # tools/numba_compile_log.py
 
     compiled: list[str] = []
-    stack: list[list[float]] = []                      # [start, seconds of nested compiles]
 
-    class Listener(event.Listener):
-        def on_start(self, ev):
-            stack.append([time.perf_counter(), 0.0])
+    def note(own, took, fn, args):
+        if fn is not None and fn.__module__.startswith("tpnet_ref"):
+            types = re.sub(r"Array\((\w+), (\d), '(\w)', (\w+), aligned=True\)",
+                           lambda m: f"{m[1]}[{m[2]}{m[3]}{', readonly' * (m[4] == 'True')}]",
+                           str(args))
+            compiled.append(f"{own:5.2f} s {fn.__module__}.{fn.__name__} {types}")
 
-        def on_end(self, ev):
-            t0, inner = stack.pop()
-            took = time.perf_counter() - t0
-            if stack:
-                stack[-1][1] += took
-            data = ev.data if isinstance(ev.data, dict) else {}
-            fn = getattr(data.get("dispatcher"), "py_func", None)
-            if fn is not None and fn.__module__.startswith("tpnet_ref"):
-                types = re.sub(r"Array\((\w+), (\d), '(\w)', (\w+), aligned=True\)",
-                               lambda m: f"{m[1]}[{m[2]}{m[3]}{', readonly' * (m[4] == 'True')}]",
-                               str(data.get("args")))
-                compiled.append(f"{took - inner:5.2f} s {fn.__module__}.{fn.__name__} {types}")
-
-    event.register("numba:compile", Listener())
+    listen(note)
     import numpy as np
 
     import tpnet_ref as t
