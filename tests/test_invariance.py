@@ -181,10 +181,14 @@ def test_the_sort_hides_network_mutants(impl, monkeypatch, mutant):
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("name", NETWORKS)
 def test_frame_order_and_one_point_change_the_output(impl, name, dtype):
+    """Fixed draws (``seed``): these check the checks on a random network, which may well ignore
+    one moved point of some window (a fresh draw in CI once found such a window for the 3-D
+    network of tests/test_testing3d.py, its output unchanged to the bit)."""
     fn, tol = network(impl, name, dtype), TOLERANCE[dtype]
     moving = testing.windows(m=[2, 4], step=(0.5, 2.0))
-    assert testing.frame_order_matters(fn, moving, tol=tol, max_examples=10) > tol
-    assert testing.one_point_matters(fn, testing.windows(m=MS), tol=tol, max_examples=10) > tol
+    assert testing.frame_order_matters(fn, moving, tol=tol, max_examples=10, seed=0) > tol
+    assert testing.one_point_matters(fn, testing.windows(m=MS), tol=tol, max_examples=10,
+                                     seed=0) > tol
 
 
 def test_non_vacuity_checks_catch_functions_that_ignore_time_or_points():

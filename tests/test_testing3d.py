@@ -163,11 +163,13 @@ def test_the_unmutated_3d_engine_passes_the_same_run(impl):
 
 # ------------------------------------------------------------------ the other checks
 def test_non_vacuity_and_reference_agreement_on_3d_windows(impl):
+    """Fixed draws, as tests/test_invariance.py's non-vacuity test (a fresh draw once found a
+    window whose moved point left this random network's output unchanged)."""
     fn, tol = network(impl, "reference", "float64"), TOLERANCE["float64"]
     moving = testing.windows(m=[2, 4], step=(0.5, 2.0), dim=3)
-    assert testing.frame_order_matters(fn, moving, tol=tol, max_examples=8) > tol
+    assert testing.frame_order_matters(fn, moving, tol=tol, max_examples=8, seed=0) > tol
     assert testing.one_point_matters(fn, testing.windows(m=MS, dim=3), tol=tol,
-                                     max_examples=8) > tol
+                                     max_examples=8, seed=0) > tol
     # agrees_with_reference draws windows of the model's dim when none are given
     model = init_random(CONFIG3D, seed=21)
     f32 = impl.reference("float32")
