@@ -26,7 +26,7 @@ import os
 import subprocess
 import sys
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
 import background
@@ -95,12 +95,15 @@ class Lane:
         self._reports: dict[str, list[dict]] = {}
         self._stopped = False
 
-    def start(self) -> None:
+    def start(self, after: Future | None = None) -> None:
+        """Run the children in a thread of their own, once ``after`` (if any) is done."""
         pool = ThreadPoolExecutor(1, thread_name_prefix="lane")
-        self.future = pool.submit(self._run)
+        self.future = pool.submit(self._run, after)
         pool.shutdown(wait=False)
 
-    def _run(self) -> None:
+    def _run(self, after: Future | None) -> None:
+        if after is not None:
+            wait([after])
         for name, nodeids in self.groups.items():
             if not self._stopped:
                 self._run_child(name, nodeids)
