@@ -33,13 +33,10 @@ FUTURES: dict[str, Future] = {}
 _POOL: list[ThreadPoolExecutor] = []
 
 
-def early(job: Job, empty_cache: bool = False):
+def early(job: Job):
     """Mark a test whose work is ``job(folder)``: started when the session starts; the test
-    reads the job's return value from the ``early_result`` fixture. ``empty_cache``: the job
-    compiles in an empty Numba cache of its own (what it tests), so it runs first, before the
-    second lane's children (which start from a copy of the test process's cache: the later
-    they start, the more of it they load); the other jobs run after the children."""
-    return pytest.mark.early.with_args(job, first=empty_cache)
+    reads the job's return value from the ``early_result`` fixture."""
+    return pytest.mark.early.with_args(job)    # a lone callable would be decorated instead
 
 
 def private_cache(folder: Path, env: dict | None = None) -> dict:
@@ -83,24 +80,20 @@ def copy_numba_cache(dest: Path) -> int:
     return copied
 
 
-def start(items, folder_for: Callable[[str], Path], after: Future | None = None,
-          first: bool = False) -> Future | None:
-    """Submit the job of every item marked :func:`early` with ``empty_cache`` equal to
-    ``first``, in the items' order, once ``after`` (the jobs before, or the second lane's run,
-    ``tests/lane.py``) ended; returns a future done when they all ended (``after`` itself when
-    there are none)."""
+def start(items, folder_for: Callable[[str], Path], after: Future | None = None) -> int:
+    """Submit the job of every item marked :func:`early`, in the items' order, once ``after``
+    (the second lane's run, ``tests/lane.py``) ended; returns how many."""
     jobs = [(item.nodeid, m.args[0]) for item in items
-            if (m := item.get_closest_marker("early")) is not None
-            and m.kwargs.get("first", False) == first]
+            if (m := item.get_closest_marker("early")) is not None]
     if not jobs:
-        return after
+        return 0
     pool = ThreadPoolExecutor(1, thread_name_prefix="early-job")
     _POOL.append(pool)
     if after is not None:
         pool.submit(wait, [after])
     for nodeid, job in jobs:
         FUTURES[nodeid] = pool.submit(job, folder_for(nodeid))
-    return pool.submit(lambda: None)                  # done after the last job
+    return len(jobs)
 
 
 def stop() -> None:

@@ -158,14 +158,9 @@ def pytest_collection_finish(session):
         theirs = [item for item in items if item.get_closest_marker("lane") is not None]
         _LANE.append(lane.Lane(theirs, session.config.rootpath, folder_for("second-lane")))
         items = [item for item in items if item.get_closest_marker("lane") is None]
-    # on the second core, one after another: the early jobs that compile in an empty cache of
-    # their own, then the lane's children (from a copy of this process's cache, by then holding
-    # the kernels its first tests compiled), then the other early jobs (before their tests)
-    before = background.start(items, folder_for, first=True)
-    if _LANE:
-        _LANE[0].start(after=before)
-        before = _LANE[0].future
-    background.start(items, folder_for, after=before)
+    if _LANE:                           # the lane first: its child runs while this process is
+        _LANE[0].start()                # small; the early jobs after it, before their tests
+    background.start(items, folder_for, after=_LANE[0].future if _LANE else None)
 
 
 def pytest_sessionfinish(session, exitstatus):

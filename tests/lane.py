@@ -26,7 +26,7 @@ import os
 import subprocess
 import sys
 import time
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import background
@@ -95,15 +95,12 @@ class Lane:
         self._reports: dict[str, list[dict]] = {}
         self._stopped = False
 
-    def start(self, after: Future | None = None) -> None:
-        """Run the children in a thread of their own, once ``after`` (if any) is done."""
+    def start(self) -> None:
         pool = ThreadPoolExecutor(1, thread_name_prefix="lane")
-        self.future = pool.submit(self._run, after)
+        self.future = pool.submit(self._run)
         pool.shutdown(wait=False)
 
-    def _run(self, after: Future | None) -> None:
-        if after is not None:
-            wait([after])
+    def _run(self) -> None:
         for name, nodeids in self.groups.items():
             if not self._stopped:
                 self._run_child(name, nodeids)

@@ -121,7 +121,7 @@ def _first_and_later_runs(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-@early(_first_and_later_runs, empty_cache=True)
+@early(_first_and_later_runs)
 def test_first_run_says_it_compiles_and_gives_the_bits_of_a_later_run(early_result):
     """An empty NUMBA_CACHE_DIR is a first run after install: ``tpnet predict`` on the Numba
     engine announces the compilation and times it, and writes the bits that the next run, which

@@ -468,7 +468,7 @@ def _serial_then_parallel(tmp_path: Path) -> None:
     assert out.stdout.strip() in ("omp", "tbb", "workqueue")
 
 
-@early(_serial_then_parallel, empty_cache=True)   # a child compiling in a cache of its own
+@early(_serial_then_parallel)            # a child process compiling in a cache of its own
 def test_parallel_kernels_run_on_threads_after_a_cached_serial_compile(early_result):
     """The serial and parallel kernels cached apart (``_serial_then_parallel``)."""
 
@@ -570,7 +570,7 @@ def _three_processes(tmp_path: Path) -> list[str]:
     return got
 
 
-@early(_three_processes, empty_cache=True)
+@early(_three_processes)
 def test_numbas_cache_serves_networks_of_any_depth_in_later_processes(early_result):
     """Numba caches each compiled kernel on disk. A cached kernel that called a parallel one
     crashed the next process (numba issues 4807, 10128) once networks of two depths had been

@@ -8,7 +8,6 @@ import re
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -28,8 +27,8 @@ def test_late_tests_run_after_all_the_others(request):
 class _Item:
     """What ``background.start`` reads of a collected test: its id and its markers."""
 
-    def __init__(self, nodeid, job, empty_cache=False):
-        self.nodeid, self._mark = nodeid, background.early(job, empty_cache).mark
+    def __init__(self, nodeid, job):
+        self.nodeid, self._mark = nodeid, background.early(job).mark
 
     def get_closest_marker(self, name):
         return self._mark if name == "early" else None
@@ -48,31 +47,12 @@ def test_an_early_job_runs_in_its_own_folder_and_its_failure_reaches_the_test(tm
         d.mkdir()
         return d
 
-    done = background.start([_Item("t::writes", writes), _Item("t::fails", fails)], folder_for)
-    assert done.result(timeout=60) is None                   # done once both ended
-    assert background.FUTURES["t::fails"].done()
+    assert background.start([_Item("t::writes", writes), _Item("t::fails", fails)],
+                            folder_for) == 2
     folder = background.FUTURES["t::writes"].result(timeout=60)
     assert folder == tmp_path / "t-writes" and (folder / "out.txt").read_text() == "done"
     with pytest.raises(AssertionError, match="the job's own message"):
         background.FUTURES["t::fails"].result(timeout=60)
-
-
-def test_the_empty_cache_jobs_run_first_and_the_others_after_what_they_are_given(tmp_path):
-    order = []
-
-    def job(name, pause):
-        def run(folder):
-            time.sleep(pause)
-            order.append(name)
-        return run
-
-    items = [_Item("t::later", job("later", 0.0)), _Item("t::first", job("first", 0.3), True)]
-    folders = iter(range(10))
-    first = background.start(items, lambda nodeid: tmp_path / str(next(folders)), first=True)
-    rest = background.start(items, lambda nodeid: tmp_path / str(next(folders)), after=first)
-    rest.result(timeout=60)
-    assert order == ["first", "later"]
-    assert background.start([], lambda nodeid: tmp_path, after=rest) is rest   # none: after
 
 
 def _job(folder):
