@@ -53,16 +53,15 @@ def seeded_cache(folder: Path, env: dict | None = None) -> dict:
     return env
 
 
-def copy_numba_cache(dest: Path) -> int:
+def copy_numba_cache(dest: Path) -> None:
     """Copy the index and data files of this process's Numba cache for ``tpnet_ref``'s modules
     (``NUMBA_CACHE_DIR``'s, or the package's ``__pycache__`` folders) into the cache folder
-    ``dest``, laid out as numba lays out a ``NUMBA_CACHE_DIR``; returns how many files. A file
+    ``dest``, laid out as numba lays out a ``NUMBA_CACHE_DIR``. A file
     written meanwhile is copied whole or not at all (numba replaces its files atomically); an
     index naming a data file not copied makes numba compile that signature again."""
     from numba.core.caching import UserProvidedCacheLocator
     import tpnet_ref
     own = os.environ.get("NUMBA_CACHE_DIR")
-    copied = 0
     for init in Path(tpnet_ref.__file__).parent.rglob("__init__.py"):
         sub = UserProvidedCacheLocator.get_suitable_cache_subpath(str(init))
         src = Path(own) / sub if own else init.parent / "__pycache__"
@@ -74,10 +73,8 @@ def copy_numba_cache(dest: Path) -> int:
         for path in names:
             try:
                 shutil.copy2(path, dest / sub / path.name)
-                copied += 1
-            except FileNotFoundError:
+            except FileNotFoundError:                   # replaced meanwhile
                 pass
-    return copied
 
 
 def start(items, folder_for: Callable[[str], Path], after: Future | None = None) -> int:

@@ -149,9 +149,9 @@ class Lane:
             self.proc.kill()
 
     def summary(self) -> str:
-        ids = [nodeid for nodeids in self.groups.values() for nodeid in nodeids]
-        ran_here = sum(not self.reports_for(nodeid) for nodeid in ids)
-        return (f"second lane: {len(ids)} tests in child pytests one after another ("
+        every = [nodeid for nodeids in self.groups.values() for nodeid in nodeids]
+        ran_here = sum(not self.reports_for(nodeid) for nodeid in every)
+        return (f"second lane: {len(every)} tests in child pytests one after another ("
                 + ", ".join(f"{name}: {len(ids)} tests in {self.took.get(name, 0):.0f} s, exit"
                             f" status {self.status.get(name)}" for name, ids in self.groups.items())
                 + f"; the largest child's peak resident memory {self.peak_bytes / 2**30:.2f} GB;"

@@ -46,31 +46,26 @@ def main() -> None:
 
     import tpnet_ref as t
 
-    window = t.example_window()
-    steps = [("load", lambda: t.load(size=args.size))]
-    model = None
-    print(f"first process, {args.size} size, empty numba cache ({sys.executable})")
-    total = 0
-    for name, call in steps + [
-            ("predict (1st)", lambda: t.predict(window, model=model)),
-            ("predict (2nd)", lambda: t.predict(window, model=model)),
-            ("predict (3rd)", lambda: t.predict(window, model=model)),
-            ("predict_batch (8 windows)", lambda: t.predict_batch(np.stack([window] * 8),
-                                                                  model=model)),
-            ("rollout (80 steps)", lambda: t.rollout(window, 80, model=model))]:
-        before = len(compiled)
-        t0 = time.perf_counter()
+    def timed(name, call):
+        before, t0 = len(compiled), time.perf_counter()
         got = call()
-        if name == "load":
-            model = got
-        n = len(compiled) - before
-        total += n
-        print(f"  {name:26s} {time.perf_counter() - t0:6.1f} s  {n:3d} signatures compiled")
+        print(f"  {name:26s} {time.perf_counter() - t0:6.1f} s  {len(compiled) - before:3d}"
+              " signatures compiled")
         if args.list:
             for sig in compiled[before:]:
                 print(f"      {sig[:160]}")
-    print(f"  {'all, with the imports':26s} {time.perf_counter() - t_start:6.1f} s  {total:3d}"
-          " signatures compiled")
+        return got
+
+    window = t.example_window()
+    print(f"first process, {args.size} size, empty numba cache ({sys.executable})")
+    model = timed("load", lambda: t.load(size=args.size))
+    for nth in ("1st", "2nd", "3rd"):
+        timed(f"predict ({nth})", lambda: t.predict(window, model=model))
+    batch = np.stack([window] * 8)
+    timed("predict_batch (8 windows)", lambda: t.predict_batch(batch, model=model))
+    timed("rollout (80 steps)", lambda: t.rollout(window, 80, model=model))
+    print(f"  {'all, with the imports':26s} {time.perf_counter() - t_start:6.1f} s"
+          f"  {len(compiled):3d} signatures compiled")
     cache.cleanup()
 
 

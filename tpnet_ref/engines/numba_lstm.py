@@ -353,8 +353,8 @@ def _head_impl(parallel: bool):
             hs = np.empty((rows, 2 * u), dtype=dt)
             kern, gk, cst = kernels[li], gks[li], csts[li]
             for d in prange(2):                             # range where not parallel
-                _layer_dir(np.int64(d), x, kern, kscs[li], gk, cst, rr, rmu, xs, rec, rscs[li], hs, u,
-                           steps, bsz, relu, one)
+                _layer_dir(np.int64(d), x, kern, kscs[li], gk, cst, rr, rmu, xs, rec, rscs[li],
+                           hs, u, steps, bsz, relu, one)
             if li < nl - 1:
                 x = np.empty((rows, 2 * u), dtype=dt)
                 bad = _norm_rows(hs, gammas[li], betas[li], relu, li, limit, one, eps, x, rr,
