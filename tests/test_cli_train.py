@@ -65,8 +65,10 @@ def test_every_run_flag_reaches_the_recipe(fake_data, tmp_path, runs, capsys):
         assert getattr(r, field) == value, field
         assert getattr(R.Recipe(), field) != value, f"{field}: pick a non-default value"
     # the recipe fields without a flag: the network (from --size, the data's m) and first_weight
-    # (init_from and init_optimizer need a parent run: tests/test_training_ablations.py)
-    flagged = set(RECIPE_FLAGS) | {"config", "first_weight", "init_from", "init_optimizer"}
+    # (init_from and init_optimizer need a parent run: tests/test_training_ablations.py;
+    # quantize_aware too: tests/test_training_fake_quant.py)
+    flagged = set(RECIPE_FLAGS) | {"config", "first_weight", "init_from", "init_optimizer",
+                                   "quantize_aware"}
     assert {f.name for f in dataclasses.fields(R.Recipe)} == flagged
     assert r.tpnet_config == R.size_config("tiny", m=5, lstm_activation="tanh")
     out = capsys.readouterr().out

@@ -155,6 +155,12 @@ def _add_run(tsub: Any) -> None:
                    help="with --init-from RUN_DIR: also take that run's Adam state (moments, "
                         "step counts), so a branch with another recipe starts without the jolt "
                         "of a fresh Adam; this recipe's learning rate and constants apply")
+    q.add_argument("--quantize-aware", choices=("int8", "bf16"), default=d.quantize_aware or None,
+                   help="quantization-aware fine-tune (with --init-from): every BiLSTM matrix "
+                        "on that scheme's grid (one plane, rounded to nearest, as `tpnet "
+                        "quantize` rounds) in the forward pass, the gradient passed through "
+                        "the rounding; the exported files and snapshots hold the rounded "
+                        "weights (docs/deployment.md)")
     q.add_argument("--val-windows", type=int, default=d.val_windows,
                    help="validate on this many evenly spaced validation windows (0: all)")
     q.add_argument("--val-fraction", type=float, default=d.val_fraction,
@@ -346,6 +352,9 @@ def _cli_run(args: argparse.Namespace) -> int:
 
     recipe = None
     apply_preset(args)
+    if args.quantize_aware and not args.init_from and not args.resume:
+        raise ValueError("--quantize-aware fine-tunes a trained network: give --init-from "
+                         "RUN_DIR|WEIGHTS.h5")
     if not args.resume:
         if not Path(args.data).is_file():
             raise FileNotFoundError(f"dataset not found: {args.data}")
@@ -367,6 +376,7 @@ def _cli_run(args: argparse.Namespace) -> int:
                         rollout=args.rollout, head_init=args.head_init, init=args.init,
                         windows=args.windows, init_from=args.init_from,
                         init_optimizer=args.init_optimizer,
+                        quantize_aware=args.quantize_aware or "",
                         val_windows=args.val_windows, val_fraction=args.val_fraction, split_seed=args.split_seed,
                         seed=args.seed, config=cfg.to_dict())
     st = train(args.data, args.run_dir, recipe, resume=args.resume, epochs=args.epochs,

@@ -286,6 +286,7 @@ def _build_network(r: Recipe, dev: str, data: WindowData, payload: dict | None,
     cfg = r.tpnet_config
     torch.manual_seed(r.seed)
     net = TorchTPNet(cfg)
+    net.set_fake_quant(r.quantize_aware)
     if payload is None and not r.init_from and r.init == "keras":
         init_keras(net)
     net = net.to(dev)

@@ -11,9 +11,13 @@ import numpy as np
 
 from ..checks import OutsideTrainingRangeWarning
 from ..extras import require
+from ..weights.calibrate import ROUNDING_ATTR
+from ..weights.convert import with_weights
+from ..weights.quantize import FROM_ATTR
 from ..weights.provenance import portable_path, scrub_text
 from ..weights.torch import import_torch
 from .checkpoint import load_checkpoint
+from .fake_quant import ROUNDING
 from .torch_model import TorchTPNet
 
 torch = require("torch", "train")
@@ -22,7 +26,9 @@ torch = require("torch", "train")
 def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "float32",
            check_bound: float = 1e-5) -> Any:
     """Native weights file from a training checkpoint (run directory or ``checkpoint.pt``),
-    through :func:`tpnet_ref.weights.torch.import_torch`, with provenance. Checks before writing that
+    through :func:`tpnet_ref.weights.torch.import_torch`, with provenance; a quantization-aware
+    run's (:mod:`~tpnet_ref.training.fake_quant`) with its BiLSTM matrices rounded, one plane,
+    as the run computed them. Checks before writing that
     the NumPy model's forward pass equals the torch module's (max abs difference <= check_bound
     on random windows, whose training-range warnings it silences: they are no body) and records
     the difference."""
@@ -31,6 +37,12 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
     net = TorchTPNet(model.config)
     net.load_state_dict(payload["model"])
     net.eval()
+    scheme = state.get("recipe", {}).get("quantize_aware", "")
+    if scheme:                     # the network the run computed: its matrices rounded
+        net.set_fake_quant(scheme)
+        model = with_weights(model, scheme, wide=[])
+        model.meta[ROUNDING_ATTR] = ROUNDING
+        model.meta[FROM_ATTR] = portable_path(source)
     cfg = model.config
     w = np.random.default_rng(0).uniform(0.1, 0.9, (8, cfg.m, cfg.n_out, cfg.dim)).astype(np.float32)
     with torch.no_grad():

@@ -74,6 +74,7 @@ class Recipe:
     windows: str = "model"              # "model" or "released" (tpnet_ref.sim.dataset.released_windows)
     init_from: str = ""                 # fine-tune: start from this run's (or .h5 file's) weights
     init_optimizer: bool = False        # ... and from its Adam state (a branch, not a fresh Adam)
+    quantize_aware: str = ""            # "", "int8" or "bf16": BiLSTM matrices on that grid
     val_windows: int = 0                # validate on this many evenly spaced windows (0: all)
     val_fraction: float = 0.05
     split_seed: int = 0                 # which trajectories are validation (independent of seed)
@@ -102,6 +103,9 @@ class Recipe:
                              f"got {self.grad_steps}")
         if self.noise_kind not in NOISE_KINDS:
             raise ValueError(f"noise_kind must be 'iid' or 'walk', got {self.noise_kind!r}")
+        if self.quantize_aware not in ("", "int8", "bf16"):
+            raise ValueError(f"quantize_aware must be '', 'int8' or 'bf16', "
+                             f"got {self.quantize_aware!r}")
         if self.init_optimizer and not self.init_from:
             raise ValueError("init_optimizer needs init_from (the run whose Adam state to take)")
         if not 0 <= self.val_fraction < 1:

@@ -27,6 +27,7 @@ from ..config import TPNetConfig, param_shapes
 from ..extras import require
 from ..model import TPNet
 from ..weights.torch import TORCH_FORMAT, native_to_torch_state, torch_state_to_native
+from .fake_quant import straight_through
 
 torch = require("torch", "train")
 nn = torch.nn
@@ -51,6 +52,9 @@ class BiLSTM(nn.Module):
         self.units = units
         self.activation = activation
         self.return_sequences = return_sequences
+        #: "" or a scheme whose grid the matrices are rounded to in the forward pass
+        #: (:mod:`~tpnet_ref.training.fake_quant`: quantization-aware fine-tuning)
+        self.fake_quant = ""
         for sfx in ("_l0", "_l0_reverse"):
             self.register_parameter("weight_ih" + sfx, nn.Parameter(torch.empty(4 * units, cin)))
             self.register_parameter("weight_hh" + sfx, nn.Parameter(torch.empty(4 * units, units)))
@@ -75,9 +79,10 @@ class BiLSTM(nn.Module):
         act = _act(self.activation)
         bsz, steps, _ = x.shape
         # input projection of every step in one matmul, both biases folded in
-        xp = F.linear(x, getattr(self, "weight_ih" + sfx),
+        fq = self.fake_quant
+        xp = F.linear(x, straight_through(getattr(self, "weight_ih" + sfx), fq),
                       getattr(self, "bias_ih" + sfx) + getattr(self, "bias_hh" + sfx))
-        w_hh_t = getattr(self, "weight_hh" + sfx).t()
+        w_hh_t = straight_through(getattr(self, "weight_hh" + sfx), fq).t()
         h = x.new_zeros(bsz, u)
         c = x.new_zeros(bsz, u)
         outs: list[torch.Tensor] = [h] * steps
@@ -221,6 +226,12 @@ class TorchTPNet(nn.Module):
             self.add_module(f"ln{i}", nn.LayerNorm(shapes[f"ln{i}.gamma"][0],
                                                    eps=cfg.layer_norm_eps))
         self.head = nn.Linear(*shapes["head.w"])
+
+    def set_fake_quant(self, scheme: str) -> None:
+        """Round every BiLSTM matrix to ``scheme``'s grid in the forward pass ("" for none;
+        :mod:`~tpnet_ref.training.fake_quant`)."""
+        for i in range(1, len(self.config.lstm_units) + 1):
+            getattr(self, f"lstm{i}").fake_quant = scheme
 
     # ---------------------------------------------------------------- config in the state dict
     def get_extra_state(self) -> dict[str, Any]:

@@ -67,10 +67,12 @@ def quantized_meta(model: TPNet, scheme: str) -> dict:
             Q.FROM_ATTR: f"{Path(src).name} ({digest})" if digest else str(src)}
 
 
-def with_weights(model: TPNet, weights: str | None) -> TPNet:
+def with_weights(model: TPNet, weights: str | None, wide: list[str] | None = None) -> TPNet:
     """``model`` with its BiLSTM matrices on the grid of ``weights`` ("bf16" or "int8":
     :mod:`tpnet_ref.weights.quantize`; the Numba engine then reads their codes), or as it is
-    (None, or the scheme it already has). The scheme and the source (``quantized_from``: the
+    (None, or the scheme it already has); ``wide``: the matrices in two planes (default: the
+    scheme's :func:`~tpnet_ref.weights.quantize.wide_names`; a list given, ``[]`` for one
+    plane, is recorded in ``meta``). The scheme and the source (``quantized_from``: the
     file and its digest) go to ``meta``; ``model.save`` writes the codes. A model already
     quantized otherwise, or "float32" asked of a quantized model, is a one-line ``ValueError``
     (quantize the float32 file)."""
@@ -81,10 +83,15 @@ def with_weights(model: TPNet, weights: str | None) -> TPNet:
         raise ValueError(f"weights={weights!r}: this model's weights are already {have} "
                          f"({model.meta.get('path', 'in memory')}); quantize the float32 file")
     Q.check_scheme(weights, "weights")
-    names, wide = set(Q.quantized_names(model.config)), set(Q.wide_names(model.config, weights))
-    params = {n: (Q.round_to(p, weights, n in wide) if n in names else p)
+    names = set(Q.quantized_names(model.config))
+    two = set(Q.wide_names(model.config, weights) if wide is None else wide)
+    if not two <= names:
+        raise ValueError(f"wide={wide!r}: not quantized matrices of this network")
+    params = {n: (Q.round_to(p, weights, n in two) if n in names else p)
               for n, p in model.params.items()}
     meta = quantized_meta(model, weights)
+    if wide is not None:
+        meta[Q.WIDE_ATTR] = ",".join(n for n in Q.quantized_names(model.config) if n in two)
     used = None if model.specialization is None else model.specialization.used
     out = TPNet(model.config, params, model.dtype, meta, model.engine,
                 unit_order=model.unit_order, used=used, sort_points=model.sort_points)

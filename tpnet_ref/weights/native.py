@@ -538,7 +538,9 @@ def describe(path: str | os.PathLike) -> str:
     stored = "/".join(dtypes) + (" (shuffle + gzip)" if meta.get("storage") == "gzip" else "")
     if meta.get(Q.ATTR):
         stored += (f"; BiLSTM matrices as {meta[Q.ATTR]} codes, quantized from "
-                   f"{meta.get(Q.FROM_ATTR, '?')}")
+                   f"{meta.get(Q.FROM_ATTR, '?')}"
+                   + (f", rounded {meta['quantized_rounding']}" if meta.get("quantized_rounding")
+                      else ""))
     out = [f"{meta['path']}: native tpnet_ref weights, {n:,} parameters stored as {stored}",
            f"  network      m={cfg.m} frames in, N={cfg.n_out} points out, lstm {cfg.lstm_units} "
            f"({cfg.lstm_activation}), global features {cfg.global_features}, "

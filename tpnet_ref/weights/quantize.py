@@ -62,7 +62,8 @@ WIDE_ATTR = "quantized_wide"
 SCALES = "scales"
 #: columns whose largest weight is below this become zeros (scale 1)
 TINY = 1e-30
-_SCALE_BITS = 17
+#: significand bits of an int8 scale (so that ``q * s`` is exact in float32)
+SCALE_BITS = 17
 
 
 def quantized_names(config: Any) -> list[str]:
@@ -107,7 +108,7 @@ def check_scheme(scheme: Any, where: str = "weights") -> str:
     return str(scheme)
 
 
-def int8_scales(w: np.ndarray, bits: int = _SCALE_BITS) -> np.ndarray:
+def int8_scales(w: np.ndarray, bits: int = SCALE_BITS) -> np.ndarray:
     """The int8 scale of each column of ``w (C, N)``: ``max |column| / 127`` rounded to
     ``bits`` significand bits (1 for a column below :data:`TINY`), float32."""
     top = np.max(np.abs(np.asarray(w, dtype=np.float64)), axis=0)
@@ -219,7 +220,7 @@ def check_codes(codes: np.ndarray, scales: np.ndarray | None, scheme: str, shape
         m, _ = np.frexp(np.where(np.isfinite(s64), s64, 0.0))
         if (not np.isfinite(s64).all() or (s64 <= 0).any()
                 or (codes[:shape[0] // 2 if wide else shape[0]] == -128).any()
-                or not np.array_equal(m * 2.0 ** _SCALE_BITS, np.round(m * 2.0 ** _SCALE_BITS))):
+                or not np.array_equal(m * 2.0 ** SCALE_BITS, np.round(m * 2.0 ** SCALE_BITS))):
             raise ValueError(f"{what}: corrupted int8 scales or codes (each scale must be a "
                              "finite positive float of 17 significand bits, each code in "
                              "-127 .. 127)")
@@ -232,7 +233,8 @@ def check_codes(codes: np.ndarray, scales: np.ndarray | None, scheme: str, shape
     return w
 
 
-__all__ = ["SCHEMES", "ATTR", "FROM_ATTR", "WIDE_ATTR", "SCALES", "TINY", "quantized_names",
+__all__ = ["SCHEMES", "ATTR", "FROM_ATTR", "WIDE_ATTR", "SCALES", "TINY", "SCALE_BITS",
+           "quantized_names",
            "wide_names", "wide_of",
            "check_scheme", "int8_scales", "encode", "decode", "decode_wide", "round_to", "codes_of",
            "check_codes"]
