@@ -24,7 +24,7 @@ def _matrices():
     w = (rng.standard_normal((48, 40)) * rng.uniform(1e-3, 2.0, 40)).astype(np.float32)
     w[:, 3] = 0.0                                  # a column of zeros: scale 1, codes 0
     w[:, 7] = 1e-35                                # below TINY
-    w[5, 9] = -w[:, 9].__abs__().max() * 1.5       # a column's largest weight negative
+    w[5, 9] = -np.abs(w[:, 9]).max() * 1.5         # a column's largest weight negative
     w[:, 11] = np.float32(2.0 ** -120)             # subnormal-adjacent scales
     return [w, tpnet_ref.load(size="quarter").params["lstm2.fwd.recurrent"]]
 
@@ -60,7 +60,7 @@ def test_a_quantize_aware_run_exports_the_network_it_computed(dataset, tmp_path)
     # the NumPy engine: the Numba engine's int8 kernels compile in the lane's child, not here
     model = tpnet_ref.load(out, engine="numpy")
     assert model.meta[Q.ATTR] == "int8" and model.meta[Q.WIDE_ATTR] == ""
-    assert "quantization-aware" in model.meta["quantized_rounding"]
+    assert "quantization-aware" in model.meta[Q.ROUNDING_ATTR]
     for n in Q.quantized_names(model.config):      # every matrix on the grid, one plane
         Q.codes_of(model.params[n], "int8", n)
     net = TorchTPNet(model.config)

@@ -186,20 +186,17 @@ def layers(size: str) -> None:
 def rollouts(size: str, steps: int = 600, files: dict | None = None) -> None:
     """``--rollout``: each scheme's (and each ``--file``'s of this size) rollout of ``steps``
     predictions from the first window of each of the 60 test cases (one batch): finite, the
-    points' range (the box is [0, 45]), the
-    largest distance of a point from its frame's centroid (the ring's radius is 2), and the
-    largest distance from the float32 engine's rollout at 10, 100 and ``steps`` predictions."""
+    points' range (the box is [0, 45]), the largest distance of a point from its frame's
+    centroid (the ring's radius is 2), and the largest distance from the float32 engine's
+    rollout at 10, 100 and ``steps`` predictions."""
     from tpnet_ref.evaluation import TEST_CASES, simulate_cases
     frames = simulate_cases(TEST_CASES, rows=20, workers=1)[:, :4]       # (60, 4, 30, 2)
     ref = None
-    models = {s: (lambda s=s: tpnet_ref.load(size=size, engine="numba",
-                                          weights=None if s == "float32" else s))
+    models = {s: tpnet_ref.load(size=size, engine="numba", weights=None if s == "float32" else s)
               for s in SCHEMES}
-    models.update({k: (lambda p=p: tpnet_ref.load(p, engine="numba")) for k, p in (files or {}).items()})
-    for scheme, make in models.items():
-        m = make()
-        if m.config != tpnet_ref.load(size=size).config:    # --file: another network
-            continue
+    extra = {k: tpnet_ref.load(p, engine="numba") for k, p in (files or {}).items()}
+    models.update({k: m for k, m in extra.items() if m.config == models["float32"].config})
+    for scheme, m in models.items():
         t = time.perf_counter()
         out = m.rollout_batch(frames.astype(np.float32), steps)            # (60, steps, 30, 2)
         dt = time.perf_counter() - t
@@ -418,6 +415,7 @@ def main(argv=None) -> int:
     warnings.simplefilter("ignore")
     print(_common.machine())
     print(f"load average at start: {_common.load_average()}")
+    files = dict(f.split("=", 1) for f in args.file)            # --file LABEL=PATH
     t0 = time.time()
     if args.wide_choice:
         for size in args.sizes.split(","):
@@ -426,12 +424,11 @@ def main(argv=None) -> int:
     if args.layers or args.rollout or args.noise or args.blocks:
         for size in args.sizes.split(","):
             if args.rollout:
-                rollouts(size, files=dict(f.split("=", 1) for f in args.file))
+                rollouts(size, files=files)
                 continue
             (layers if args.layers else noise if args.noise else blocks)(size)
         return 0
     every = {}
-    files = dict(f.split("=", 1) for f in args.file)
     with tempfile.TemporaryDirectory() as d:
         for size in args.sizes.split(","):
             every[size] = run_size(size, args.rounds, args.threads, args.errors, Path(d),

@@ -13,6 +13,7 @@ from typing import Any
 
 from ..training.recipe import (N_ROLLOUT_MAX, N_STEPS_MAX, NOISE_KINDS, OPTIMIZER_MODES, SIZES,
                                Recipe)
+from ..weights.quantize import SCHEMES
 
 #: as tpnet_ref.training.precision.COMPILE_MODES (not imported from there: that module needs torch)
 COMPILE_MODES = ("off", "auto", "reduce-overhead", "default", "eager")
@@ -155,7 +156,7 @@ def _add_run(tsub: Any) -> None:
                    help="with --init-from RUN_DIR: also take that run's Adam state (moments, "
                         "step counts), so a branch with another recipe starts without the jolt "
                         "of a fresh Adam; this recipe's learning rate and constants apply")
-    q.add_argument("--quantize-aware", choices=("int8", "bf16"), default=d.quantize_aware or None,
+    q.add_argument("--quantize-aware", choices=SCHEMES, default=None,
                    help="quantization-aware fine-tune (with --init-from): every BiLSTM matrix "
                         "on that scheme's grid (one plane, rounded to nearest, as `tpnet "
                         "quantize` rounds) in the forward pass, the gradient passed through "

@@ -36,9 +36,9 @@ def rounded(w: Any, scheme: str) -> Any:
         m, e = torch.frexp(top / 127.0)
         bits = Q.SCALE_BITS
         s = torch.ldexp(torch.round(m * 2.0 ** bits), e - bits)
-        s = torch.where(top < Q.TINY, torch.ones_like(s), s).float().double()
-        q = torch.clamp(torch.round(w64 / s), -127, 127)
-        return (q.float() * s.float()).to(w.dtype)
+        s32 = torch.where(top < Q.TINY, torch.ones_like(s), s).float()   # int8_scales' float32
+        q = torch.clamp(torch.round(w64 / s32.double()), -127, 127)
+        return (q.float() * s32).to(w.dtype)
 
 
 def straight_through(w: Any, scheme: str) -> Any:

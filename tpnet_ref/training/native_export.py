@@ -11,9 +11,8 @@ import numpy as np
 
 from ..checks import OutsideTrainingRangeWarning
 from ..extras import require
-from ..weights.calibrate import ROUNDING_ATTR
+from ..weights import quantize as Q
 from ..weights.convert import with_weights
-from ..weights.quantize import FROM_ATTR
 from ..weights.provenance import portable_path, scrub_text
 from ..weights.torch import import_torch
 from .checkpoint import load_checkpoint
@@ -41,8 +40,8 @@ def export(source: str | os.PathLike, out: str | os.PathLike, dtype: str = "floa
     if scheme:                     # the network the run computed: its matrices rounded
         net.set_fake_quant(scheme)
         model = with_weights(model, scheme, wide=[])
-        model.meta[ROUNDING_ATTR] = ROUNDING
-        model.meta[FROM_ATTR] = portable_path(source)
+        model.meta[Q.ROUNDING_ATTR] = ROUNDING
+        model.meta[Q.FROM_ATTR] = portable_path(source)
     cfg = model.config
     w = np.random.default_rng(0).uniform(0.1, 0.9, (8, cfg.m, cfg.n_out, cfg.dim)).astype(np.float32)
     with torch.no_grad():

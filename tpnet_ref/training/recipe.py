@@ -34,6 +34,7 @@ import numpy as np
 from ..config import TPNetConfig
 from ..sim.dataset import N_TARGETS, check_scene, file_dim
 from ..sim.protocol import FRAME_EVERY
+from ..weights.quantize import SCHEMES
 
 #: the published recursive loss: 8 predictions (the dataset's targets per window)
 N_STEPS_MAX = N_TARGETS
@@ -103,8 +104,8 @@ class Recipe:
                              f"got {self.grad_steps}")
         if self.noise_kind not in NOISE_KINDS:
             raise ValueError(f"noise_kind must be 'iid' or 'walk', got {self.noise_kind!r}")
-        if self.quantize_aware not in ("", "int8", "bf16"):
-            raise ValueError(f"quantize_aware must be '', 'int8' or 'bf16', "
+        if self.quantize_aware not in ("",) + SCHEMES:
+            raise ValueError(f"quantize_aware must be '' or one of {', '.join(SCHEMES)}, "
                              f"got {self.quantize_aware!r}")
         if self.init_optimizer and not self.init_from:
             raise ValueError("init_optimizer needs init_from (the run whose Adam state to take)")

@@ -40,8 +40,9 @@ from . import quantize as Q
 WINDOWS = 256
 #: the damping added to ``H``'s diagonal, a fraction of its mean (GPTQ's ``percdamp``)
 DAMP = 0.03
-#: root attribute (and ``model.meta`` key) saying how the int8 codes were rounded
-ROUNDING_ATTR = "quantized_rounding"
+#: root attribute (and ``model.meta`` key) saying how the codes were rounded (defined beside
+#: the other quantization attributes: :data:`tpnet_ref.weights.quantize.ROUNDING_ATTR`)
+ROUNDING_ATTR = Q.ROUNDING_ATTR
 
 
 def training_windows(path: str, m: int, dim: int, n: int = WINDOWS,

@@ -539,7 +539,7 @@ def describe(path: str | os.PathLike) -> str:
     if meta.get(Q.ATTR):
         stored += (f"; BiLSTM matrices as {meta[Q.ATTR]} codes, quantized from "
                    f"{meta.get(Q.FROM_ATTR, '?')}"
-                   + (f", rounded {meta['quantized_rounding']}" if meta.get("quantized_rounding")
+                   + (f", rounded {meta[Q.ROUNDING_ATTR]}" if meta.get(Q.ROUNDING_ATTR)
                       else ""))
     out = [f"{meta['path']}: native tpnet_ref weights, {n:,} parameters stored as {stored}",
            f"  network      m={cfg.m} frames in, N={cfg.n_out} points out, lstm {cfg.lstm_units} "

@@ -55,6 +55,10 @@ SCHEMES = ("bf16", "int8")
 ATTR = "quantization"
 #: root attribute naming the file a quantized file was made from (path and digest)
 FROM_ATTR = "quantized_from"
+#: root attribute (and ``model.meta`` key) saying how the codes were rounded where not to nearest
+#: with :func:`wide_names` (calibrated: :mod:`tpnet_ref.weights.calibrate`; a quantization-aware
+#: fine-tune: :mod:`tpnet_ref.training.fake_quant`)
+ROUNDING_ATTR = "quantized_rounding"
 #: root attribute (and ``model.meta`` key) listing the matrices in two planes, comma-separated
 #: ("" none: calibrated int8, :mod:`tpnet_ref.weights.calibrate`); absent: :func:`wide_names`
 WIDE_ATTR = "quantized_wide"
@@ -233,8 +237,7 @@ def check_codes(codes: np.ndarray, scales: np.ndarray | None, scheme: str, shape
     return w
 
 
-__all__ = ["SCHEMES", "ATTR", "FROM_ATTR", "WIDE_ATTR", "SCALES", "TINY", "SCALE_BITS",
-           "quantized_names",
-           "wide_names", "wide_of",
+__all__ = ["SCHEMES", "ATTR", "FROM_ATTR", "ROUNDING_ATTR", "WIDE_ATTR", "SCALES", "TINY",
+           "SCALE_BITS", "quantized_names", "wide_names", "wide_of",
            "check_scheme", "int8_scales", "encode", "decode", "decode_wide", "round_to", "codes_of",
            "check_codes"]
